@@ -1,0 +1,1 @@
+"""Benchmarks: speed and accuracy measured against references in the same run."""

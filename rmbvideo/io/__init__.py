@@ -1,0 +1,1 @@
+"""Input and output: ``.dat`` spike streams in, frames (MP4, EXR, PNG) out."""

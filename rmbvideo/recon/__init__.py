@@ -1,0 +1,1 @@
+"""Streaming reconstruction: preliminary frames, classical methods, RMB-Net engine, tone mapping."""

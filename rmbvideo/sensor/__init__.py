@@ -1,0 +1,1 @@
+"""Sensor physics: binning of real 1-bit data, RMB readout, emission simulator and theory."""
