@@ -1,0 +1,35 @@
+"""Sensor parameters of the emission model (paper Sec. 3.1, supplement Sec. 7), shared by the
+Monte-Carlo simulator and the theory so both describe the same sensor.
+
+All charges are in electrons; one "interval" is one readout interval tau.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class SensorParams:
+    """Integrate-and-fire pixel with L-level quantisation and the noise sources of supplement Sec. 7.
+
+    The threshold is Q_th = (C + C^S)(V + V^S + V^T0) (supplement Eqn. 18) with Q_r = C*V.
+    C^S is fixed per pixel (capacitance mismatch), V^S is drawn per reset and V^T0 per readout.
+    Dark electrons per interval are round(N(dark_mean, dark_std^2)) (supplement Eqn. 16).
+    Defaults follow supplement Sec. 10 ("Q_r = 105, mu_d = 0.05, variance of all noise 0.005").
+    """
+
+    level: int = 1                     # L = 2^B - 1
+    capacitance: float = 1.0           # C (arbitrary units; Q_r = C * V)
+    voltage: float = 105.0             # V
+    cap_std: float = math.sqrt(0.005)  # sigma of C^S, fixed per pixel
+    reset_v_std: float = math.sqrt(0.005)  # sigma of V^S, drawn per reset
+    temp_v_std: float = math.sqrt(0.005)   # sigma of V^T0, drawn per readout
+    dark_mean: float = 0.05            # mu_d, mean dark electrons per interval
+    dark_std: float = math.sqrt(0.005)  # sigma_d of the dark electrons per interval
+
+    @property
+    def q_r(self) -> float:
+        """Nominal threshold charge Q_r = C * V (electrons)."""
+        return self.capacitance * self.voltage
