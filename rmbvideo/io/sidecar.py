@@ -1,0 +1,77 @@
+"""Capture sidecars: geometry and rate stored beside a ``.dat`` so nobody has to remember them.
+
+Looked up in order: ``<stem>.capture.json`` next to the file (one capture), then ``capture.json``
+in the same folder (all captures of that folder). Keys: ``width``, ``height``, ``rate_hz``,
+``flip``, ``header_cols`` (all optional). Command-line options override the sidecar.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+from rmbvideo.errors import InputError
+
+SIDECAR_KEYS = {"width": int, "height": int, "rate_hz": float, "flip": bool, "header_cols": int}
+
+
+@dataclass(frozen=True)
+class CaptureInfo:
+    """Geometry and timing of a capture; ``None`` means "not specified here"."""
+
+    width: int | None = None
+    height: int | None = None
+    rate_hz: float | None = None
+    flip: bool | None = None
+    header_cols: int | None = None
+
+    def override(self, **options: Any) -> "CaptureInfo":
+        """Return a copy where every option that is not ``None`` replaces the stored value."""
+        merged = {f.name: getattr(self, f.name) for f in fields(self)}
+        merged.update({k: v for k, v in options.items() if v is not None and k in merged})
+        return CaptureInfo(**merged)
+
+
+def sidecar_path(dat_path: Path) -> Path | None:
+    """The sidecar that applies to ``dat_path``, or ``None``."""
+    for candidate in (dat_path.with_name(dat_path.stem + ".capture.json"),
+                      dat_path.with_name("capture.json")):
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def read_sidecar(dat_path: Path) -> CaptureInfo:
+    """Read the sidecar of ``dat_path`` (empty ``CaptureInfo`` if there is none)."""
+    path = sidecar_path(Path(dat_path))
+    if path is None:
+        return CaptureInfo()
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{path}: not a valid capture sidecar ({exc})") from None
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: a capture sidecar must be a JSON object")
+    values: dict[str, Any] = {}
+    for key, kind in SIDECAR_KEYS.items():
+        if key in data and data[key] is not None:
+            value = data[key]
+            if kind is bool and not isinstance(value, bool):
+                raise InputError(f"{path}: '{key}' must be true or false")
+            if kind in (int, float) and (isinstance(value, bool) or not isinstance(value, (int, float))):
+                raise InputError(f"{path}: '{key}' must be a number")
+            values[key] = kind(value)
+    return CaptureInfo(**values)
+
+
+def write_sidecar(dat_path: Path, info: CaptureInfo, **extra: Any) -> Path:
+    """Write ``<stem>.capture.json`` beside ``dat_path`` (atomically) and return its path."""
+    from rmbvideo.io.atomic import atomic_write_text
+
+    path = Path(dat_path).with_name(Path(dat_path).stem + ".capture.json")
+    data = {f.name: getattr(info, f.name) for f in fields(info) if getattr(info, f.name) is not None}
+    data.update(extra)
+    atomic_write_text(path, json.dumps(data, indent=2) + "\n")
+    return path
