@@ -1,0 +1,282 @@
+"""Outputs: atomic writes, EXR files, and the MP4/EXR/PNG/null frame sinks with frames.csv."""
+
+from __future__ import annotations
+
+import csv
+import errno
+import logging
+from pathlib import Path
+
+import cv2
+import imageio_ffmpeg
+import numpy as np
+import OpenEXR
+import pytest
+
+from rmbvideo.chunks import Frame
+from rmbvideo.errors import InputError, OutputError
+from rmbvideo.io.atomic import atomic_path, atomic_write_text
+from rmbvideo.io.exr import HALF_MAX, read_exr, read_exr_rgb, write_exr
+from rmbvideo.io.sinks import make_sink
+from rmbvideo.recon.tonemap import ToneMapConfig, ToneMapper
+
+RATE_HZ = 20000.0
+
+
+def _frames(n: int, shape: tuple[int, int], start: int = 0) -> list[Frame]:
+    """A moving ramp with a bright spot: distinct, finite, HDR-ish frames."""
+    height, width = shape
+    ramp = np.add.outer(np.linspace(0.0, 1.0, height), np.linspace(0.0, 1.0, width)).astype(np.float32)
+    frames = []
+    for k in range(start, start + n):
+        image = np.roll(ramp, k, axis=1) * (1.0 + 0.1 * k)
+        image[height // 2, (k * 3) % width] = 500.0
+        frames.append(Frame(index=k, time_s=(10 * k + 5) / RATE_HZ, image=image))
+    return frames
+
+
+def _leftovers(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir() if ".tmp-" in p.name)
+
+
+def _read_index(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as handle:
+        reader = csv.DictReader(handle)
+        assert reader.fieldnames == ["index", "time_s", "file"]
+        return list(reader)
+
+
+def _decode_gray(path: Path) -> tuple[tuple[int, int], list[np.ndarray]]:
+    """Decode a video with ffmpeg: ((width, height), frames as (H, W) uint8)."""
+    reader = imageio_ffmpeg.read_frames(str(path), pix_fmt="gray", bpp=1)
+    meta = next(reader)
+    width, height = meta["size"]
+    frames = [np.frombuffer(buffer, np.uint8).reshape(height, width) for buffer in reader]
+    return (width, height), frames
+
+
+# ---- atomic writes ----------------------------------------------------------------------------
+
+
+def test_atomic_write_text_replaces_the_file(tmp_path: Path) -> None:
+    target = tmp_path / "a.txt"
+    target.write_text("old")
+    atomic_write_text(target, "new ✓")
+    assert target.read_text(encoding="utf-8") == "new ✓"
+    assert _leftovers(tmp_path) == []
+
+
+def test_atomic_path_failure_keeps_the_old_file_and_no_temp(tmp_path: Path) -> None:
+    target = tmp_path / "a.txt"
+    target.write_text("old")
+    with pytest.raises(KeyError):
+        with atomic_path(target) as temp:
+            assert temp.parent == tmp_path and temp.name.startswith(".a.txt.tmp-")
+            temp.write_text("half")
+            raise KeyError("boom")
+    assert target.read_text() == "old"
+    assert _leftovers(tmp_path) == []
+
+
+def test_atomic_path_turns_disk_full_into_output_error(tmp_path: Path) -> None:
+    target = tmp_path / "a.bin"
+    with pytest.raises(OutputError, match=str(target)):
+        with atomic_path(target) as temp:
+            temp.write_bytes(b"x")
+            raise OSError(errno.ENOSPC, "No space left on device")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_atomic_path_into_a_missing_folder_is_an_output_error(tmp_path: Path) -> None:
+    with pytest.raises(OutputError, match="does not exist"):
+        atomic_write_text(tmp_path / "missing" / "a.txt", "x")
+
+
+# ---- EXR ----------------------------------------------------------------------------------------
+
+
+def test_exr_half_round_trip_clips_above_half_max_and_keeps_time(tmp_path: Path) -> None:
+    image = np.array([[0.0, 0.25, 1.5], [1000.0, 7e4, 1e9]], np.float32)
+    path = tmp_path / "f.exr"
+    write_exr(path, image, time_s=0.1 + 0.2, attrs={"rmbvideo:note": "hello"})
+    back, header = read_exr(path)
+    assert back.dtype == np.float32 and back.shape == (2, 3)
+    assert np.all(np.isfinite(back))
+    np.testing.assert_array_equal(back[0], [0.0, 0.25, 1.5])
+    assert back[1, 0] == 1000.0
+    assert back[1, 1] == HALF_MAX and back[1, 2] == HALF_MAX
+    assert header["time_s"] == 0.1 + 0.2  # exact, from the string attribute
+    assert header["captureTime"] == pytest.approx(0.3, rel=1e-6)
+    assert header["rmbvideo:note"] == "hello"
+    assert str(header["compression"]).endswith("ZIP_COMPRESSION")
+    assert [c.name for c in header["channels"]] == ["Y"]
+    exr = OpenEXR.File(str(path), separate_channels=True)
+    assert exr.channels()["Y"].pixels.dtype == np.float16
+    assert _leftovers(tmp_path) == []
+
+
+def test_exr_float_round_trip_is_exact(tmp_path: Path) -> None:
+    image = np.random.default_rng(1).lognormal(0.0, 4.0, (7, 9)).astype(np.float32)
+    image[0, 0] = 7e4
+    write_exr(tmp_path / "f.exr", image, time_s=2.5, dtype="float")
+    back, header = read_exr(tmp_path / "f.exr")
+    np.testing.assert_array_equal(back, image)
+    assert header["time_s"] == 2.5
+
+
+def test_exr_nonfinite_pixels_become_zero(tmp_path: Path) -> None:
+    image = np.ones((3, 4), np.float32)
+    image[0, 0], image[1, 1], image[2, 2] = np.nan, np.inf, -np.inf
+    assert write_exr(tmp_path / "f.exr", image, time_s=0.0) == 3
+    back, _ = read_exr(tmp_path / "f.exr")
+    assert back[0, 0] == 0.0 and back[1, 1] == 0.0 and back[2, 2] == 0.0 and back[0, 1] == 1.0
+
+
+def test_read_exr_rgb_of_a_written_rgb_file(tmp_path: Path) -> None:
+    rgb = np.random.default_rng(2).uniform(0, 100, (5, 6, 3)).astype(np.float32)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    channels = {"R": rgb[..., 0].copy(), "G": rgb[..., 1].copy(), "B": rgb[..., 2].copy()}
+    OpenEXR.File(header, channels).write(str(tmp_path / "rgb.exr"))
+    np.testing.assert_array_equal(read_exr_rgb(tmp_path / "rgb.exr"), rgb)
+    with pytest.raises(InputError, match="single-channel"):
+        read_exr(tmp_path / "rgb.exr")
+
+
+def test_read_exr_rgb_of_the_dwab_panoramas(shared_data: Path) -> None:
+    rgb = read_exr_rgb(shared_data / "hdri" / "city.exr")
+    assert rgb.shape == (512, 1024, 3) and rgb.dtype == np.float32
+    assert np.all(np.isfinite(rgb)) and rgb.min() >= 0.0
+    assert rgb.max() / max(float(np.percentile(rgb, 50)), 1e-6) > 100  # it is HDR
+
+
+def test_reading_bad_exr_files_raises_input_error(tmp_path: Path) -> None:
+    junk = tmp_path / "junk.exr"
+    junk.write_bytes(b"not an exr" * 20)
+    with pytest.raises(InputError, match="junk.exr"):
+        read_exr(junk)
+    with pytest.raises(InputError, match="no such file"):
+        read_exr_rgb(tmp_path / "absent.exr")
+    write_exr(tmp_path / "y.exr", np.zeros((2, 2), np.float32), time_s=0.0)
+    with pytest.raises(InputError, match="not an RGB EXR"):
+        read_exr_rgb(tmp_path / "y.exr")
+
+
+# ---- sinks --------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("shape", "pixel_format", "decoded_size"),
+    [
+        ((16, 24), "yuv420p", (24, 16)),
+        ((17, 33), "yuv420p", (34, 18)),  # odd: padded by one row and column
+        ((17, 33), "yuv444p", (33, 17)),  # odd: exact size
+        ((17, 33), "auto", (33, 17)),  # default: odd size kept exact via yuv444p
+        ((16, 24), "auto", (24, 16)),
+    ],
+)
+def test_mp4_decodes_back_with_every_frame_at_the_expected_size(
+    tmp_path: Path,
+    caplog: pytest.LogCaptureFixture,
+    shape: tuple[int, int],
+    pixel_format: str,
+    decoded_size: tuple[int, int],
+) -> None:
+    frames = _frames(7, shape, start=3)
+    caplog.set_level(logging.INFO, logger="rmbvideo")
+    with make_sink("mp4", tmp_path / "out", fps=25.0, mp4_pixel_format=pixel_format,
+                   capture_rate_hz=RATE_HZ, frame_rate_hz=RATE_HZ / 10) as sink:
+        for frame in frames:
+            sink.write(frame)
+    assert "80x slower than real time" in caplog.text  # 2000 frames/s of capture at 25 fps
+    assert ("padding" in caplog.text) == (decoded_size != (shape[1], shape[0]))
+    out = tmp_path / "out"
+    assert sorted(p.name for p in out.iterdir()) == ["frames.csv", "frames.mp4"]
+    size, decoded = _decode_gray(out / "frames.mp4")
+    assert size == decoded_size
+    assert len(decoded) == 7
+    mapper = ToneMapper()
+    height, width = shape
+    for frame, video in zip(frames, decoded):
+        expected = mapper(frame.image).astype(np.int16)
+        error = np.abs(video[:height, :width].astype(np.int16) - expected)
+        assert np.median(error) <= 3  # lossy, but the picture is the tone-mapped frame
+    if decoded_size != (width, height):
+        for video in decoded:  # padding repeats the edge pixels
+            assert np.abs(video[-1].astype(int) - video[-2].astype(int)).mean() < 4
+    rows = _read_index(out / "frames.csv")
+    assert [int(r["index"]) for r in rows] == [f.index for f in frames]
+    assert [float(r["time_s"]) for r in rows] == [f.time_s for f in frames]
+    assert {r["file"] for r in rows} == {"frames.mp4"}
+
+
+def test_exr_sink_writes_one_linear_file_per_frame_and_an_index(tmp_path: Path) -> None:
+    frames = _frames(4, (9, 11))
+    frames[2].image[0, 0] = np.nan
+    with make_sink("exr", tmp_path, exr_dtype="float", capture_rate_hz=RATE_HZ,
+                   frame_rate_hz=RATE_HZ / 10) as sink:
+        for frame in frames:
+            sink.write(frame)
+    assert sink.frames_written == 4 and sink.nonfinite_pixels == 1
+    rows = _read_index(tmp_path / "frames.csv")
+    assert [r["file"] for r in rows] == [f"frame_{k:06d}.exr" for k in range(4)]
+    for frame, row in zip(frames, rows):
+        image, header = read_exr(tmp_path / row["file"])
+        expected = np.nan_to_num(frame.image, nan=0.0)
+        np.testing.assert_array_equal(image, expected)
+        assert header["time_s"] == frame.time_s == float(row["time_s"])
+        assert header["rmbvideo:frame_index"] == frame.index
+        assert header["rmbvideo:capture_rate_hz"] == RATE_HZ
+    assert _leftovers(tmp_path) == []
+
+
+def test_png_sink_writes_the_tone_mapped_frames(tmp_path: Path) -> None:
+    frames = _frames(3, (10, 15))
+    config = ToneMapConfig(percentile=99.0)
+    with make_sink("png", tmp_path, tonemap=config, stem="run1") as sink:
+        for frame in frames:
+            sink.write(frame)
+    mapper = ToneMapper(config)
+    rows = _read_index(tmp_path / "run1.csv")
+    assert [r["file"] for r in rows] == [f"frame_{k:06d}.png" for k in range(3)]
+    for frame, row in zip(frames, rows):
+        png = cv2.imread(str(tmp_path / row["file"]), cv2.IMREAD_UNCHANGED)
+        assert png.dtype == np.uint8 and png.shape == (10, 15)
+        np.testing.assert_array_equal(png, mapper(frame.image))
+
+
+def test_null_sink_counts_and_writes_nothing(tmp_path: Path) -> None:
+    target = tmp_path / "never"
+    with make_sink("null", target) as sink:
+        for frame in _frames(5, (4, 4)):
+            sink.write(frame)
+    assert sink.frames_written == 5
+    assert not target.exists()
+
+
+@pytest.mark.parametrize("fmt", ["mp4", "exr", "png"])
+def test_abort_removes_this_runs_partial_files_only(tmp_path: Path, fmt: str) -> None:
+    (tmp_path / "keep.txt").write_text("mine")
+    (tmp_path / "frame_000099.exr").write_bytes(b"earlier run")
+    with pytest.raises(RuntimeError, match="pipeline failed"):
+        with make_sink(fmt, tmp_path) as sink:
+            for frame in _frames(3, (8, 10)):
+                sink.write(frame)
+            assert len(list(tmp_path.iterdir())) > 2  # something was being written
+            raise RuntimeError("pipeline failed")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frame_000099.exr", "keep.txt"]
+    assert (tmp_path / "frame_000099.exr").read_bytes() == b"earlier run"
+
+
+def test_sink_rejects_frames_of_changing_shape(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="differs"):
+        with make_sink("exr", tmp_path) as sink:
+            sink.write(Frame(0, 0.0, np.zeros((4, 5), np.float32)))
+            sink.write(Frame(1, 0.1, np.zeros((5, 4), np.float32)))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_unwritable_output_folder_is_an_output_error(tmp_path: Path) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(OutputError, match="file"):
+        make_sink("png", blocker / "out")
