@@ -1,0 +1,288 @@
+"""Reading and writing ``.dat`` spike streams: headerless 1-bit planes, concatenated.
+
+A stored plane of W x H pixels is W*H/8 bytes; pixel ``i`` (row-major) is bit ``i & 7`` of byte
+``i >> 3``, least significant bit first. Stored rows are upside down (image = ``stored[::-1]``)
+unless ``flip=False``. Some cameras store 416-column rows whose last 16 columns are a header;
+``header_cols`` drops them (and the writer fills them with zeros). The reader memory-maps the
+file, so any range is decoded without reading the rest.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+
+import numpy as np
+
+from rmbvideo.chunks import RmbChunk, SpikeChunk
+from rmbvideo.errors import InputError, OutputError
+from rmbvideo.sensor.binning import bin_2x2x2, bin_packed, binned_rmb_chunk
+
+logger = logging.getLogger(__name__)
+
+MAX_SIDE = 16384  # larger than any spiking camera; rejects typos such as 4000x2500000
+DEFAULT_RATE_HZ = 20000.0
+_WRITE_BLOCK_PLANES = 1024
+
+
+@dataclass(frozen=True)
+class DatGeometry:
+    """How planes are laid out in a ``.dat`` file (the file itself does not say)."""
+
+    width: int = 400
+    height: int = 250
+    header_cols: int = 0
+    flip: bool = True
+
+    def __post_init__(self) -> None:
+        desc = f"{self.width}x{self.height} with {self.header_cols} header columns"
+        for name in ("width", "height", "header_cols"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+                raise InputError(f"invalid .dat geometry {desc}: {name} must be an integer")
+        if not (0 < self.width <= MAX_SIDE and 0 < self.height <= MAX_SIDE):
+            raise InputError(f"invalid .dat geometry {desc}: sides must be 1..{MAX_SIDE}")
+        if (self.width * self.height) % 8:
+            raise InputError(f"invalid .dat geometry {desc}: width*height must be a multiple of 8")
+        if not 0 <= self.header_cols < self.width:
+            raise InputError(f"invalid .dat geometry {desc}: header columns must be 0..width-1")
+
+    @property
+    def image_width(self) -> int:
+        """Columns of image per row (``width`` minus the header columns)."""
+        return self.width - self.header_cols
+
+    @property
+    def plane_bytes(self) -> int:
+        """Bytes of one stored plane, header columns included."""
+        return self.width * self.height // 8
+
+    @property
+    def byte_aligned(self) -> bool:
+        """True when rows and the image/header split fall on byte boundaries (fused binning)."""
+        return self.width % 8 == 0 and self.header_cols % 8 == 0
+
+
+COMMON_GEOMETRIES: tuple[DatGeometry, ...] = (
+    DatGeometry(400, 250),
+    DatGeometry(416, 250, header_cols=16),
+    DatGeometry(1000, 1000),
+)
+
+
+def _geometry_hint(size: int) -> str:
+    fits = [f"{g.width}x{g.height}" for g in COMMON_GEOMETRIES if size % g.plane_bytes == 0]
+    return f" (the size fits {', '.join(fits)})" if fits else ""
+
+
+class DatReader:
+    """Random access and chunked iteration over the whole planes of a ``.dat`` file.
+
+    Raises ``InputError`` for a missing, unreadable or empty file or one smaller than a plane;
+    a trailing partial plane is logged as a warning and ignored.
+    """
+
+    def __init__(
+        self, path: str | os.PathLike, geometry: DatGeometry = DatGeometry(), rate_hz: float = DEFAULT_RATE_HZ
+    ) -> None:
+        self.path = Path(path)
+        self.geometry = geometry
+        if not (math.isfinite(rate_hz) and rate_hz > 0):
+            raise InputError(f"{self.path}: plane rate must be a positive number of Hz, got {rate_hz}")
+        self.rate_hz = float(rate_hz)
+        try:
+            if self.path.is_dir():
+                raise InputError(f"{self.path}: is a directory, not a .dat file")
+            size = self.path.stat().st_size
+            with open(self.path, "rb"):
+                pass
+        except FileNotFoundError:
+            raise InputError(f"{self.path}: no such file") from None
+        except OSError as exc:
+            raise InputError(f"{self.path}: cannot read: {exc.strerror or exc}") from None
+        if size == 0:
+            raise InputError(f"{self.path}: empty file")
+        plane_bytes = geometry.plane_bytes
+        if size < plane_bytes:
+            raise InputError(
+                f"{self.path}: {size} bytes is less than one {geometry.width}x{geometry.height} plane "
+                f"({plane_bytes} bytes); wrong geometry?{_geometry_hint(size)}"
+            )
+        self._n_planes = size // plane_bytes
+        self._trailing_bytes = size % plane_bytes
+        if self._trailing_bytes:
+            logger.warning(
+                "%s: %d trailing bytes after %d whole %dx%d planes (truncated capture or wrong "
+                "geometry%s); they are ignored",
+                self.path, self._trailing_bytes, self._n_planes, geometry.width, geometry.height,
+                _geometry_hint(size),
+            )
+        self._flat = np.memmap(self.path, dtype=np.uint8, mode="r", shape=(self._n_planes, plane_bytes))
+
+    @property
+    def n_planes(self) -> int:
+        """Whole planes in the file."""
+        return self._n_planes
+
+    @property
+    def trailing_bytes(self) -> int:
+        """Bytes after the last whole plane (0 for an intact file)."""
+        return self._trailing_bytes
+
+    @property
+    def duration_s(self) -> float:
+        """Capture length in seconds at ``rate_hz``."""
+        return self._n_planes / self.rate_hz
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Image (height, width) of decoded planes."""
+        return self.geometry.height, self.geometry.image_width
+
+    def plane_index(self, time_s: float) -> int:
+        """Index of the plane whose interval ``[k, k+1) / rate_hz`` contains ``time_s``.
+
+        Times within 1e-6 of a plane boundary snap to it, so ``k / rate_hz`` maps back to ``k``.
+        The result may exceed ``n_planes``; range checks are the caller's.
+        """
+        if not (math.isfinite(time_s) and time_s >= 0):
+            raise InputError(f"{self.path}: time must be a non-negative number of seconds, got {time_s}")
+        position = time_s * self.rate_hz
+        nearest = round(position)
+        return int(nearest) if abs(position - nearest) < 1e-6 else int(math.floor(position))
+
+    def _range(self, start: int, stop: int | None) -> tuple[int, int]:
+        stop = self._n_planes if stop is None else stop
+        if not 0 <= start <= stop <= self._n_planes:
+            raise InputError(f"{self.path}: planes {start}..{stop} are outside the capture's 0..{self._n_planes}")
+        return start, stop
+
+    def _decode(self, flat: np.ndarray) -> np.ndarray:
+        """Stored plane bytes (T, plane_bytes) -> (T, H, image_width) 0/1 planes, image orientation."""
+        g = self.geometry
+        bits = np.unpackbits(flat, axis=1, bitorder="little").reshape(len(flat), g.height, g.width)
+        if g.flip:
+            bits = bits[:, ::-1]
+        return np.ascontiguousarray(bits[:, :, : g.image_width])
+
+    def read(self, start: int = 0, stop: int | None = None) -> np.ndarray:
+        """Planes ``start..stop-1`` as (T, H, image_width) uint8 0/1 in image orientation."""
+        start, stop = self._range(start, stop)
+        return self._decode(self._flat[start:stop])
+
+    def chunks(self, chunk_planes: int = 1024, start: int = 0, stop: int | None = None) -> Iterator[SpikeChunk]:
+        """Consecutive ``SpikeChunk``s of at most ``chunk_planes`` planes covering ``start..stop``."""
+        if chunk_planes < 1:
+            raise ValueError(f"chunk_planes must be >= 1, got {chunk_planes}")
+        start, stop = self._range(start, stop)
+        for s in range(start, stop, chunk_planes):
+            e = min(s + chunk_planes, stop)
+            yield SpikeChunk(planes=self.read(s, e), start=s, rate_hz=self.rate_hz)
+
+    def read_binned(self, start: int = 0, stop: int | None = None) -> RmbChunk:
+        """2x2x2-binned readouts of raw planes ``start..stop`` as a pure-M ``RmbChunk``.
+
+        ``start`` must be even (readout ``k`` is raw planes ``2k, 2k+1``); an odd trailing plane
+        is dropped. Uses the fused decode+bin path when rows are byte aligned, else unpacks.
+        """
+        start, stop = self._range(start, stop)
+        if start % 2:
+            raise ValueError(f"binned reading must start at an even raw plane, got {start}")
+        stop -= (stop - start) % 2
+        g = self.geometry
+        if g.byte_aligned:
+            packed = self._flat[start:stop].reshape(stop - start, g.height, g.width // 8)
+            single, multi = bin_packed(packed, g.image_width, g.flip)
+        else:
+            single, multi = bin_2x2x2(self.read(start, stop))
+        return binned_rmb_chunk(single, multi, start, self.rate_hz)
+
+    def binned_chunks(self, chunk_planes: int = 1024, start: int = 0, stop: int | None = None) -> Iterator[RmbChunk]:
+        """Consecutive binned chunks of ``chunk_planes`` raw planes (even) covering ``start..stop``."""
+        if chunk_planes < 2 or chunk_planes % 2:
+            raise ValueError(f"chunk_planes must be even and >= 2, got {chunk_planes}")
+        start, stop = self._range(start, stop)
+        if start % 2:
+            raise ValueError(f"binned reading must start at an even raw plane, got {start}")
+        stop -= (stop - start) % 2
+        for s in range(start, stop, chunk_planes):
+            yield self.read_binned(s, min(s + chunk_planes, stop))
+
+    def mean_firing_rate(self, max_planes: int = 64) -> float:
+        """Spikes per pixel per plane, estimated from up to ``max_planes`` evenly spaced planes."""
+        if max_planes < 1:
+            raise ValueError(f"max_planes must be >= 1, got {max_planes}")
+        picks = np.unique(np.linspace(0, self._n_planes - 1, min(max_planes, self._n_planes)).round().astype(np.int64))
+        return float(self._decode(self._flat[picks]).mean())
+
+
+class DatWriter:
+    """Context manager writing planes to a ``.dat`` file atomically.
+
+    Planes go to a temporary file in the same folder, renamed over ``path`` only on a clean exit
+    (removed on an exception), so a reader never sees a half-written capture.
+    """
+
+    def __init__(self, path: str | os.PathLike, geometry: DatGeometry = DatGeometry()) -> None:
+        self.path = Path(path)
+        self.geometry = geometry
+        self._tmp_path = self.path.with_name(f".{self.path.name}.{os.getpid()}.part")
+        self._file = None
+        self._n_written = 0
+
+    @property
+    def n_written(self) -> int:
+        """Planes written so far."""
+        return self._n_written
+
+    def __enter__(self) -> DatWriter:
+        try:
+            self._file = open(self._tmp_path, "wb")
+        except OSError as exc:
+            raise OutputError(f"{self.path}: cannot write: {exc.strerror or exc}") from None
+        return self
+
+    def write(self, planes: np.ndarray) -> None:
+        """Append planes (T, H, image_width) of 0/1 (uint8 or bool) in image orientation."""
+        if self._file is None:
+            raise RuntimeError("DatWriter.write called outside its 'with' block")
+        g = self.geometry
+        if planes.ndim != 3 or planes.shape[1:] != (g.height, g.image_width):
+            raise ValueError(f"planes must be (T, {g.height}, {g.image_width}), got {planes.shape}")
+        for s in range(0, len(planes), _WRITE_BLOCK_PLANES):
+            block = planes[s : s + _WRITE_BLOCK_PLANES]
+            if block.dtype != np.bool_ and np.any(block > 1):
+                raise ValueError("planes must hold only 0 and 1")
+            stored = np.zeros((len(block), g.height, g.width), dtype=np.uint8)
+            stored[:, :, : g.image_width] = block[:, ::-1] if g.flip else block
+            packed = np.packbits(stored.reshape(len(block), -1), axis=1, bitorder="little")
+            try:
+                self._file.write(packed.tobytes())
+            except OSError as exc:
+                raise OutputError(f"{self.path}: cannot write: {exc.strerror or exc}") from None
+            self._n_written += len(block)
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:
+        file, self._file = self._file, None
+        if file is None:
+            return
+        try:
+            file.close()
+            if exc_type is None:
+                os.replace(self._tmp_path, self.path)
+        except OSError as err:
+            self._tmp_path.unlink(missing_ok=True)
+            raise OutputError(f"{self.path}: cannot write: {err.strerror or err}") from None
+        if exc_type is not None:
+            self._tmp_path.unlink(missing_ok=True)
+
+
+def write_dat(path: str | os.PathLike, planes: np.ndarray, geometry: DatGeometry = DatGeometry()) -> None:
+    """Write planes (T, H, image_width) of 0/1 in image orientation to ``path`` atomically."""
+    with DatWriter(path, geometry) as writer:
+        writer.write(planes)

@@ -1,0 +1,156 @@
+"""2x2x2 binning: plain and fused paths against a per-bin Python reference, and streaming."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from rmbvideo.chunks import SpikeChunk
+from rmbvideo.sensor.binning import MULTI_LEVEL, StreamBinner, bin_2x2x2, bin_packed
+
+
+def reference_bin(planes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-bin loops straight from the definition: count clamped to 7, keep the top-left pixel of plane 2t."""
+    t2, h2, w2 = (n // 2 for n in planes.shape)
+    single = np.zeros((t2, h2, w2), np.uint8)
+    multi = np.zeros((t2, h2, w2), np.uint8)
+    for t in range(t2):
+        for i in range(h2):
+            for j in range(w2):
+                count = sum(int(planes[2 * t + dt, 2 * i + di, 2 * j + dj]) for dt in (0, 1) for di in (0, 1) for dj in (0, 1))
+                multi[t, i, j] = min(count, 7)
+                single[t, i, j] = planes[2 * t, 2 * i, 2 * j]
+    return single, multi
+
+
+def pack_stored(planes: np.ndarray, header_cols: int, flip: bool) -> np.ndarray:
+    """Pack image-orientation planes as a .dat stores them: (T, H, row_bytes), LSB first, zero header."""
+    t, h, w = planes.shape
+    stored = np.zeros((t, h, w + header_cols), np.uint8)
+    stored[:, :, :w] = planes[:, ::-1] if flip else planes
+    return np.packbits(stored.reshape(t, h * (w + header_cols)), axis=1, bitorder="little").reshape(t, h, (w + header_cols) // 8)
+
+
+def random_planes(rng: np.random.Generator, shape: tuple[int, int, int], rate: float) -> np.ndarray:
+    return (rng.random(shape) < rate).astype(np.uint8)
+
+
+@pytest.mark.parametrize("shape", [(4, 4, 4), (5, 7, 9), (6, 3, 10), (1, 4, 4), (3, 1, 6), (8, 6, 2)])
+@pytest.mark.parametrize("rate", [0.3, 0.9])
+def test_plain_binning_matches_reference(shape: tuple[int, int, int], rate: float) -> None:
+    planes = random_planes(np.random.default_rng(sum(shape)), shape, rate)
+    single, multi = bin_2x2x2(planes)
+    ref_single, ref_multi = reference_bin(planes)
+    assert single.shape == ref_single.shape == tuple(n // 2 for n in shape)
+    np.testing.assert_array_equal(single, ref_single)
+    np.testing.assert_array_equal(multi, ref_multi)
+    assert single.dtype == multi.dtype == np.uint8
+
+
+def test_full_bins_clamp_to_seven_and_empty_bins_are_zero() -> None:
+    planes = np.zeros((4, 4, 4), np.uint8)
+    planes[:2] = 1
+    single, multi = bin_2x2x2(planes)
+    assert (multi[0] == MULTI_LEVEL).all() and (multi[1] == 0).all()
+    assert (single[0] == 1).all() and (single[1] == 0).all()
+
+
+def test_kept_pixel_is_top_left_of_first_plane() -> None:
+    planes = np.zeros((2, 2, 2), np.uint8)
+    planes[0, 0, 0] = 1
+    assert bin_2x2x2(planes)[0][0, 0, 0] == 1
+    for other in [(1, 0, 0), (0, 1, 0), (0, 0, 1)]:
+        planes = np.zeros((2, 2, 2), np.uint8)
+        planes[other] = 1
+        single, multi = bin_2x2x2(planes)
+        assert single[0, 0, 0] == 0 and multi[0, 0, 0] == 1
+
+
+@pytest.mark.parametrize(
+    "shape,header_cols,flip",
+    [
+        ((6, 8, 16), 0, True),
+        ((7, 9, 24), 0, True),  # odd T and odd H with a flip: stored row 0 is dropped
+        ((7, 9, 24), 0, False),
+        ((4, 5, 8), 16, True),  # header columns after the image
+        ((2, 1, 8), 0, True),  # a single row: no bins
+        ((1, 4, 8), 0, True),  # a single plane: no readouts
+    ],
+)
+@pytest.mark.parametrize("rate", [0.05, 0.5, 0.97])
+def test_fused_path_is_bit_exact(shape: tuple[int, int, int], header_cols: int, flip: bool, rate: float) -> None:
+    planes = random_planes(np.random.default_rng(shape[0] * 100 + shape[1]), shape, rate)
+    single, multi = bin_packed(pack_stored(planes, header_cols, flip), shape[2], flip)
+    ref_single, ref_multi = reference_bin(planes)
+    assert single.shape == ref_single.shape and multi.shape == ref_multi.shape
+    np.testing.assert_array_equal(single, ref_single)
+    np.testing.assert_array_equal(multi, ref_multi)
+
+
+def test_fused_path_spans_several_blocks() -> None:
+    planes = random_planes(np.random.default_rng(7), (133, 10, 64), 0.4)  # > 2 fused blocks, odd T
+    fused = bin_packed(pack_stored(planes, 0, True), 64, True)
+    plain = bin_2x2x2(planes)
+    np.testing.assert_array_equal(fused[0], plain[0])
+    np.testing.assert_array_equal(fused[1], plain[1])
+
+
+def test_fused_path_rejects_unaligned_width() -> None:
+    with pytest.raises(ValueError):
+        bin_packed(np.zeros((2, 4, 2), np.uint8), 12, True)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    t=st.integers(0, 9),
+    h=st.integers(1, 9),
+    w_bytes=st.integers(1, 3),
+    header_bytes=st.integers(0, 2),
+    flip=st.booleans(),
+    seed=st.integers(0, 2**16),
+)
+def test_fused_equals_plain_property(t: int, h: int, w_bytes: int, header_bytes: int, flip: bool, seed: int) -> None:
+    planes = random_planes(np.random.default_rng(seed), (t, h, 8 * w_bytes), 0.5)
+    fused = bin_packed(pack_stored(planes, 8 * header_bytes, flip), 8 * w_bytes, flip)
+    plain = bin_2x2x2(planes)
+    np.testing.assert_array_equal(fused[0], plain[0])
+    np.testing.assert_array_equal(fused[1], plain[1])
+
+
+def _stream(planes: np.ndarray, sizes: list[int], start: int = 0) -> tuple[list, StreamBinner]:
+    binner = StreamBinner()
+    out = []
+    s = 0
+    for size in sizes:
+        chunk = SpikeChunk(planes=planes[s : s + size], start=start + s, rate_hz=20000.0)
+        s += size
+        result = binner.push(chunk)
+        if result is not None:
+            out.append(result)
+    return out, binner
+
+
+@pytest.mark.parametrize("sizes", [[11], [1] * 11, [3, 3, 5], [2, 1, 1, 7], [5, 0, 6]])
+def test_stream_binner_is_independent_of_chunking(sizes: list[int]) -> None:
+    planes = random_planes(np.random.default_rng(3), (11, 6, 10), 0.5)
+    whole_single, whole_multi = bin_2x2x2(planes)
+    out, binner = _stream(planes, sizes, start=40)
+    np.testing.assert_array_equal(np.concatenate([c.single for c in out]), whole_single)
+    np.testing.assert_array_equal(np.concatenate([c.multi for c in out]), whole_multi)
+    assert [c.start for c in out] == list(np.cumsum([0] + [len(c.single) for c in out[:-1]]) + 20)
+    assert binner.pending_planes == 1  # the 11th plane waits for a pair that never comes
+    first = out[0]
+    assert first.rate_hz == 10000.0 and first.level == 7 and first.raw_per_readout == 2
+    assert first.multi_rows.shape == first.single.shape[:2] and first.multi_rows.all()
+
+
+def test_stream_binner_rejects_odd_start_and_gaps() -> None:
+    planes = np.zeros((4, 2, 2), np.uint8)
+    with pytest.raises(ValueError):
+        StreamBinner().push(SpikeChunk(planes, start=3, rate_hz=1.0))
+    binner = StreamBinner()
+    binner.push(SpikeChunk(planes, start=0, rate_hz=1.0))
+    with pytest.raises(ValueError):
+        binner.push(SpikeChunk(planes, start=6, rate_hz=1.0))
