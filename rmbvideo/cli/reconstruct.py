@@ -1,0 +1,117 @@
+"""``rmbvideo reconstruct``: one capture in, a video or an HDR frame sequence out."""
+
+from __future__ import annotations
+
+import logging
+import shutil
+from pathlib import Path
+
+import click
+
+from rmbvideo.cli import progress_enabled
+from rmbvideo.cli.options import capture_options, open_capture
+from rmbvideo.errors import InputError
+from rmbvideo.io.sinks import SINK_FORMATS, make_sink
+from rmbvideo.recon.pipeline import RECONSTRUCTORS, RunSummary, make_reconstructor, reconstruct_stream
+from rmbvideo.recon.tonemap import ToneMapConfig
+from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
+
+log = logging.getLogger(__name__)
+
+DEFAULT_METHOD = "tfp"
+TONEMAPS = ("mulaw", "reinhard", "drago", "mantiuk")
+
+
+def method_options(method: str, window: int | None, step: int) -> dict:
+    """Keyword options for ``method``; ``step`` is in raw planes (halved for the binned stream)."""
+    if method == "tfp":
+        return {"step": step, **({"window": window} if window else {})}
+    if method == "tfi":
+        return {"step": step}
+    if step % 2:
+        raise click.BadParameter(f"methods on the binned stream need an even step, got {step}",
+                                 param_hint="--step")
+    options: dict = {"step": step // 2}
+    if window:
+        options["window"] = window
+    return options
+
+
+def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_METHOD,
+                       window: int | None = None, step: int = 20, fmt: str = "mp4",
+                       fps: float = 30.0, tonemap: str = "mulaw", exr_dtype: str = "half",
+                       readout: str = "rmb", start_s: float = 0.0, duration_s: float | None = None,
+                       chunk_planes: int = 1024, progress: bool = False,
+                       capture: dict | None = None, extra_options: dict | None = None) -> RunSummary:
+    """Reconstruct ``input_path`` into ``outdir``: the library form of the command (used by batch).
+
+    The input is opened and checked before anything is created, and a failed run removes what it
+    wrote (and ``outdir`` itself if this run created it), so bad input leaves no output behind.
+    """
+    reader = open_capture(input_path, **(capture or {}))
+    start = reader.plane_index(start_s)
+    stop = reader.n_planes if duration_s is None else min(reader.n_planes,
+                                                           start + reader.plane_index(duration_s))
+    if start >= reader.n_planes:
+        raise InputError(f"{input_path}: --start {start_s} s is past the end of the capture "
+                         f"({reader.duration_s:.6f} s)")
+    options = method_options(method, window, step)
+    options.update(extra_options or {})
+    recon = make_reconstructor(method, **options)
+    rmb_readout = RmbReadout(mode=ReadoutMode(readout)) if recon.input_kind == "rmb" else None
+    created = not outdir.exists()
+    try:
+        with make_sink(fmt, outdir, fps=fps, tonemap=ToneMapConfig(method=tonemap),
+                       exr_dtype=exr_dtype, capture_rate_hz=reader.rate_hz,
+                       frame_rate_hz=reader.rate_hz / step) as sink:
+            summary = reconstruct_stream(reader, recon, sink, start=start, stop=stop,
+                                         chunk_planes=chunk_planes, progress=progress,
+                                         readout=rmb_readout)
+    except BaseException:
+        if created and outdir.is_dir() and not any(outdir.iterdir()):
+            shutil.rmtree(outdir, ignore_errors=True)
+        raise
+    return summary
+
+
+@click.command()
+@click.argument("input_path", metavar="INPUT", type=click.Path(path_type=Path))
+@click.option("-o", "--output", "outdir", required=True, type=click.Path(path_type=Path),
+              help="Output folder (created if missing).")
+@click.option("--method", type=click.Choice(sorted(RECONSTRUCTORS)), default=DEFAULT_METHOD,
+              show_default=True, help="Reconstruction method.")
+@click.option("--window", type=click.IntRange(min=1), default=None,
+              help="Window: raw planes for tfp [41]; binned readouts for tfw [10 = TFW-S; 70 = TFW-L].")
+@click.option("--step", type=click.IntRange(min=1), default=20, show_default=True,
+              help="Raw planes per output frame (20 at 20 kHz = 1000 frames per second of capture).")
+@click.option("--format", "fmt", type=click.Choice(SINK_FORMATS), default="mp4", show_default=True,
+              help="mp4 (tone-mapped H.264), exr (linear HDR), png (tone-mapped 8-bit), null (timing).")
+@click.option("--fps", type=click.FloatRange(min=0, min_open=True), default=30.0, show_default=True,
+              help="MP4 playback frame rate.")
+@click.option("--tonemap", type=click.Choice(TONEMAPS), default="mulaw", show_default=True,
+              help="Tone mapping for mp4/png.")
+@click.option("--exr-dtype", type=click.Choice(["half", "float"]), default="half", show_default=True,
+              help="EXR pixel type; half clips values above 65504.")
+@click.option("--readout", type=click.Choice([m.value for m in ReadoutMode]), default="rmb",
+              show_default=True, help="Readout design applied to the binned stream (tfw and later methods).")
+@capture_options
+@click.option("--start", "start_s", type=click.FloatRange(min=0), default=0.0, show_default=True,
+              help="Start time in seconds from the beginning of the capture.")
+@click.option("--duration", "duration_s", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Seconds of capture to process [default: to the end].")
+@click.option("--chunk-planes", type=click.IntRange(min=1), default=1024, show_default=True,
+              help="Raw planes read per chunk (memory bound; the output does not depend on it).")
+@click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
+def reconstruct(input_path: Path, outdir: Path, method: str, window, step: int, fmt: str, fps: float,
+                tonemap: str, exr_dtype: str, readout: str, width, height, flip, header_cols, rate_hz,
+                start_s: float, duration_s, chunk_planes: int, quiet: bool) -> None:
+    """Reconstruct a .dat capture INPUT into frames in OUTDIR."""
+    summary = run_reconstruction(
+        input_path, outdir, method=method, window=window, step=step, fmt=fmt, fps=fps,
+        tonemap=tonemap, exr_dtype=exr_dtype, readout=readout, start_s=start_s,
+        duration_s=duration_s, chunk_planes=chunk_planes, progress=progress_enabled(quiet),
+        capture=dict(width=width, height=height, flip=flip, header_cols=header_cols, rate_hz=rate_hz),
+    )
+    if not quiet:
+        click.echo(f"{summary.frames} frames from {summary.planes} planes in {summary.seconds:.2f} s "
+                   f"({summary.frames_per_second:.1f} frames/s) -> {outdir}", err=True)

@@ -1,0 +1,328 @@
+"""Classical streaming reconstructions: TFP and TFI on raw 1-bit planes, TFW on the binned RMB stream.
+
+All reconstructors share one shape (:class:`Reconstructor`): ``push(chunk) -> frames`` and
+``flush() -> frames``, so the pipeline and the RMB-Net engine look the same.
+
+Frame schedule: frame ``i`` is centred at ``c_i = i*step + step/2`` in units of the input stream
+(raw planes for TFP/TFI, readouts for TFW), counted from plane/readout 0 of the file even when the
+run starts later; its time stamp is ``c_i / rate_hz``. A frame is produced for every centre that lies
+inside the data pushed. A window of ``w`` planes around ``c_i`` starts at ``round(c_i - w/2)``
+(half up), so an odd window around a centre on a plane boundary is half a plane late. Windows that
+reach before the first or after the last pushed plane are clipped to the data that exists (the
+estimate then uses fewer planes; it is never padded or extrapolated).
+
+Units: expected charge per raw readout interval relative to the threshold, i.e. spikes per raw
+plane for a 1-bit camera below saturation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar, Literal, Protocol, Sequence
+
+import numpy as np
+
+from rmbvideo.chunks import Frame, RmbChunk, SpikeChunk
+from rmbvideo.recon.prelim import DenseChunk, MultiUpsampler, TemporalInterpolation
+
+InputKind = Literal["spikes", "rmb"]
+# Planes handled at once by TFI's (block, H, W) index arrays: bounds memory for any chunk size.
+_TFI_BLOCK_PLANES = 64
+_NONE_IN_BLOCK = np.uint8(255)  # > any offset in a block of _TFI_BLOCK_PLANES
+
+
+class Reconstructor(Protocol):
+    """A streaming reconstructor: chunks in, frames out, in time order, independent of chunking.
+
+    ``input_kind`` says which stream it consumes: ``"spikes"`` (raw :class:`SpikeChunk`) or
+    ``"rmb"`` (binned/mixed-bit :class:`RmbChunk`).
+    """
+
+    input_kind: ClassVar[InputKind]
+
+    def push(self, chunk: SpikeChunk | RmbChunk) -> list[Frame]:
+        """Consume the next chunk; return the frames it completes."""
+        ...
+
+    def flush(self) -> list[Frame]:
+        """End of stream: return the remaining frames (windows clipped at the end of the data)."""
+        ...
+
+
+def _centre2(i: int, step: int) -> int:
+    """Twice the centre of frame ``i`` (an integer) in planes."""
+    return (2 * i + 1) * step
+
+
+def _first_frame(start: int, step: int) -> int:
+    """Index of the first frame whose centre is at or after plane ``start``."""
+    return max(0, -((step - 2 * start) // (2 * step)))
+
+
+@dataclass
+class _WindowTotal:
+    """Sums over one frame's window: ``count`` planes, one (H, W)/(H,) sum per channel."""
+
+    index: int
+    centre: float
+    count: int
+    sums: list[np.ndarray]
+
+
+class _WindowSums:
+    """Sums of planes over windows of ``window`` planes centred every ``step`` planes, streaming.
+
+    Keeps a running total since the first plane and a snapshot of it at each open window's start,
+    so every plane is added once whatever the overlap. Integer channels sum in int64, others in
+    float64 (exact for the dyadic values produced upstream), so results do not depend on chunking.
+    """
+
+    def __init__(self, window: int, step: int) -> None:
+        if window < 1 or step < 1:
+            raise ValueError(f"window and step must be >= 1, got window={window}, step={step}")
+        self.window = window
+        self.step = step
+        self._first: int | None = None  # first plane pushed
+        self._pos = 0  # next plane expected
+        self._total: list[np.ndarray] = []
+        self._open: dict[int, list[np.ndarray]] = {}  # frame -> totals at its (clipped) window start
+        self._next_open = 0
+        self._next_close = 0
+
+    def _window_start(self, i: int) -> int:
+        return (_centre2(i, self.step) - self.window + 1) // 2
+
+    def push(self, start: int, channels: Sequence[np.ndarray]) -> list[_WindowTotal]:
+        """Add planes ``start ..`` (each channel (T, ...)) and return the windows they complete."""
+        if self._first is None:
+            self._first = self._pos = start
+            self._next_open = self._next_close = _first_frame(start, self.step)
+            self._total = [
+                np.zeros(c.shape[1:], dtype=np.int64 if c.dtype.kind in "biu" else np.float64) for c in channels
+            ]
+        elif start != self._pos:
+            raise ValueError(f"chunk starts at plane {start}, expected {self._pos}")
+        stop = start + len(channels[0])
+        out: list[_WindowTotal] = []
+        while True:
+            p_open = max(self._window_start(self._next_open), self._first)
+            p_close = self._window_start(self._next_close) + self.window
+            position = min(p_open, p_close)
+            if position > stop:
+                break
+            self._advance(start, channels, position)
+            if p_open <= p_close:
+                self._open[self._next_open] = [t.copy() for t in self._total]
+                self._next_open += 1
+            else:
+                out.append(self._close(self._next_close, p_close))
+                self._next_close += 1
+        self._advance(start, channels, stop)
+        return out
+
+    def flush(self) -> list[_WindowTotal]:
+        """Close the windows whose centre lies in the data, clipped at the last plane."""
+        out: list[_WindowTotal] = []
+        if self._first is None:
+            return out
+        while _centre2(self._next_close, self.step) < 2 * self._pos:
+            out.append(self._close(self._next_close, self._pos))
+            self._next_close += 1
+        self._open.clear()
+        return out
+
+    def _advance(self, start: int, channels: Sequence[np.ndarray], position: int) -> None:
+        if position > self._pos:
+            a, b = self._pos - start, position - start
+            for total, channel in zip(self._total, channels):
+                total += channel[a:b].sum(axis=0, dtype=total.dtype)
+            self._pos = position
+
+    def _close(self, i: int, end: int) -> _WindowTotal:
+        begin = max(self._window_start(i), self._first)
+        at_start = self._open.pop(i)
+        return _WindowTotal(
+            index=i,
+            centre=_centre2(i, self.step) / 2,
+            count=max(end - begin, 1),
+            sums=[total - snap for total, snap in zip(self._total, at_start)],
+        )
+
+
+class Tfp:
+    """Texture from playback: mean of ``window`` raw 1-bit planes centred on each frame time.
+
+    Running sums: each plane is added once, whatever the window overlap.
+    """
+
+    input_kind: ClassVar[InputKind] = "spikes"
+
+    def __init__(self, window: int = 41, step: int = 20) -> None:
+        self._sums = _WindowSums(window, step)
+        self._rate_hz = 0.0
+
+    def push(self, chunk: SpikeChunk) -> list[Frame]:
+        """Consume raw planes; return the frames whose window is complete."""
+        self._rate_hz = chunk.rate_hz
+        return [self._frame(w) for w in self._sums.push(chunk.start, [chunk.planes])]
+
+    def flush(self) -> list[Frame]:
+        """Return the last frames, their windows clipped at the end of the data."""
+        return [self._frame(w) for w in self._sums.flush()]
+
+    def _frame(self, total: _WindowTotal) -> Frame:
+        image = (total.sums[0] / total.count).astype(np.float32)
+        return Frame(index=total.index, time_s=total.centre / self._rate_hz, image=image)
+
+
+class Tfi:
+    """Texture from inter-spike interval: 1 / (interval between the spikes around each frame time).
+
+    For frame ``i`` the reference plane is ``r = floor(c_i)``; per pixel ``prev`` is the last spike at
+    or before ``r`` and ``next`` the first spike after it, each searched at most ``max_reach`` planes
+    away and never outside the pushed data. Where no spike is found on a side, the edge of the
+    searched range stands in for it (``r - max_reach`` or the plane before the data; ``r + max_reach
+    + 1`` or the plane after the data): the value is then an upper bound on the rate, finite and
+    > 0, and an all-dark pixel reads about ``1 / (2 * max_reach + 1)``. Value = 1 / (next - prev),
+    with next - prev >= 1.
+    """
+
+    input_kind: ClassVar[InputKind] = "spikes"
+
+    def __init__(self, step: int = 20, max_reach: int = 200) -> None:
+        if step < 1 or max_reach < 1:
+            raise ValueError(f"step and max_reach must be >= 1, got step={step}, max_reach={max_reach}")
+        self.step = step
+        self.max_reach = max_reach
+        self._first: int | None = None
+        self._pos = 0
+        self._rate_hz = 0.0
+        self._last_spike: np.ndarray | None = None  # (H, W) int64 last spike plane so far, -1 if none
+        self._next_frame = 0  # next frame whose reference plane is not yet reached
+        self._pending: dict[int, tuple[int, np.ndarray, np.ndarray]] = {}  # frame -> (r, prev, next or -1)
+
+    def _reference(self, i: int) -> int:
+        return _centre2(i, self.step) // 2
+
+    def push(self, chunk: SpikeChunk) -> list[Frame]:
+        """Consume raw planes; return the frames whose look-ahead is complete."""
+        if self._first is None:
+            self._first = self._pos = chunk.start
+            self._next_frame = _first_frame(chunk.start, self.step)
+            self._last_spike = np.full(chunk.planes.shape[1:], -1, dtype=np.int64)
+        elif chunk.start != self._pos:
+            raise ValueError(f"chunk starts at plane {chunk.start}, expected {self._pos}")
+        self._rate_hz = chunk.rate_hz
+        for b0 in range(0, len(chunk.planes), _TFI_BLOCK_PLANES):
+            self._process_block(chunk.planes[b0 : b0 + _TFI_BLOCK_PLANES], chunk.start + b0)
+        done = sorted(i for i, (r, _, _) in self._pending.items() if r + self.max_reach < self._pos)
+        return [self._frame(i, self._pending.pop(i)) for i in done]
+
+    def flush(self) -> list[Frame]:
+        """Return the remaining frames, their look-ahead clipped at the end of the data."""
+        return [self._frame(i, self._pending.pop(i)) for i in sorted(self._pending)]
+
+    def _process_block(self, planes: np.ndarray, start: int) -> None:
+        count = len(planes)
+        if count == 0:
+            return
+        # Offsets within the block as uint8 (fast accumulates): last spike <= plane as offset + 1
+        # (0: none), first spike >= plane as offset (_NONE_IN_BLOCK: none).
+        offsets = np.arange(count, dtype=np.uint8)[:, None, None]
+        spikes = planes.astype(bool, copy=False)
+        last_in = spikes * (offsets + np.uint8(1))
+        first_from = _NONE_IN_BLOCK - spikes * (_NONE_IN_BLOCK - offsets)
+        # Plane-by-plane running max/min: far faster than ufunc.accumulate along a leading axis.
+        for k in range(1, count):
+            np.maximum(last_in[k - 1], last_in[k], out=last_in[k])
+            np.minimum(first_from[count - k], first_from[count - k - 1], out=first_from[count - k - 1])
+
+        def first_spike(lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
+            """Absolute first spike in planes lo..hi of this block, and where there is one."""
+            found = first_from[lo - start].astype(np.int64)
+            return start + found, found <= hi - start
+
+        for r, _, nxt in self._pending.values():  # pending frames: search this block for next
+            lo, hi = max(r + 1, start), min(r + self.max_reach, start + count - 1)
+            if lo <= hi:
+                found, hit = first_spike(lo, hi)
+                take = hit & (nxt < 0)
+                nxt[take] = found[take]
+        while self._reference(self._next_frame) < start + count:
+            r = self._reference(self._next_frame)  # >= start: earlier blocks created frames before it
+            in_block = last_in[r - start]
+            prev = np.where(in_block > 0, start + in_block.astype(np.int64) - 1, self._last_spike)
+            nxt = np.full(prev.shape, -1, dtype=np.int64)
+            hi = min(r + self.max_reach, start + count - 1)
+            if r + 1 <= hi:
+                found, hit = first_spike(r + 1, hi)
+                nxt[hit] = found[hit]
+            self._pending[self._next_frame] = (r, prev, nxt)
+            self._next_frame += 1
+        last = last_in[-1]
+        np.copyto(self._last_spike, start + last.astype(np.int64) - 1, where=last > 0)
+        self._pos = start + count
+
+    def _frame(self, i: int, state: tuple[int, np.ndarray, np.ndarray]) -> Frame:
+        r, prev, nxt = state
+        lo = max(r - self.max_reach + 1, self._first)
+        hi = min(r + self.max_reach, self._pos - 1)
+        prev = np.where(prev >= lo, prev, lo - 1)
+        nxt = np.where(nxt >= 0, nxt, hi + 1)
+        interval = np.maximum(nxt - prev, 1)
+        image = (1.0 / interval).astype(np.float32)
+        return Frame(index=i, time_s=_centre2(i, self.step) / 2 / self._rate_hz, image=image)
+
+
+class Tfw:
+    """Texture from window on the binned RMB stream: pooled spike rate over ``window`` readouts.
+
+    Evidence per pixel over the window: ``n`` 1-bit readouts (each one raw pixel-plane) and ``n_m``
+    dense multi-bit readouts, each counting spikes over ``q`` raw pixel-planes (binned data: q = 8,
+    a 2x2x2 bin; a native L-level sensor: q = L sub-threshold steps of one pixel). The estimate is
+    the pooled rate ``(sum single + sum multi) / (n + q * n_m)`` spikes per raw pixel-plane: the
+    maximum-likelihood rate when all counts are Bernoulli trials, i.e. each source weighted by its
+    number of trials. Rows without multi-bit evidence (pure-S) use the 1-bit mean alone. Saturated
+    bins (multi clamped at ``level``) bias bright pixels low by at most 1/9 for binned data.
+    ``window`` and ``step`` are in readouts of the RMB stream; the defaults give frames at the
+    same times as TFP/TFI with step 20 on the raw stream.
+    """
+
+    input_kind: ClassVar[InputKind] = "rmb"
+
+    def __init__(self, window: int = 10, step: int = 10, upsampler: MultiUpsampler | None = None) -> None:
+        self._sums = _WindowSums(window, step)
+        self.upsampler: MultiUpsampler = upsampler if upsampler is not None else TemporalInterpolation()
+        self._rate_hz = 0.0
+        self._quanta = 8  # raw pixel-planes (trials) per multi-bit readout; set from the data
+
+    def push(self, chunk: RmbChunk) -> list[Frame]:
+        """Consume RMB readouts; return the frames whose window is complete."""
+        return [f for dense in self.upsampler.push(chunk) for f in self._add(dense)]
+
+    def flush(self) -> list[Frame]:
+        """Return the last frames, their windows clipped at the end of the data."""
+        frames = [f for dense in self.upsampler.flush() for f in self._add(dense)]
+        return frames + [self._frame(w) for w in self._sums.flush()]
+
+    def _add(self, dense: DenseChunk) -> list[Frame]:
+        self._rate_hz = dense.rate_hz
+        self._quanta = 4 * dense.raw_per_readout if dense.raw_per_readout > 1 else dense.level
+        channels = [dense.single, dense.multi, dense.multi_valid]
+        return [self._frame(w) for w in self._sums.push(dense.start, channels)]
+
+    def _frame(self, total: _WindowTotal) -> Frame:
+        sum_s, sum_m, n_m = total.sums
+        trials = total.count + self._quanta * n_m[:, None].astype(np.float64)
+        image = ((sum_s + sum_m) / trials).astype(np.float32)
+        return Frame(index=total.index, time_s=total.centre / self._rate_hz, image=image)
+
+
+def tfw_s(upsampler: MultiUpsampler | None = None) -> Tfw:
+    """TFW-S of the paper's Table 2: a window of 10 readouts."""
+    return Tfw(window=10, upsampler=upsampler)
+
+
+def tfw_l(upsampler: MultiUpsampler | None = None) -> Tfw:
+    """TFW-L of the paper's Table 2: a window of 70 readouts."""
+    return Tfw(window=70, upsampler=upsampler)

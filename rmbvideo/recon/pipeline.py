@@ -1,0 +1,155 @@
+"""The streaming reconstruction loop: reader chunks -> reconstructor -> frames -> sink.
+
+Reconstructors are looked up by name in :data:`RECONSTRUCTORS` (name -> factory taking keyword
+options); other packages add theirs with :func:`register_reconstructor` (e.g. ``rmbnet``). This
+module is the one place that guards the sink against non-finite pixels.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from typing import Callable, Iterator, Protocol
+
+import numpy as np
+from tqdm import tqdm
+
+from rmbvideo.chunks import Frame, RmbChunk, SpikeChunk
+from rmbvideo.evaluate.gc20 import Gc20Config, Gc20Reconstructor
+from rmbvideo.evaluate.mg20 import Mg20Config, Mg20Reconstructor
+from rmbvideo.recon.classical import Reconstructor, Tfi, Tfp, Tfw
+from rmbvideo.sensor.readout import RmbReadout
+
+log = logging.getLogger(__name__)
+
+ReconstructorFactory = Callable[..., Reconstructor]
+
+RECONSTRUCTORS: dict[str, ReconstructorFactory] = {
+    "tfp": Tfp,
+    "tfi": Tfi,
+    "tfw": Tfw,
+    "gc20": lambda **options: Gc20Reconstructor(Gc20Config(**options)),
+    "mg20": lambda **options: Mg20Reconstructor(Mg20Config(**options)),
+}
+
+
+def register_reconstructor(name: str, factory: ReconstructorFactory) -> None:
+    """Make ``factory(**options)`` available as method ``name`` (replacing any previous one)."""
+    RECONSTRUCTORS[name] = factory
+
+
+def make_reconstructor(method: str, **options: object) -> Reconstructor:
+    """Build the reconstructor registered as ``method`` with keyword ``options``."""
+    factory = RECONSTRUCTORS.get(method)
+    if factory is None:
+        raise ValueError(f"unknown method {method!r} (known: {', '.join(sorted(RECONSTRUCTORS))})")
+    try:
+        return factory(**options)
+    except TypeError as exc:
+        raise ValueError(f"method {method!r}: bad options {sorted(options)}: {exc}") from exc
+
+
+class SpikeSource(Protocol):
+    """What the loop reads from (``rmbvideo.io.dat.DatReader`` or anything shaped like it)."""
+
+    @property
+    def n_planes(self) -> int: ...
+
+    def chunks(self, chunk_planes: int, start: int, stop: int | None) -> Iterator[SpikeChunk]: ...
+
+    def binned_chunks(self, chunk_planes: int, start: int, stop: int | None) -> Iterator[RmbChunk]: ...
+
+
+class FrameConsumer(Protocol):
+    """What the loop writes to (a ``rmbvideo.io.sinks`` sink); committing it is the caller's job."""
+
+    def write(self, frame: Frame) -> None: ...
+
+
+@dataclass
+class RunSummary:
+    """What a run did: frames written, raw planes read, wall-clock seconds, pixels repaired."""
+
+    frames: int
+    planes: int
+    seconds: float
+    nonfinite_pixels: int = 0
+
+    @property
+    def frames_per_second(self) -> float:
+        """Output frames per wall-clock second (0 for an instantaneous run)."""
+        return self.frames / self.seconds if self.seconds > 0 else 0.0
+
+
+def finite_frame(frame: Frame) -> tuple[Frame, int]:
+    """``frame`` with NaN/Inf replaced by 0 and negatives clipped to 0, and how many pixels were not finite."""
+    bad = ~np.isfinite(frame.image)
+    count = int(bad.sum())
+    if count == 0 and frame.image.min(initial=0.0) >= 0:
+        return frame, 0
+    image = np.where(bad, 0.0, np.maximum(frame.image, 0.0)).astype(np.float32)
+    return Frame(index=frame.index, time_s=frame.time_s, image=image), count
+
+
+def reconstruct_stream(
+    reader: SpikeSource,
+    method: Reconstructor,
+    sink: FrameConsumer,
+    *,
+    start: int = 0,
+    stop: int | None = None,
+    chunk_planes: int = 1024,
+    progress: bool = False,
+    readout: RmbReadout | None = None,
+) -> RunSummary:
+    """Run ``method`` over raw planes ``start..stop`` of ``reader`` and write its frames to ``sink``.
+
+    Methods on the RMB stream (``input_kind == "rmb"``) read 2x2x2-binned data, passed through
+    ``readout`` when given (default: the binned pure-M stream as is); binning needs an even start and
+    chunk size, so odd values are rounded up. ``readout`` is an error for methods on raw spikes.
+    Memory is bounded by ``chunk_planes`` and the method's own look-ahead. The sink is not closed
+    here: the caller commits it (or aborts it on error), e.g. by using it as a context manager.
+    """
+    stop = reader.n_planes if stop is None else stop
+    if method.input_kind == "rmb":
+        if start % 2 or chunk_planes % 2:
+            log.info("binned input needs even planes: start %d -> %d, chunk %d -> %d",
+                     start, start + start % 2, chunk_planes, chunk_planes + chunk_planes % 2)
+        start += start % 2
+        chunk_planes = max(2, chunk_planes + chunk_planes % 2)
+        chunks: Iterator[SpikeChunk | RmbChunk] = reader.binned_chunks(chunk_planes, start, max(start, stop))
+    elif readout is not None:
+        raise ValueError(f"a readout design applies only to methods on the RMB stream, not {type(method).__name__}")
+    else:
+        chunks = reader.chunks(chunk_planes, start, stop)
+
+    began = time.perf_counter()
+    frames = planes = nonfinite = 0
+    bar = tqdm(total=max(stop - start, 0), unit="plane", disable=not progress, dynamic_ncols=True)
+
+    def emit(batch: list[Frame]) -> None:
+        nonlocal frames, nonfinite
+        for frame in batch:
+            frame, bad = finite_frame(frame)
+            if bad:
+                log.warning("frame %d: replaced %d non-finite pixels with 0", frame.index, bad)
+                nonfinite += bad
+            sink.write(frame)
+            frames += 1
+
+    with bar:
+        for chunk in chunks:
+            if isinstance(chunk, RmbChunk):
+                advanced = len(chunk.single) * chunk.raw_per_readout
+                if readout is not None:
+                    chunk = readout.apply(chunk)
+            else:
+                advanced = len(chunk.planes)
+            emit(method.push(chunk))
+            planes += advanced
+            bar.update(advanced)
+        emit(method.flush())
+    seconds = time.perf_counter() - began
+    log.debug("%d frames from %d planes in %.2f s", frames, planes, seconds)
+    return RunSummary(frames=frames, planes=planes, seconds=seconds, nonfinite_pixels=nonfinite)

@@ -1,0 +1,150 @@
+"""End-to-end tests of the ``rmbvideo`` command on real files: reconstruct, info, preview, bad input."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import imageio.v3 as iio
+import imageio_ffmpeg
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from rmbvideo.cli import main
+from rmbvideo.io.dat import DatGeometry, write_dat
+from rmbvideo.io.exr import read_exr
+
+
+def small_capture(path: Path, planes: int = 80, width: int = 64, height: int = 48,
+                  seed: int = 0) -> Path:
+    """A random 1-bit capture with a horizontal brightness ramp, so frames have content."""
+    rng = np.random.default_rng(seed)
+    rate = np.linspace(0.02, 0.9, width)[None, None, :]
+    spikes = (rng.random((planes, height, width)) < rate).astype(np.uint8)
+    write_dat(path, spikes, DatGeometry(width=width, height=height))
+    return path
+
+
+def run(*args: str) -> "CliRunner.Result":
+    return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+
+
+GEOM = ("--width", "64", "--height", "48")
+
+
+def read_index(outdir: Path) -> list[dict[str, str]]:
+    with open(outdir / "frames.csv", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_reconstruct_mp4_decodes_back_with_exact_size_and_count(tmp_path: Path) -> None:
+    dat = small_capture(tmp_path / "cap.dat")
+    result = run("reconstruct", dat, "-o", tmp_path / "out", *GEOM, "--quiet")
+    assert result.exit_code == 0, result.output
+    reader = imageio_ffmpeg.read_frames(str(tmp_path / "out" / "frames.mp4"))
+    meta = next(reader)
+    count = sum(1 for _ in reader)
+    assert tuple(meta["size"]) == (64, 48)
+    assert count == 80 // 20
+    rows = read_index(tmp_path / "out")
+    assert [r["index"] for r in rows] == ["0", "1", "2", "3"]
+    assert {r["file"] for r in rows} == {"frames.mp4"}
+    assert float(rows[1]["time_s"]) == pytest.approx(30 / 20000)
+
+
+@pytest.mark.parametrize("method", ["tfp", "tfi", "tfw"])
+def test_reconstruct_exr_linear_values_and_times(tmp_path: Path, method: str) -> None:
+    dat = small_capture(tmp_path / "cap.dat")
+    result = run("reconstruct", dat, "-o", tmp_path / "out", *GEOM, "--method", method,
+                 "--format", "exr", "--exr-dtype", "float", "--quiet")
+    assert result.exit_code == 0, result.output
+    rows = read_index(tmp_path / "out")
+    assert len(rows) == 4
+    image, header = read_exr(tmp_path / "out" / rows[2]["file"])
+    assert header["time_s"] == pytest.approx(float(rows[2]["time_s"]))
+    expected_width = 32 if method == "tfw" else 64
+    assert image.shape[1] == expected_width
+    assert np.isfinite(image).all()
+    # The ramp's firing rate rises left to right; the linear estimate must follow it.
+    profile = image.mean(axis=0)
+    assert profile[-4:].mean() > 5 * profile[:4].mean()
+    if method == "tfp":
+        assert profile[-4:].mean() == pytest.approx(0.88, abs=0.06)
+
+
+def test_output_does_not_depend_on_chunk_size(tmp_path: Path) -> None:
+    dat = small_capture(tmp_path / "cap.dat", planes=120)
+    images = []
+    for chunk in ("1", "7", "4096"):
+        out = tmp_path / f"out{chunk}"
+        assert run("reconstruct", dat, "-o", out, *GEOM, "--method", "tfw", "--format", "exr",
+                   "--exr-dtype", "float", "--chunk-planes", chunk, "-q").exit_code == 0
+        images.append(np.stack([read_exr(p)[0] for p in sorted(out.glob("*.exr"))]))
+    np.testing.assert_array_equal(images[0], images[1])
+    np.testing.assert_array_equal(images[0], images[2])
+
+
+def test_info_json_and_preview(tmp_path: Path) -> None:
+    dat = small_capture(tmp_path / "cap.dat", planes=50)
+    with open(dat, "ab") as f:
+        f.write(b"\x01\x02\x03")
+    result = run("info", dat, *GEOM, "--json")
+    assert result.exit_code == 0
+    record = json.loads(result.stdout)
+    assert record["planes"] == 50 and record["trailing_bytes"] == 3
+    png = tmp_path / "sheet.png"
+    assert run("preview", dat, "-o", png, *GEOM).exit_code == 0
+    sheet = iio.imread(png)
+    assert sheet.shape == (2 * 48, 3 * 64)
+
+
+def test_sidecar_sets_geometry_and_options_override(tmp_path: Path) -> None:
+    dat = small_capture(tmp_path / "cap.dat", planes=30)
+    (tmp_path / "cap.capture.json").write_text(json.dumps({"width": 64, "height": 48, "rate_hz": 1000}))
+    record = json.loads(run("info", dat, "--json").stdout)
+    assert (record["width"], record["height"], record["rate_hz"]) == (64, 48, 1000)
+    record = json.loads(run("info", dat, "--json", "--rate", "2000").stdout)
+    assert record["rate_hz"] == 2000
+
+
+BAD_INPUTS = {
+    "missing": lambda p: p / "nope.dat",
+    "directory": lambda p: (p / "adir.dat").mkdir() or p / "adir.dat",
+    "empty": lambda p: (p / "empty.dat").write_bytes(b"") or p / "empty.dat",
+    "short": lambda p: (p / "short.dat").write_bytes(b"\xff" * 100) or p / "short.dat",
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_INPUTS))
+def test_bad_input_one_line_error_no_output(tmp_path: Path, case: str) -> None:
+    path = BAD_INPUTS[case](tmp_path)
+    out = tmp_path / "out"
+    proc = subprocess.run([sys.executable, "-m", "rmbvideo", "reconstruct", str(path), "-o", str(out)],
+                          capture_output=True, text=True)
+    assert proc.returncode != 0
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert str(path) in lines[0] and "Traceback" not in proc.stderr
+    assert not out.exists()
+
+
+def test_geometry_that_cannot_divide_the_file(tmp_path: Path) -> None:
+    dat = small_capture(tmp_path / "cap.dat", planes=10)
+    proc = subprocess.run([sys.executable, "-m", "rmbvideo", "info", str(dat), "--width", "4000",
+                           "--height", "4000"], capture_output=True, text=True)
+    assert proc.returncode != 0 and str(dat) in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_real_capture_end_to_end(tmp_path: Path, shared_data: Path) -> None:
+    car = shared_data / "real" / "car.dat"
+    out = tmp_path / "car"
+    result = run("reconstruct", car, "-o", out, "--method", "tfp", "--format", "png", "-q")
+    assert result.exit_code == 0, result.output
+    rows = read_index(out)
+    assert len(rows) == 10
+    frame = iio.imread(out / rows[5]["file"])
+    assert frame.shape == (250, 400) and frame.std() > 5
