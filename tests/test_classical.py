@@ -1,0 +1,150 @@
+"""Classical reconstructions (TFP, TFI, TFW): values, frame schedule, finiteness, chunk independence."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rmbvideo.chunks import RmbChunk, SpikeChunk
+from rmbvideo.recon.classical import Tfi, Tfp, Tfw, tfw_l, tfw_s
+from rmbvideo.sensor.readout import RmbReadout
+
+RATE = 20000.0
+
+
+def _spikes(planes: np.ndarray, size: int, start: int = 0) -> list[SpikeChunk]:
+    return [SpikeChunk(planes[a:a + size], start + a, RATE) for a in range(0, len(planes), size)]
+
+
+def _rmb(chunk: RmbChunk, size: int) -> list[RmbChunk]:
+    n = len(chunk.single)
+    return [
+        RmbChunk(chunk.single[a:a + size], chunk.multi[a:a + size], chunk.multi_rows[a:a + size],
+                 chunk.start + a, chunk.rate_hz)
+        for a in range(0, n, size)
+    ]
+
+
+def _run(rec, chunks):
+    return [f for c in chunks for f in rec.push(c)] + rec.flush()
+
+
+def _same(a, b):
+    assert [f.index for f in a] == [f.index for f in b]
+    assert [f.time_s for f in a] == [f.time_s for f in b]
+    for x, y in zip(a, b):
+        assert np.array_equal(x.image, y.image)
+
+
+def _random_planes(t=157, h=6, w=7, seed=3):
+    rng = np.random.default_rng(seed)
+    rate = rng.uniform(0.01, 0.9, (h, w))
+    return (rng.random((t, h, w)) < rate).astype(np.uint8)
+
+
+@pytest.mark.parametrize("factory", [Tfp, lambda: Tfp(window=7, step=3), Tfi, lambda: Tfi(step=3, max_reach=5)])
+@pytest.mark.parametrize("start", [0, 5])
+def test_spike_methods_chunk_independent(factory, start):
+    planes = _random_planes()
+    whole = _run(factory(), _spikes(planes, len(planes), start))
+    assert whole
+    for size in (1, 13):
+        _same(whole, _run(factory(), _spikes(planes, size, start)))
+
+
+def _random_rmb(t=90, h=9, w=5, seed=4) -> RmbChunk:
+    rng = np.random.default_rng(seed)
+    chunk = RmbChunk(
+        single=(rng.random((t, h, w)) < 0.3).astype(np.uint8),
+        multi=rng.integers(0, 8, (t, h, w), dtype=np.uint8),
+        multi_rows=np.ones((t, h), bool),
+        start=0,
+        rate_hz=RATE / 2,
+    )
+    return RmbReadout().apply(chunk)
+
+
+@pytest.mark.parametrize(("factory", "count"), [(tfw_s, 9), (tfw_l, 9), (lambda: Tfw(window=3, step=4), 22)])
+def test_tfw_chunk_independent(factory, count):
+    chunk = _random_rmb()
+    whole = _run(factory(), [chunk])
+    assert len(whole) == count  # centres step/2 + i*step inside 90 readouts
+    for size in (1, 11):
+        _same(whole, _run(factory(), _rmb(chunk, size)))
+
+
+def test_frame_schedule_and_clipping():
+    planes = np.ones((100, 2, 2), np.uint8)
+    frames = _run(Tfp(window=41, step=20), _spikes(planes, 100))
+    assert [f.index for f in frames] == [0, 1, 2, 3, 4]  # centres 10, 30, ..., 90 lie in the data
+    assert [f.time_s for f in frames] == pytest.approx([(20 * i + 10) / RATE for i in range(5)])
+    late = _run(Tfp(window=41, step=20), _spikes(planes[25:], 75, start=25))
+    assert [f.index for f in late] == [1, 2, 3, 4]  # frame 0 (centre 10) precedes the data
+    assert all((f.image == 1).all() for f in frames + late)  # clipped windows are not diluted
+
+
+def test_tfp_constant_rate():
+    planes = np.zeros((200, 3, 4), np.uint8)
+    planes[::4] = 1  # one spike every 4 planes: 0.25 spikes per plane
+    planes[:, 0, 0] = 0
+    frames = _run(Tfp(window=40, step=20), _spikes(planes, 64))
+    for f in frames[1:-1]:  # full windows of 40 planes
+        assert f.image[0, 0] == 0 and np.allclose(f.image.ravel()[1:], 0.25)
+        assert f.image.dtype == np.float32
+
+
+def test_tfi_regular_spikes_give_the_rate():
+    planes = np.zeros((120, 2, 3), np.uint8)
+    planes[2::5] = 1
+    frames = _run(Tfi(step=10, max_reach=20), _spikes(planes, 9))
+    assert all(np.allclose(f.image, 0.2) for f in frames[1:])
+
+
+def test_tfi_finite_on_dark_and_single_spike():
+    dark = np.zeros((80, 4, 4), np.uint8)
+    frames = _run(Tfi(step=10, max_reach=8), _spikes(dark, 80))
+    assert len(frames) == 8
+    for f in frames:
+        assert np.isfinite(f.image).all() and (f.image > 0).all()
+    assert np.allclose(frames[4].image, 1 / 17)  # 2 * max_reach + 1 with no spike on either side
+    single = dark.copy()
+    single[40, 1, 2] = 1
+    frames = _run(Tfi(step=10, max_reach=100), _spikes(single, 7))
+    for f in frames:
+        assert np.isfinite(f.image).all() and (f.image > 0).all() and f.image.max() <= 1
+    assert frames[4].image[1, 2] == pytest.approx(1 / (80 - 40))  # next bounded by the end of data
+
+
+def test_tfw_pools_single_and_multi():
+    t, h, w = 40, 4, 3
+    single = np.zeros((t, h, w), np.uint8)
+    single[::2] = 1  # 0.5 per raw pixel-plane
+    multi = np.full((t, h, w), 4, np.uint8)  # 4 of 8 pixel-planes per bin
+    chunk = RmbChunk(single, multi, np.ones((t, h), bool), 0, RATE / 2)
+    frames = _run(Tfw(window=10), [chunk])
+    assert len(frames) == 4 and all(np.allclose(f.image, 0.5) for f in frames)
+    assert frames[0].time_s == pytest.approx(10 / RATE)  # same time as TFP frame 0 on raw planes
+    multi[:] = 7
+    pure_s = RmbReadout("pure-s").apply(RmbChunk(single, multi, np.ones((t, h), bool), 0, RATE / 2))
+    frames = _run(Tfw(window=10), [pure_s])
+    assert all(np.allclose(f.image, 0.5) for f in frames)  # 1-bit evidence only
+
+
+def test_tfp_matches_ground_truth(shared_data):
+    from rmbvideo.io.dat import DatReader
+
+    stem = shared_data / "spikezoo-base" / "200_part3_key_id151"
+    if not stem.with_suffix(".dat").exists():
+        pytest.skip("spikezoo sample not present")
+    import cv2
+
+    truth = cv2.imread(str(stem.with_suffix(".png")), cv2.IMREAD_GRAYSCALE).astype(np.float64)
+    reader = DatReader(stem.with_suffix(".dat"))
+    frames = _run(Tfp(window=41, step=1), reader.chunks(16, 120, 181))
+    frame = next(f for f in frames if f.index == 150)
+    assert frame.time_s == pytest.approx(150.5 / reader.rate_hz)
+    x = frame.image.astype(np.float64)
+    scale = (x * truth).sum() / (x * x).sum()
+    mse = ((scale * x - truth) ** 2).mean()
+    psnr = 10 * np.log10(255.0**2 / mse)
+    assert psnr >= 28.0
