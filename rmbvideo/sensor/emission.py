@@ -1,0 +1,224 @@
+"""Spike emission of an integrate-and-fire pixel array (paper Eqns. 1-3, supplement Sec. 7).
+
+Per pixel and readout interval the charge is ``Q_c = Q_a + Q_p + Q_d`` (carried, photo and dark
+electrons). A pixel read with level ``L`` (1 for single-bit) gives ``S = L`` when
+``Q_c >= Q_th`` and ``floor(Q_c * L / Q_th)`` otherwise, and is reset to zero when ``S > 0``
+(the paper's rule); otherwise its charge is carried to the next interval. The threshold is
+``Q_th = (C + C^S)(V + V^S + V^T0)``. Which noise terms exist is decided by the effects of
+``rmbvideo.sensor.effects``; without any, ``Q_p`` is the expected charge and ``Q_th = C*V``.
+
+Readouts (``ReadoutSpec.kind``):
+
+- ``1bit``: every pixel single-bit.
+- ``Lbit``: every pixel at level ``L`` (full multi-bit planes).
+- ``rmb``: a native rolling-mixed-bit sensor: at readout ``k`` the rows
+  ``(k*shift + j) mod H`` for ``j < band`` are read at level ``L`` (and reset by the multi-bit
+  rule), the others single-bit.
+- ``binned``: single-bit at the scene's (raw) size and rate; the stream is binned 2x2x2 later,
+  exactly as real captures are (``rmbvideo.sensor.binning``).
+
+For ``Lbit`` and ``rmb`` the single-bit plane of an ``RmbChunk`` is ``S == L`` where a row was read
+multi-bit (the charge reached the threshold), and the single-bit value elsewhere.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Sequence
+
+import numpy as np
+
+from rmbvideo.chunks import RmbChunk, SpikeChunk
+
+from rmbvideo.sensor.effects import (
+    EFFECTS,
+    DarkCurrent,
+    ReadoutRounding,
+    ResetNoise,
+    ShotNoise,
+    ThermalNoise,
+    RollingReadout,
+    ThresholdMismatch,
+)
+from rmbvideo.sensor.params import SensorParams
+from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
+
+if TYPE_CHECKING:
+    from rmbvideo.scenes.scene import Scene
+
+log = logging.getLogger(__name__)
+
+READOUT_KINDS = ("1bit", "Lbit", "rmb", "binned")
+
+#: The smallest threshold charge allowed, so extreme noise settings never divide by zero.
+MIN_THRESHOLD_E = 1.0
+
+
+@dataclass(frozen=True)
+class ReadoutSpec:
+    """How pixels are read: kind (see module docstring), multi-bit level, RMB band and shift."""
+
+    kind: str = "1bit"
+    level: int = 7
+    band: int = 4
+    shift: int = 2
+
+    def __post_init__(self) -> None:
+        if self.kind not in READOUT_KINDS:
+            raise ValueError(f"readout kind must be one of {READOUT_KINDS}, not {self.kind!r}")
+        if self.level < 1 or (self.level + 1) & self.level:
+            raise ValueError(f"level must be 2^B - 1 (1, 3, 7, ...), not {self.level}")
+        if self.band < 1 or self.shift < 1:
+            raise ValueError("band and shift must be >= 1")
+
+    @property
+    def is_multibit(self) -> bool:
+        """Whether the readout produces multi-bit values (``Lbit`` or ``rmb``)."""
+        return self.kind in ("Lbit", "rmb")
+
+    def multi_rows(self, start: int, count: int, height: int) -> np.ndarray:
+        """(count, H) bool: rows read multi-bit at readouts ``start .. start+count-1``."""
+        if self.kind == "Lbit":
+            return np.ones((count, height), dtype=bool)
+        if self.kind == "rmb":
+            return RmbReadout(ReadoutMode.RMB, self.band, self.shift).multi_rows(start, count, height)
+        return np.zeros((count, height), dtype=bool)
+
+
+class SpikeEmitter:
+    """The pixel array's state machine: expected photo-charge in, quantised spikes out.
+
+    State (carried charge, V^S) persists across calls, so feeding a capture in chunks of any
+    size gives the same result as feeding it at once.
+    """
+
+    def __init__(self, height: int, width: int, params: SensorParams, effects: Sequence[str],
+                 seed: int, dark_correlation_px: float = 1.5) -> None:
+        unknown = sorted(set(effects) - set(EFFECTS))
+        if unknown:
+            raise ValueError(f"unknown effects {unknown}; known: {sorted(EFFECTS)}")
+        shape = (height, width)
+        self.shape = shape
+        self.params = params
+        self.shot = ShotNoise(seed) if "shot_noise" in effects else None
+        self.dark = (DarkCurrent(seed, shape, params, dark_correlation_px)
+                     if "dark_current" in effects else None)
+        self.mismatch = ThresholdMismatch(seed, shape, params) if "threshold_mismatch" in effects else None
+        self.reset_noise = ResetNoise(seed, shape, params) if "reset_noise" in effects else None
+        self.thermal = ThermalNoise(seed, shape, params) if "thermal_noise" in effects else None
+        self.rounding = ReadoutRounding() if "readout_rounding" in effects else None
+        self.charge = np.zeros(shape, dtype=np.float64)
+        self.capacitance = params.capacitance + (self.mismatch.capacitance_offset
+                                                 if self.mismatch is not None else 0.0)
+
+    @property
+    def components(self) -> dict[str, object]:
+        """The effect components that were built (only those the caller listed)."""
+        built = (self.shot, self.dark, self.mismatch, self.reset_noise, self.thermal, self.rounding)
+        return {c.name: c for c in built if c is not None}
+
+    def _threshold(self) -> np.ndarray | float:
+        voltage: np.ndarray | float = self.params.voltage
+        if self.reset_noise is not None:
+            voltage = voltage + self.reset_noise.voltage_offset
+        if self.thermal is not None:
+            voltage = voltage + self.thermal.voltage_offset()
+        threshold = self.capacitance * voltage
+        if self.rounding is not None:
+            threshold = self.rounding.apply(threshold)
+        return np.maximum(threshold, MIN_THRESHOLD_E)
+
+    def emit_one(self, photo_expected: np.ndarray, row_level: np.ndarray | int) -> np.ndarray:
+        """One readout: ``photo_expected`` (H, W) mean photo-electrons, ``row_level`` (H, 1) or
+        scalar quantisation level per row. Returns (H, W) uint8 values in 0..level."""
+        photo = (self.shot.electrons(photo_expected) if self.shot is not None
+                 else np.asarray(photo_expected, dtype=np.float64))
+        charge = self.charge + photo
+        if self.dark is not None:
+            charge += self.dark.electrons()
+        np.maximum(charge, 0.0, out=charge)  # a pixel cannot hold negative charge
+        threshold = self._threshold()
+        values = np.minimum(np.floor(charge * row_level / threshold), row_level)
+        fired = values > 0
+        charge[fired] = 0.0
+        self.charge = charge
+        if self.reset_noise is not None:
+            self.reset_noise.reset(fired)
+        return values.astype(np.uint8)
+
+    def emit(self, photo_expected: np.ndarray, level: int = 1) -> np.ndarray:
+        """Several readouts of a static or precomputed input: ``photo_expected`` (T, H, W), every
+        pixel at ``level``. Returns (T, H, W) uint8."""
+        out = np.empty(photo_expected.shape, dtype=np.uint8)
+        for t in range(len(photo_expected)):
+            out[t] = self.emit_one(photo_expected[t], level)
+        return out
+
+
+class CaptureSimulator:
+    """Simulates a capture of a scene: radiance integrated over each interval -> spikes, in chunks.
+
+    The expected photo-charge of interval ``k`` is ``exposure`` times the mean radiance over
+    ``[k, k+1) / rate`` (``[k + r/H, k + 1 + r/H) / rate`` for row ``r`` with ``rolling_readout``),
+    integrated with the trapezoid rule on ``scene.subsamples`` segments; the render at an interval's
+    end is reused as the next one's start, so one segment costs one render per readout.
+    """
+
+    def __init__(self, scene: Scene, duration_s: float | None = None) -> None:
+        from rmbvideo.scenes.render import SceneRenderer
+
+        self.scene = scene
+        self.renderer = SceneRenderer(scene)
+        self.row_delay: np.ndarray | float = (RollingReadout.row_delay(scene.height)
+                                              if "rolling_readout" in scene.effects else 0.0)
+        total = scene.total_readouts
+        if duration_s is not None:
+            total = min(total, int(np.floor(duration_s * scene.rate_hz + 1e-9)))
+            total -= total % 2 if scene.readout.kind == "binned" else 0
+        self.total_readouts = total
+        self._boundary: tuple[float, np.ndarray] | None = None
+
+    def _render_boundary(self, boundary: float) -> np.ndarray:
+        if self._boundary is not None and self._boundary[0] == boundary:
+            return self._boundary[1]
+        image = self.renderer.render((boundary + self.row_delay) / self.scene.rate_hz)
+        self._boundary = (boundary, image)
+        return image
+
+    def expected_photo(self, k: int) -> np.ndarray:
+        """Expected photo-electrons (H, W) float64 of readout interval ``k``."""
+        n = self.scene.subsamples
+        total = 0.5 * self._render_boundary(float(k)).astype(np.float64)
+        for j in range(1, n):
+            total += self.renderer.render((k + j / n + self.row_delay) / self.scene.rate_hz)
+        total += 0.5 * self._render_boundary(float(k + 1))
+        return total * (self.scene.exposure / n)
+
+    def new_emitter(self) -> SpikeEmitter:
+        """A pixel array in its initial state (empty charge), with the scene's effects."""
+        scene = self.scene
+        return SpikeEmitter(scene.height, scene.width, scene.sensor, scene.effects, scene.seed,
+                            scene.dark_correlation_px)
+
+    def chunks(self, chunk_readouts: int = 64) -> Iterator[SpikeChunk | RmbChunk]:
+        """The whole capture from its start, as consecutive chunks: ``SpikeChunk`` for 1bit/binned
+        (raw planes), ``RmbChunk`` for Lbit/rmb. Each call simulates afresh (same seed, same result)."""
+        emitter = self.new_emitter()
+        readout = self.scene.readout
+        height = self.scene.height
+        for start in range(0, self.total_readouts, chunk_readouts):
+            count = min(chunk_readouts, self.total_readouts - start)
+            multi_rows = readout.multi_rows(start, count, height)
+            levels = np.where(multi_rows, readout.level, 1)
+            values = np.empty((count, height, self.scene.width), dtype=np.uint8)
+            for t in range(count):
+                values[t] = emitter.emit_one(self.expected_photo(start + t), levels[t][:, None])
+            if not readout.is_multibit:
+                yield SpikeChunk(planes=values, start=start, rate_hz=self.scene.rate_hz)
+                continue
+            single = np.where(multi_rows[:, :, None], values == readout.level, values).astype(np.uint8)
+            multi = np.where(multi_rows[:, :, None], values, np.uint8(0)).astype(np.uint8)
+            yield RmbChunk(single=single, multi=multi, multi_rows=multi_rows, start=start,
+                           rate_hz=self.scene.rate_hz, level=readout.level, raw_per_readout=1)
