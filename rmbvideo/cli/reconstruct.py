@@ -28,6 +28,12 @@ def method_options(method: str, window: int | None, step: int) -> dict:
         return {"step": step, **({"window": window} if window else {})}
     if method == "tfi":
         return {"step": step}
+    if method == "rmbnet":
+        if step != 20 or window:
+            raise click.BadParameter("RMB-Net's frame step and window are fixed by its model "
+                                     "(N = 10 binned readouts = 20 raw planes; window 2w+1)",
+                                     param_hint="--step/--window")
+        return {}
     if step % 2:
         raise click.BadParameter(f"methods on the binned stream need an even step, got {step}",
                                  param_hint="--step")
@@ -35,6 +41,35 @@ def method_options(method: str, window: int | None, step: int) -> dict:
     if window:
         options["window"] = window
     return options
+
+
+def rmbnet_options(func):
+    """Options that only RMB-Net uses (ignored by the other methods)."""
+    options = [
+        click.option("--model", type=click.Path(path_type=Path), default=None,
+                     help="RMB-Net weights (.safetensors with its .json card) [default: shipped binned model]."),
+        click.option("--align", type=click.Choice(["none", "dis", "farneback", "tvl1"]), default="none",
+                     show_default=True, help="Align the window's frames to the reference with optical flow."),
+        click.option("--device", type=click.Choice(["auto", "cpu", "cuda"]), default="auto",
+                     show_default=True, help="Where the network runs (auto: CUDA when available)."),
+        click.option("--upsampling", type=click.Choice(["interp", "dis", "farneback", "tvl1"]),
+                     default="interp", show_default=True,
+                     help="Dense multi-bit planes from the rolling band: flow-free interpolation or optical flow."),
+        click.option("--precision", type=click.Choice(["auto", "fp32", "bf16"]), default="auto",
+                     show_default=True, help="Network precision (auto: bf16 autocast on CUDA, fp32 on CPU)."),
+    ]
+    for option in reversed(options):
+        func = option(func)
+    return func
+
+
+def rmbnet_extra_options(method: str, model, align: str, device: str, upsampling: str,
+                         precision: str) -> dict:
+    """Keyword options for the RMB-Net factory; empty for the other methods."""
+    if method != "rmbnet":
+        return {}
+    return {"model": model, "align": align, "device": device, "upsampling": upsampling,
+            "precision": precision}
 
 
 def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_METHOD,
@@ -57,7 +92,10 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
                          f"({reader.duration_s:.6f} s)")
     options = method_options(method, window, step)
     options.update(extra_options or {})
-    recon = make_reconstructor(method, **options)
+    try:
+        recon = make_reconstructor(method, **options)
+    except ValueError as exc:
+        raise click.UsageError(str(exc)) from None
     rmb_readout = RmbReadout(mode=ReadoutMode(readout)) if recon.input_kind == "rmb" else None
     created = not outdir.exists()
     try:
@@ -101,16 +139,20 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
               help="Seconds of capture to process [default: to the end].")
 @click.option("--chunk-planes", type=click.IntRange(min=1), default=1024, show_default=True,
               help="Raw planes read per chunk (memory bound; the output does not depend on it).")
+@rmbnet_options
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
 def reconstruct(input_path: Path, outdir: Path, method: str, window, step: int, fmt: str, fps: float,
                 tonemap: str, exr_dtype: str, readout: str, width, height, flip, header_cols, rate_hz,
-                start_s: float, duration_s, chunk_planes: int, quiet: bool) -> None:
+                start_s: float, duration_s, chunk_planes: int, model, align: str, device: str,
+                upsampling: str, precision: str, quiet: bool) -> None:
     """Reconstruct a .dat capture INPUT into frames in OUTDIR."""
+    extra = rmbnet_extra_options(method, model, align, device, upsampling, precision)
     summary = run_reconstruction(
         input_path, outdir, method=method, window=window, step=step, fmt=fmt, fps=fps,
         tonemap=tonemap, exr_dtype=exr_dtype, readout=readout, start_s=start_s,
         duration_s=duration_s, chunk_planes=chunk_planes, progress=progress_enabled(quiet),
         capture=dict(width=width, height=height, flip=flip, header_cols=header_cols, rate_hz=rate_hz),
+        extra_options=extra,
     )
     if not quiet:
         click.echo(f"{summary.frames} frames from {summary.planes} planes in {summary.seconds:.2f} s "

@@ -34,6 +34,16 @@ RECONSTRUCTORS: dict[str, ReconstructorFactory] = {
 }
 
 
+def _rmbnet(**options: object) -> Reconstructor:
+    """RMB-Net, imported on first use so the classical methods start without torch."""
+    from rmbvideo.recon.rmbnet import make_rmbnet
+
+    return make_rmbnet(**options)
+
+
+RECONSTRUCTORS["rmbnet"] = _rmbnet
+
+
 def register_reconstructor(name: str, factory: ReconstructorFactory) -> None:
     """Make ``factory(**options)`` available as method ``name`` (replacing any previous one)."""
     RECONSTRUCTORS[name] = factory

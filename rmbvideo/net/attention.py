@@ -1,0 +1,118 @@
+"""Cross-bit (XBA, paper Eqns. 9-11) and cross-time (XTA, Eqn. 12) attention, plus the plain
+fusions used by the "without XBA" / "without XTA" ablations.
+
+The mask projection F(C(a, b)) is "two conv layers on the concatenation". A convolution of a
+concatenation is the sum of convolutions of its parts, so the first layer is split into one conv
+per input: the per-frame parts are computed once per frame and every pair only adds them, applies
+ReLU and a 1x1 conv. All (2w+1)^2 pairs go through that second conv in one batched call (the
+supplement's "cyclic shift to obtain (2w+1)^2 feature pairs"). XBA pair logits depend on a pair of
+frames only, so a streaming engine can cache them across overlapping windows.
+
+Tensor layout: stacks over window positions are (K, B, C, H, W); pair logits are (Q, K, B, C, H, W)
+with one mask channel per feature channel (the masks multiply features element-wise, Eqn. 11).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from torch import nn
+
+
+class PairProjection(nn.Module):
+    """F(C(x_0, x_1, ...)): split first conv (one per input, bias on the first) + ReLU + 1x1 conv."""
+
+    def __init__(self, in_channels: Sequence[int], hidden: int, out_channels: int, kernel: int) -> None:
+        super().__init__()
+        self.parts = nn.ModuleList(
+            nn.Conv2d(c, hidden, kernel, padding=kernel // 2, bias=(i == 0)) for i, c in enumerate(in_channels)
+        )
+        self.out = nn.Conv2d(hidden, out_channels, 1)
+
+    def part(self, index: int, x: torch.Tensor) -> torch.Tensor:
+        """First-layer contribution of input ``index`` (computed once per frame)."""
+        return self.parts[index](x)
+
+    def combine(self, summed: torch.Tensor) -> torch.Tensor:
+        """Mask logits from the summed first-layer parts; any leading dims are batched in one call."""
+        lead = summed.shape[:-3]
+        flat = summed.reshape(-1, *summed.shape[-3:])
+        return self.out(torch.relu(flat)).reshape(*lead, -1, *summed.shape[-2:])
+
+
+def attend(logits: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+    """SoftMax over keys (dim 1, in float32) and weighted sum: (Q,K,B,C,H,W) x (K,B,C,H,W) -> (Q,B,C,H,W)."""
+    weights = torch.softmax(logits.float(), dim=1).to(values.dtype)
+    return (weights * values.unsqueeze(0)).sum(dim=1)
+
+
+class CrossBitAttention(nn.Module):
+    """XBA: masks from pairs (F_s(q), F_m(k)), SoftMax over k, weighted sum of F_m(k), then
+    concat with F_s(q) and a 1x1 conv -> F_ms(q)."""
+
+    def __init__(self, channels: int, hidden: int, kernel: int) -> None:
+        super().__init__()
+        self.proj = PairProjection((channels, channels), hidden, channels, kernel)
+        self.reduce = nn.Conv2d(2 * channels, channels, 1)
+
+    def query_part(self, f_s: torch.Tensor) -> torch.Tensor:
+        """Per-frame first-layer term of F_s(q)."""
+        return self.proj.part(0, f_s)
+
+    def key_part(self, f_m: torch.Tensor) -> torch.Tensor:
+        """Per-frame first-layer term of F_m(k)."""
+        return self.proj.part(1, f_m)
+
+    def pair_logits(self, query_parts: torch.Tensor, key_parts: torch.Tensor) -> torch.Tensor:
+        """Logits of the pairs (query_parts[p], key_parts[p]), both (P, B, Ch, H, W) -> (P, B, C, H, W)."""
+        return self.proj.combine(query_parts + key_parts)
+
+    def fuse(self, f_s: torch.Tensor, f_m: torch.Tensor, logits: torch.Tensor) -> torch.Tensor:
+        """F_ms for queries ``f_s`` (Q,B,C,H,W) over keys ``f_m`` (K,B,C,H,W) with ``logits`` (Q,K,...)."""
+        f_m_hat = attend(logits, f_m)
+        q = f_s.shape[0]
+        mixed = torch.cat([f_s, f_m_hat], dim=2).flatten(0, 1)
+        return self.reduce(mixed).unflatten(0, (q, -1))
+
+
+class PlainBitFusion(nn.Module):
+    """"Without XBA" ablation: F_ms(q) = 1x1 conv of the concatenation (F_s(q), F_m(q))."""
+
+    def __init__(self, channels: int) -> None:
+        super().__init__()
+        self.reduce = nn.Conv2d(2 * channels, channels, 1)
+
+    def forward(self, f_s: torch.Tensor, f_m: torch.Tensor) -> torch.Tensor:
+        return self.reduce(torch.cat([f_s, f_m], dim=1))
+
+
+class CrossTimeAttention(nn.Module):
+    """XTA: masks from pairs (F_ms(q), F_ms(k)) and the window bias B(i), SoftMax over k,
+    weighted sum of F_ms(k), then the mean over q -> F_bar_ms(i).
+
+    Eqn. 12 adds B(i) (the temporal mean of F_ms) to every logit of the SoftMax over k, where it
+    would cancel exactly; we feed B(i) into the projection's first layer as a third input instead,
+    so the window context modulates the masks.
+    """
+
+    def __init__(self, channels: int, hidden: int, kernel: int) -> None:
+        super().__init__()
+        self.proj = PairProjection((channels, channels, channels), hidden, channels, kernel)
+
+    def forward(self, f_ms: torch.Tensor) -> torch.Tensor:
+        k = f_ms.shape[0]
+        flat = f_ms.flatten(0, 1)
+        bias = f_ms.mean(dim=0)
+        q_part = self.proj.part(0, flat).unflatten(0, (k, -1))
+        k_part = self.proj.part(1, flat).unflatten(0, (k, -1))
+        b_part = self.proj.part(2, bias)
+        logits = self.proj.combine(q_part[:, None] + k_part[None] + b_part)
+        return attend(logits, f_ms).mean(dim=0)
+
+
+class TemporalMean(nn.Module):
+    """"Without XTA" ablation: F_bar_ms(i) is the plain temporal mean of F_ms over the window."""
+
+    def forward(self, f_ms: torch.Tensor) -> torch.Tensor:
+        return f_ms.mean(dim=0)

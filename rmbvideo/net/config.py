@@ -1,0 +1,81 @@
+"""Configuration of RMB-Net (paper Sec. 4.2, supplement Sec. 11) as one plain dataclass.
+
+Every architectural choice the paper leaves open is a field here, so a model card can record it
+and ``load_model`` can rebuild exactly the network that produced a weight file.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+INPUT_MODES = ("binned", "native")
+
+
+@dataclass(frozen=True)
+class RmbNetConfig:
+    """Architecture of RMB-Net; defaults follow the paper (w = 3, channels 24/32/48, N = 10).
+
+    ``input_mode``: "binned" (2x2x2-binned real 1-bit data) or "native" (a native RMB sensor);
+    the graph is the same, the weights are not interchangeable. ``input_mu``: mu of the mu-law
+    that compresses the normalised inputs I_s/N and I_m/(level*N) before the encoders (HDR range).
+    ``output_mu``/``output_max``: the decoder predicts the mu-law domain T(G) (the training loss
+    domain, mu = 5000) through a softplus, capped at ``output_max`` so the inverse cannot overflow.
+    """
+
+    w: int = 3
+    width: float = 1.0
+    n: int = 10
+    level: int = 7
+    use_xba: bool = True
+    use_xta: bool = True
+    input_mode: str = "binned"
+    base_channels: tuple[int, int, int] = (24, 32, 48)
+    encoder_kernel: int = 5
+    attention_hidden: float = 1.0   # hidden channels of the mask projection, x feature channels
+    attention_kernel: int = 3
+    lstm_kernel: int = 3
+    input_mu: float = 255.0
+    output_mu: float = 5000.0
+    output_max: float = 2.0
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.w <= 3:
+            raise ValueError(f"w must be in 0..3, got {self.w}")
+        if self.width <= 0:
+            raise ValueError(f"width must be positive, got {self.width}")
+        if self.n < 1 or self.level < 1:
+            raise ValueError("n and level must be >= 1")
+        if self.input_mode not in INPUT_MODES:
+            raise ValueError(f"input_mode must be one of {INPUT_MODES}, got {self.input_mode!r}")
+        if len(self.base_channels) != 3:
+            raise ValueError("base_channels must name three encoder blocks")
+        object.__setattr__(self, "base_channels", tuple(int(c) for c in self.base_channels))
+
+    @property
+    def window(self) -> int:
+        """Frames per window, 2w+1."""
+        return 2 * self.w + 1
+
+    @property
+    def channels(self) -> tuple[int, int, int]:
+        """Encoder channels per block after the width multiplier."""
+        return tuple(max(1, round(c * self.width)) for c in self.base_channels)  # type: ignore[return-value]
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dictionary (tuples become lists)."""
+        out = asdict(self)
+        out["base_channels"] = list(self.base_channels)
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "RmbNetConfig":
+        """Rebuild from ``to_dict`` output; unknown keys raise ``KeyError`` naming them."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise KeyError(f"unknown config keys {unknown}")
+        kwargs = dict(data)
+        if "base_channels" in kwargs:
+            kwargs["base_channels"] = tuple(kwargs["base_channels"])
+        return cls(**kwargs)

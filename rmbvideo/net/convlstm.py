@@ -1,0 +1,34 @@
+"""Convolutional LSTM cell (Shi et al. 2015), the recurrent layer that carries state S_p(i-1)
+from step i-1 to step i for flicker-free video (paper Sec. 4.2)."""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+LstmState = tuple[torch.Tensor, torch.Tensor]
+
+
+class ConvLSTMCell(nn.Module):
+    """One ConvLSTM layer; the state is (h, c), zeros when ``None``.
+
+    The forget-gate bias starts at 1 so the state neither explodes nor is forgotten at once.
+    """
+
+    def __init__(self, in_channels: int, hidden: int, kernel: int) -> None:
+        super().__init__()
+        self.hidden = hidden
+        self.gates = nn.Conv2d(in_channels + hidden, 4 * hidden, kernel, padding=kernel // 2)
+        with torch.no_grad():
+            self.gates.bias.zero_()
+            self.gates.bias[hidden : 2 * hidden].fill_(1.0)
+
+    def forward(self, x: torch.Tensor, state: LstmState | None) -> tuple[torch.Tensor, LstmState]:
+        if state is None:
+            zeros = x.new_zeros(x.shape[0], self.hidden, *x.shape[-2:])
+            state = (zeros, zeros)
+        h, c = state
+        i, f, o, g = self.gates(torch.cat([x, h.to(x.dtype)], dim=1)).chunk(4, dim=1)
+        c = torch.sigmoid(f) * c + torch.sigmoid(i) * torch.tanh(g)
+        h = torch.sigmoid(o) * torch.tanh(c)
+        return h, (h, c)

@@ -1,0 +1,56 @@
+"""Decoder of RMB-Net: from F_bar_ms(i) at 1/8 scale back to the input resolution, with skip
+links from the reference frame's F_ms(i) and one ConvLSTM layer per scale (three in all)."""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from rmbvideo.net.convlstm import ConvLSTMCell, LstmState
+
+DecoderState = tuple[LstmState, LstmState, LstmState]
+
+
+def _conv_relu(in_channels: int, out_channels: int) -> nn.Sequential:
+    return nn.Sequential(nn.Conv2d(in_channels, out_channels, 3, padding=1), nn.ReLU(inplace=True))
+
+
+class Decoder(nn.Module):
+    """Upsampling decoder; ``forward`` returns the raw head output z (B,1,H,W) and the new state.
+
+    Per scale s (1/8, then 1/4, then 1/2): fuse the upsampled coarser result with the reference
+    F_ms(i) at s (at 1/8 with F_bar_ms(i)), run the ConvLSTM of s. At full resolution the
+    compressed reference inputs (I_s(i), I_m(i)) are concatenated before the head, so fine detail
+    lost by pooling can come back.
+    """
+
+    def __init__(self, channels: tuple[int, int, int], lstm_kernel: int, input_channels: int = 2) -> None:
+        super().__init__()
+        c1, c2, c3 = channels
+        self.lstm3 = ConvLSTMCell(2 * c3, c3, lstm_kernel)
+        self.up3 = _conv_relu(c3, c2)
+        self.fuse2 = _conv_relu(2 * c2, c2)
+        self.lstm2 = ConvLSTMCell(c2, c2, lstm_kernel)
+        self.up2 = _conv_relu(c2, c1)
+        self.fuse1 = _conv_relu(2 * c1, c1)
+        self.lstm1 = ConvLSTMCell(c1, c1, lstm_kernel)
+        self.up1 = _conv_relu(c1, c1)
+        self.head = nn.Sequential(_conv_relu(c1 + input_channels, c1), nn.Conv2d(c1, 1, 3, padding=1))
+
+    def forward(
+        self,
+        fused: torch.Tensor,
+        reference: list[torch.Tensor],
+        inputs: torch.Tensor,
+        state: DecoderState | None,
+    ) -> tuple[torch.Tensor, DecoderState]:
+        s3, s2, s1 = state if state is not None else (None, None, None)
+        x, s3 = self.lstm3(torch.cat([fused, reference[2]], dim=1), s3)
+        x = self.up3(F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False))
+        x, s2 = self.lstm2(self.fuse2(torch.cat([x, reference[1]], dim=1)), s2)
+        x = self.up2(F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False))
+        x, s1 = self.lstm1(self.fuse1(torch.cat([x, reference[0]], dim=1)), s1)
+        x = self.up1(F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False))
+        z = self.head(torch.cat([x, inputs.to(x.dtype)], dim=1))
+        return z, (s3, s2, s1)

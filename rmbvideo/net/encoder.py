@@ -1,0 +1,47 @@
+"""Feature encoder of RMB-Net (supplement Sec. 11): three blocks of [5x5 conv + BN + ReLU] x 2
+then 2x2 max-pool, giving features at 1/2, 1/4 and 1/8 of the input resolution."""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+
+class EncoderBlock(nn.Sequential):
+    """Two (conv, BatchNorm, ReLU) layers and a 2x2 max-pool."""
+
+    def __init__(self, in_channels: int, out_channels: int, kernel: int) -> None:
+        pad = kernel // 2
+        super().__init__(
+            nn.Conv2d(in_channels, out_channels, kernel, padding=pad, bias=False),
+            nn.BatchNorm2d(out_channels),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(out_channels, out_channels, kernel, padding=pad, bias=False),
+            nn.BatchNorm2d(out_channels),
+            nn.ReLU(inplace=True),
+            nn.MaxPool2d(2),
+        )
+
+
+class Encoder(nn.Module):
+    """Multi-scale encoder; ``forward`` returns the three pooled feature maps, finest first.
+
+    We take the features after each pool (scales 1/2, 1/4, 1/8) as the skip features: the
+    attention runs on them, so the full-resolution cost of (2w+1)^2 pairs is avoided; the
+    decoder gets full-resolution detail from the compressed reference input instead.
+    """
+
+    def __init__(self, in_channels: int, channels: tuple[int, int, int], kernel: int) -> None:
+        super().__init__()
+        blocks = []
+        for out_channels in channels:
+            blocks.append(EncoderBlock(in_channels, out_channels, kernel))
+            in_channels = out_channels
+        self.blocks = nn.ModuleList(blocks)
+
+    def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
+        features = []
+        for block in self.blocks:
+            x = block(x)
+            features.append(x)
+        return features

@@ -1,0 +1,224 @@
+"""RMB-Net (paper Sec. 4.2, Fig. 6): two encoders, cross-bit and cross-time attention, and a
+recurrent decoder, composed step by step so a streaming engine can reuse per-frame work.
+
+Choices where the paper and supplement are silent:
+
+- Inputs: I_s/N and I_m/(level*N), clipped to [0, 1] and mu-law compressed
+  (``config.input_mu``) so the dark end of the HDR range is not lost in the first conv.
+  Each encoder takes one channel.
+- Sizes not divisible by 8: inputs are padded on the right/bottom by edge replication and the
+  output is cropped back.
+- XBA runs at all three encoder scales (1/2, 1/4, 1/8). The decoder's skip links need F_ms only
+  of the reference frame at 1/2 and 1/4; XTA (or the temporal mean) runs at 1/8 over the whole
+  window, and F_ms(i) at 1/8 joins F_bar_ms(i) there as the residual link.
+- Output: the decoder's head z becomes t = min(softplus(z), output_max), the mu-law domain
+  T(G) = log(1 + mu G)/log(1 + mu) the loss uses (mu = ``output_mu``); the linear HDR image is
+  the exact inverse (expm1(t log(1+mu))/mu), so it is >= 0 and finite by construction.
+- Window edges: a window reaching before the first or past the last frame repeats the nearest
+  frame (``window_indices``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from rmbvideo.net.attention import CrossBitAttention, CrossTimeAttention, PlainBitFusion, TemporalMean
+from rmbvideo.net.config import RmbNetConfig
+from rmbvideo.net.decoder import Decoder, DecoderState
+from rmbvideo.net.encoder import Encoder
+
+PAD_MULTIPLE = 8
+# (scale, query frame index, key frame index) -> XBA mask logits of that pair, (B, C, h, w)
+PairCache = dict[tuple[int, int, int], torch.Tensor]
+
+
+@dataclass
+class EncodedFrame:
+    """Everything RMB-Net derives from one preliminary frame alone, computed once per frame.
+
+    ``inputs``: compressed (I_s, I_m), padded, (B,2,Hp,Wp); ``f_s``/``f_m``: encoder features per
+    scale; ``query_parts``/``key_parts``: first-layer XBA terms per scale (empty without XBA);
+    ``f_ms``: per-scale F_ms when there is no XBA (it then depends on the frame only).
+    ``size``: the unpadded (H, W).
+    """
+
+    index: int
+    size: tuple[int, int]
+    inputs: torch.Tensor
+    f_s: list[torch.Tensor]
+    f_m: list[torch.Tensor]
+    query_parts: list[torch.Tensor]
+    key_parts: list[torch.Tensor]
+    f_ms: list[torch.Tensor]
+
+
+def window_indices(i: int, w: int, count: int | None) -> list[int]:
+    """Frame indices of the window around ``i``, repeating frame 0 / frame ``count-1`` at the edges."""
+    last = math.inf if count is None else count - 1
+    return [int(min(max(j, 0), last)) for j in range(i - w, i + w + 1)]
+
+
+def mu_law(x: torch.Tensor, mu: float) -> torch.Tensor:
+    """T(x) = log(1 + mu x) / log(1 + mu) for x >= 0."""
+    return torch.log1p(mu * x) / math.log1p(mu)
+
+
+def inverse_mu_law(t: torch.Tensor, mu: float) -> torch.Tensor:
+    """Inverse of ``mu_law``: (exp(t log(1 + mu)) - 1) / mu."""
+    return torch.expm1(t * math.log1p(mu)) / mu
+
+
+class RmbNet(nn.Module):
+    """The whole network; ``forward_sequence`` is the plain, non-streaming reference path."""
+
+    def __init__(self, config: RmbNetConfig) -> None:
+        super().__init__()
+        self.config = config
+        channels = config.channels
+        self.encoder_s = Encoder(1, channels, config.encoder_kernel)
+        self.encoder_m = Encoder(1, channels, config.encoder_kernel)
+        if config.use_xba:
+            self.xba = nn.ModuleList(
+                CrossBitAttention(c, max(1, round(c * config.attention_hidden)), config.attention_kernel)
+                for c in channels
+            )
+        else:
+            self.bit_fusion = nn.ModuleList(PlainBitFusion(c) for c in channels)
+        if config.use_xta:
+            self.time_fusion: nn.Module = CrossTimeAttention(
+                channels[2], max(1, round(channels[2] * config.attention_hidden)), config.attention_kernel
+            )
+        else:
+            self.time_fusion = TemporalMean()
+        self.decoder = Decoder(channels, config.lstm_kernel)
+
+    def compress_inputs(self, i_s: torch.Tensor, i_m: torch.Tensor) -> torch.Tensor:
+        """(B,H,W) preliminary sums -> (B,2,H,W) normalised, clipped, mu-law compressed inputs."""
+        cfg = self.config
+        v_s = torch.nan_to_num(i_s.float() / cfg.n, nan=0.0).clamp(0.0, 1.0)
+        v_m = torch.nan_to_num(i_m.float() / (cfg.level * cfg.n), nan=0.0).clamp(0.0, 1.0)
+        return mu_law(torch.stack([v_s, v_m], dim=1), cfg.input_mu)
+
+    def encode(self, i_s: torch.Tensor, i_m: torch.Tensor, indices: Sequence[int]) -> list[EncodedFrame]:
+        """Encode a batch of frames (F,H,W) each belonging to a batch of size B = 1 per index.
+
+        ``i_s``/``i_m`` are (F*B, H, W) ordered frame-major; ``indices`` has F entries.
+        """
+        count = len(indices)
+        size = (int(i_s.shape[-2]), int(i_s.shape[-1]))
+        x = self.compress_inputs(i_s, i_m)
+        pad_h, pad_w = (-size[0]) % PAD_MULTIPLE, (-size[1]) % PAD_MULTIPLE
+        if pad_h or pad_w:
+            x = F.pad(x, (0, pad_w, 0, pad_h), mode="replicate")
+        f_s_all = self.encoder_s(x[:, :1])
+        f_m_all = self.encoder_m(x[:, 1:])
+        if self.config.use_xba:
+            q_all = [xba.query_part(f) for xba, f in zip(self.xba, f_s_all)]
+            k_all = [xba.key_part(f) for xba, f in zip(self.xba, f_m_all)]
+            ms_all: list[torch.Tensor] = []
+        else:
+            q_all, k_all = [], []
+            ms_all = [fuse(fs, fm) for fuse, fs, fm in zip(self.bit_fusion, f_s_all, f_m_all)]
+
+        def split(t: torch.Tensor) -> tuple[torch.Tensor, ...]:
+            return t.unflatten(0, (count, -1)).unbind(0)
+
+        per = {name: [split(t) for t in ts] for name, ts in
+               (("f_s", f_s_all), ("f_m", f_m_all), ("q", q_all), ("k", k_all), ("ms", ms_all))}
+        inputs = split(x)
+        return [
+            EncodedFrame(
+                index=int(index),
+                size=size,
+                inputs=inputs[j],
+                f_s=[t[j] for t in per["f_s"]],
+                f_m=[t[j] for t in per["f_m"]],
+                query_parts=[t[j] for t in per["q"]],
+                key_parts=[t[j] for t in per["k"]],
+                f_ms=[t[j] for t in per["ms"]],
+            )
+            for j, index in enumerate(indices)
+        ]
+
+    def _xba_logits(
+        self, scale: int, queries: Sequence[EncodedFrame], keys: Sequence[EncodedFrame], cache: PairCache
+    ) -> torch.Tensor:
+        """(Q,K,B,C,h,w) XBA logits; pairs missing from ``cache`` are computed in one batched call."""
+        missing: dict[tuple[int, int, int], tuple[EncodedFrame, EncodedFrame]] = {}
+        for q in queries:
+            for k in keys:
+                key = (scale, q.index, k.index)
+                if key not in cache:
+                    missing[key] = (q, k)
+        if missing:
+            xba = self.xba[scale]
+            q_parts = torch.stack([q.query_parts[scale] for q, _ in missing.values()])
+            k_parts = torch.stack([k.key_parts[scale] for _, k in missing.values()])
+            for key, logits in zip(missing, xba.pair_logits(q_parts, k_parts).unbind(0)):
+                cache[key] = logits
+        return torch.stack([torch.stack([cache[(scale, q.index, k.index)] for k in keys]) for q in queries])
+
+    def _bit_fused(
+        self, scale: int, queries: Sequence[EncodedFrame], window: Sequence[EncodedFrame], cache: PairCache
+    ) -> torch.Tensor:
+        """F_ms(q) at ``scale`` for each query over the window, (Q,B,C,h,w)."""
+        if not self.config.use_xba:
+            return torch.stack([q.f_ms[scale] for q in queries])
+        logits = self._xba_logits(scale, queries, window, cache)
+        f_s = torch.stack([q.f_s[scale] for q in queries])
+        f_m = torch.stack([k.f_m[scale] for k in window])
+        return self.xba[scale].fuse(f_s, f_m, logits)
+
+    def step(
+        self, window: Sequence[EncodedFrame], state: DecoderState | None, cache: PairCache | None = None
+    ) -> tuple[torch.Tensor, DecoderState]:
+        """One output step for the window of 2w+1 encoded frames centred on the reference.
+
+        Returns t = T(G) in the mu-law domain, (B,1,H,W) at the unpadded size, and the new state.
+        ``cache`` holds XBA pair logits reused across overlapping windows (the caller evicts).
+        """
+        if len(window) != self.config.window:
+            raise ValueError(f"window has {len(window)} frames, the model needs {self.config.window}")
+        cache = {} if cache is None else cache
+        ref = window[self.config.w]
+        reference = [self._bit_fused(s, [ref], window, cache)[0] for s in range(2)]
+        f_ms_coarse = self._bit_fused(2, window, window, cache)
+        reference.append(f_ms_coarse[self.config.w])
+        fused = self.time_fusion(f_ms_coarse)
+        z, state = self.decoder(fused, reference, ref.inputs, state)
+        t = F.softplus(z.float()).clamp(max=self.config.output_max)
+        h, w = ref.size
+        return t[..., :h, :w], state
+
+    def to_linear(self, t: torch.Tensor) -> torch.Tensor:
+        """Mu-law-domain output -> linear HDR (>= 0, finite)."""
+        return inverse_mu_law(t.float(), self.config.output_mu)
+
+    def forward_sequence(
+        self,
+        i_s: torch.Tensor,
+        i_m: torch.Tensor,
+        state: DecoderState | None = None,
+        linear: bool = True,
+    ) -> tuple[torch.Tensor, DecoderState | None]:
+        """Reconstruct a whole sequence (B,K,H,W) of preliminary sums -> (B,K,H,W) and final state.
+
+        Linear HDR by default; ``linear=False`` returns the mu-law domain (the training loss domain).
+        """
+        batch, count = i_s.shape[:2]
+        frames = self.encode(
+            i_s.transpose(0, 1).flatten(0, 1), i_m.transpose(0, 1).flatten(0, 1), range(count)
+        )
+        outputs = []
+        for i in range(count):
+            window = [frames[j] for j in window_indices(i, self.config.w, count)]
+            t, state = self.step(window, state)
+            outputs.append(t[:, 0])
+        out = torch.stack(outputs, dim=1)
+        return (self.to_linear(out) if linear else out), state

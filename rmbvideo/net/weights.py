@@ -1,0 +1,176 @@
+"""Safe weight files for RMB-Net: ``name.safetensors`` (tensors only) + ``name.json`` (model card).
+
+Loading never executes code from a file: no ``torch.load``, no pickle. The safetensors header is
+checked before anything else, so a pickle, a ``.pt`` checkpoint or random bytes are refused with a
+``ModelError``; so is a card that does not describe a network this code can build, or weights that
+do not fit it.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import struct
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors import safe_open
+from safetensors.torch import save_file
+
+from rmbvideo import __version__
+from rmbvideo.errors import ModelError
+from rmbvideo.io.atomic import atomic_path, atomic_write_text
+from rmbvideo.net.config import RmbNetConfig
+from rmbvideo.net.model import RmbNet
+
+log = logging.getLogger(__name__)
+
+CARD_FORMAT = "rmbvideo-rmbnet"
+CARD_FORMAT_VERSION = 1
+MAX_HEADER_BYTES = 100 * 1024 * 1024
+# Shipped weights: ``rmbvideo/models`` links to the repository's top-level ``models/`` folder.
+MODELS_DIR = Path(__file__).resolve().parents[1] / "models"
+DEFAULT_MODELS = {"binned": "rmbnet-binned", "native": "rmbnet-native"}
+
+
+def default_model_path(input_mode: str = "binned") -> Path:
+    """The shipped weights for ``input_mode`` ("binned" for real cameras, "native" RMB sensors)."""
+    if input_mode not in DEFAULT_MODELS:
+        raise ModelError(f"no shipped model for input mode {input_mode!r} (known: {sorted(DEFAULT_MODELS)})")
+    path = MODELS_DIR / f"{DEFAULT_MODELS[input_mode]}.safetensors"
+    if not path.is_file():
+        raise ModelError(f"{path}: shipped model not found; reinstall rmbvideo or pass --model")
+    return path
+
+
+@dataclass
+class ModelCard:
+    """What a weight file is: how it was trained, on what, how well it does, by which code.
+
+    The architecture (including input mode, N and w) is written from the model's own config.
+    """
+
+    name: str
+    description: str = ""
+    training: dict[str, Any] = field(default_factory=dict)  # recipe: loss, epochs, optimiser, ...
+    data: dict[str, Any] = field(default_factory=dict)      # training data and its licence
+    metrics: dict[str, float] = field(default_factory=dict)
+    code_version: str = __version__
+
+
+def _paths(path: str | os.PathLike[str]) -> tuple[Path, Path]:
+    weights = Path(path)
+    if weights.suffix != ".safetensors":
+        weights = weights.with_name(weights.name + ".safetensors")
+    return weights, weights.with_suffix(".json")
+
+
+def save_model(path: str | os.PathLike[str], model: RmbNet, card: ModelCard) -> Path:
+    """Write ``path`` (.safetensors added if missing) and its JSON card; returns the weights path."""
+    weights, card_path = _paths(path)
+    tensors = {k: v.detach().to("cpu").contiguous() for k, v in model.state_dict().items()}
+    document = {
+        "format": CARD_FORMAT,
+        "format_version": CARD_FORMAT_VERSION,
+        "architecture": model.config.to_dict(),
+        **asdict(card),
+    }
+    with atomic_path(weights) as temp:
+        save_file(tensors, str(temp), metadata={"format": CARD_FORMAT})
+    atomic_write_text(card_path, json.dumps(document, indent=2) + "\n")
+    return weights
+
+
+def _read_card(card_path: Path) -> tuple[RmbNetConfig, ModelCard]:
+    try:
+        document = json.loads(card_path.read_text())
+    except OSError as exc:
+        raise ModelError(f"{card_path}: cannot read the model card ({exc.strerror})") from None
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        raise ModelError(f"{card_path}: model card is not valid JSON") from None
+    if not isinstance(document, dict) or document.get("format") != CARD_FORMAT:
+        raise ModelError(f"{card_path}: not an RMB-Net model card (format must be {CARD_FORMAT!r})")
+    if document.get("format_version") != CARD_FORMAT_VERSION:
+        raise ModelError(f"{card_path}: card format version {document.get('format_version')!r} "
+                         f"is not supported (expected {CARD_FORMAT_VERSION})")
+    card_keys = {f.name for f in fields(ModelCard)}
+    unknown = sorted(set(document) - card_keys - {"format", "format_version", "architecture"})
+    if unknown:
+        raise ModelError(f"{card_path}: unknown model card keys {unknown}")
+    try:
+        config = RmbNetConfig.from_dict(document["architecture"])
+        card = ModelCard(**{k: document[k] for k in card_keys if k in document})
+    except KeyError as exc:
+        raise ModelError(f"{card_path}: architecture does not match this code: {exc.args[0]}") from None
+    except (TypeError, ValueError) as exc:
+        raise ModelError(f"{card_path}: invalid architecture: {exc}") from None
+    return config, card
+
+
+def _check_safetensors_header(weights: Path) -> None:
+    """Refuse anything whose first bytes are not a safetensors JSON header."""
+    try:
+        size = weights.stat().st_size
+        with weights.open("rb") as fh:
+            head = fh.read(8)
+            if len(head) < 8:
+                raise ValueError
+            (length,) = struct.unpack("<Q", head)
+            if not 2 <= length <= min(MAX_HEADER_BYTES, size - 8):
+                raise ValueError
+            header = json.loads(fh.read(length).decode("utf-8"))
+            if not isinstance(header, dict):
+                raise ValueError
+    except OSError as exc:
+        raise ModelError(f"{weights}: cannot read ({exc.strerror})") from None
+    except (ValueError, UnicodeDecodeError):
+        raise ModelError(f"{weights}: refused: not a safetensors file") from None
+
+
+def load_model(
+    path: str | os.PathLike[str],
+    expect_input_mode: str | None = None,
+    device: str | torch.device = "cpu",
+) -> tuple[RmbNet, ModelCard]:
+    """Load a weight file and its card into an eval-mode ``RmbNet`` on ``device``.
+
+    Raises ``ModelError`` for a missing, foreign or corrupt file, a card that does not match the
+    code, tensors that do not match the card, or an input mode other than ``expect_input_mode``.
+    """
+    weights, card_path = _paths(path)
+    if not weights.is_file():
+        raise ModelError(f"{weights}: model file not found")
+    if not card_path.is_file():
+        raise ModelError(f"{card_path}: model card not found (expected beside {weights.name})")
+    config, card = _read_card(card_path)
+    if expect_input_mode is not None and config.input_mode != expect_input_mode:
+        raise ModelError(f"{weights}: model was trained for {config.input_mode!r} input, "
+                         f"this input is {expect_input_mode!r}")
+    _check_safetensors_header(weights)
+    try:
+        with safe_open(str(weights), framework="pt", device="cpu") as fh:
+            tensors = {key: fh.get_tensor(key) for key in fh.keys()}
+    except Exception as exc:  # safetensors raises its own error types for corrupt payloads
+        raise ModelError(f"{weights}: refused: corrupt safetensors file ({exc})") from None
+    model = RmbNet(config)
+    expected = model.state_dict()
+    missing = sorted(set(expected) - set(tensors))
+    unexpected = sorted(set(tensors) - set(expected))
+    mismatched = sorted(k for k in set(expected) & set(tensors) if expected[k].shape != tensors[k].shape)
+    problems = []
+    if missing:
+        problems.append(f"missing tensors {missing[:3]}{' ...' if len(missing) > 3 else ''}")
+    if unexpected:
+        problems.append(f"unexpected tensors {unexpected[:3]}{' ...' if len(unexpected) > 3 else ''}")
+    if mismatched:
+        k = mismatched[0]
+        problems.append(f"shape mismatch for {k}: file {tuple(tensors[k].shape)}, "
+                        f"card/code {tuple(expected[k].shape)}")
+    if problems:
+        raise ModelError(f"{weights}: weights do not match the model card: {'; '.join(problems)}")
+    model.load_state_dict(tensors)
+    log.debug("loaded %s (%s, input mode %s)", weights, card.name, config.input_mode)
+    return model.to(device).eval(), card

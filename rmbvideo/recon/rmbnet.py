@@ -1,0 +1,222 @@
+"""Streaming RMB-Net reconstruction: preliminary frames in, linear HDR ``Frame``s out.
+
+Each preliminary frame is encoded once and kept in a ring buffer of the last 2w+1 encodings; XBA
+pair logits (which depend on a pair of frames only) are cached while both frames are in the
+buffer; the ConvLSTM state is carried from frame to frame, so the output is the same however the
+input is chunked, and equal to ``RmbNet.forward_sequence`` over the whole capture. Output frame i
+needs frames up to i+w, so output lags input by w frames until ``flush``. At the edges of the
+capture the window repeats the first/last frame (``window_indices``).
+
+With ``align`` other than "none", the window's frames are warped to the reference frame's time
+with optical flow before encoding (paper Fig. 6); encodings then depend on the reference, so each
+window is encoded afresh and only the flow fields are cached.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterable
+from contextlib import nullcontext
+from pathlib import Path
+from typing import ClassVar, Protocol
+
+import numpy as np
+import torch
+
+from rmbvideo.chunks import Frame, RmbChunk
+from rmbvideo.errors import InputError
+from rmbvideo.net.model import EncodedFrame, PairCache, RmbNet, window_indices
+from rmbvideo.recon.prelim import MultiUpsampler, PreliminaryFrames
+
+log = logging.getLogger(__name__)
+
+ALIGN_METHODS = ("none", "dis", "farneback", "tvl1")
+PRECISIONS = ("auto", "fp32", "bf16")
+
+
+class PrelimLike(Protocol):
+    """What the engine reads from a preliminary frame (``rmbvideo.recon.prelim.PrelimFrame``)."""
+
+    index: int
+    time_s: float
+    i_s: np.ndarray
+    i_m: np.ndarray
+
+
+def resolve_device(device: str | torch.device) -> torch.device:
+    """"auto" -> CUDA when available, else CPU; an explicit "cuda" without a GPU is an error."""
+    if str(device) == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    resolved = torch.device(device)
+    if resolved.type == "cuda" and not torch.cuda.is_available():
+        raise InputError("--device cuda: no CUDA device is available (use --device cpu or auto)")
+    return resolved
+
+
+class RmbNetReconstructor:
+    """``push(chunk or prelim frames) -> list[Frame]``, ``flush() -> list[Frame]``.
+
+    ``precision``: "auto" uses bf16 autocast on CUDA and fp32 on CPU; "bf16"/"fp32" force it.
+    ``n`` is the readouts per preliminary frame when RmbChunks are pushed (default: the model's N)
+    and ``upsampler`` the band upsampler they go through (default: flow-free interpolation; see
+    ``rmbvideo.recon.flow.FlowUpsampler``).
+    """
+
+    input_kind: ClassVar[str] = "rmb"
+
+    def __init__(
+        self,
+        model: RmbNet,
+        device: str | torch.device = "auto",
+        align: str = "none",
+        precision: str = "auto",
+        n: int | None = None,
+        upsampler: MultiUpsampler | None = None,
+    ) -> None:
+        if align not in ALIGN_METHODS:
+            raise ValueError(f"align must be one of {ALIGN_METHODS}, got {align!r}")
+        if precision not in PRECISIONS:
+            raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
+        self.device = resolve_device(device)
+        self.model = model.to(self.device).eval()
+        if self.device.type == "cuda":
+            self.model.to(memory_format=torch.channels_last)
+        bf16 = precision == "bf16" or (precision == "auto" and self.device.type == "cuda")
+        self._autocast = bf16
+        self.align = align
+        self.n = model.config.n if n is None else n
+        self._w = model.config.w
+        self._upsampler = upsampler
+        self._prelim: PreliminaryFrames | None = None
+        self._raw: dict[int, PrelimLike] = {}
+        self._encoded: dict[int, EncodedFrame] = {}
+        self._pair_cache: PairCache = {}
+        self._flow_cache: dict = {}
+        self._received = 0
+        self._next_out = 0
+        self._state = None
+        self._size: tuple[int, int] | None = None
+        self.nonfinite_frames = 0
+
+    @classmethod
+    def from_file(
+        cls, path: str | Path, device: str = "auto", input_mode: str | None = None, **options
+    ) -> "RmbNetReconstructor":
+        """Load a safetensors model (see ``rmbvideo.net.weights``) and wrap it."""
+        from rmbvideo.net.weights import load_model
+
+        model, _card = load_model(path, expect_input_mode=input_mode, device=resolve_device(device))
+        return cls(model, device=device, **options)
+
+    def push(self, item: RmbChunk | PrelimLike | Iterable[PrelimLike]) -> list[Frame]:
+        """Consume an RMB chunk or preliminary frames; return the frames that became complete."""
+        if isinstance(item, RmbChunk):
+            frames = self._preliminary().push(item)
+        elif hasattr(item, "i_s"):
+            frames = [item]  # type: ignore[list-item]
+        else:
+            frames = list(item)  # type: ignore[arg-type]
+        return self._consume(frames, final=False)
+
+    def flush(self) -> list[Frame]:
+        """End of capture: emit the last w frames (windows repeat the last frame)."""
+        frames = self._preliminary().flush() if self._prelim is not None else []
+        return self._consume(frames, final=True)
+
+    def _preliminary(self) -> PreliminaryFrames:
+        if self._prelim is None:
+            self._prelim = PreliminaryFrames(n=self.n, upsampler=self._upsampler)
+        return self._prelim
+
+    def _precision(self):
+        if self._autocast:
+            return torch.autocast(self.device.type, dtype=torch.bfloat16)
+        return nullcontext()
+
+    def _consume(self, frames: list[PrelimLike], final: bool) -> list[Frame]:
+        with torch.inference_mode(), self._precision():
+            self._accept(frames)
+            count = self._received if final else None
+            out = []
+            while self._next_out < self._received and (final or self._next_out + self._w < self._received):
+                out.append(self._emit(self._next_out, count))
+                self._next_out += 1
+                self._evict(self._next_out - self._w)
+        return out
+
+    def _accept(self, frames: list[PrelimLike]) -> None:
+        if not frames:
+            return
+        for frame in frames:
+            size = tuple(np.shape(frame.i_s))
+            if self._size is None:
+                self._size = size  # type: ignore[assignment]
+            if size != self._size or np.shape(frame.i_m) != size:
+                raise InputError(f"preliminary frame {frame.index}: shape {size} differs from {self._size}")
+        ids = list(range(self._received, self._received + len(frames)))
+        for fid, frame in zip(ids, frames):
+            self._raw[fid] = frame
+        self._received += len(frames)
+        if self.align == "none":
+            i_s = torch.from_numpy(np.stack([np.asarray(f.i_s, np.float32) for f in frames])).to(self.device)
+            i_m = torch.from_numpy(np.stack([np.asarray(f.i_m, np.float32) for f in frames])).to(self.device)
+            for encoded in self.model.encode(i_s, i_m, ids):
+                self._encoded[encoded.index] = encoded
+
+    def _window(self, i: int, count: int | None) -> list[EncodedFrame]:
+        ids = window_indices(i, self._w, count)
+        if self.align == "none":
+            return [self._encoded[j] for j in ids]
+        from rmbvideo.recon.flow import align
+
+        raw = [self._raw[j] for j in ids]
+        aligned = align(raw, self._w, self.align, cache=self._flow_cache, keys=ids)
+        i_s = torch.from_numpy(np.stack([a[0] for a in aligned])).to(self.device)
+        i_m = torch.from_numpy(np.stack([a[1] for a in aligned])).to(self.device)
+        # positions, not frame ids: aligned encodings are valid for this window only
+        return self.model.encode(i_s, i_m, range(len(ids)))
+
+    def _emit(self, i: int, count: int | None) -> Frame:
+        cache = self._pair_cache if self.align == "none" else None
+        t, state = self.model.step(self._window(i, count), self._state, cache)
+        if not bool(torch.isfinite(t).all()):
+            self.nonfinite_frames += 1
+            log.warning("RMB-Net produced NaN/Inf in frame %d; replaced by 0 and reset the recurrent state", i)
+            t = torch.nan_to_num(t, nan=0.0, posinf=0.0, neginf=0.0)
+            state = None
+        self._state = state
+        image = self.model.to_linear(t)[0, 0].float().cpu().numpy()
+        source = self._raw[i]
+        return Frame(index=int(source.index), time_s=float(source.time_s), image=image)
+
+    def _evict(self, oldest_needed: int) -> None:
+        for store in (self._encoded, self._raw):
+            for fid in [k for k in store if k < oldest_needed]:
+                del store[fid]
+        for key in [k for k in self._pair_cache if k[1] < oldest_needed or k[2] < oldest_needed]:
+            del self._pair_cache[key]
+        for key in [k for k in self._flow_cache if min(k[:2]) < oldest_needed]:
+            del self._flow_cache[key]
+
+
+def make_rmbnet(
+    model: str | Path | None = None,
+    device: str = "auto",
+    align: str = "none",
+    precision: str = "auto",
+    input_mode: str | None = None,
+    upsampling: str = "interp",
+) -> RmbNetReconstructor:
+    """Pipeline factory for method "rmbnet": ``model`` is a .safetensors path; ``upsampling`` is
+    "interp" (flow-free band interpolation) or a flow method ("dis", "farneback", "tvl1").
+    Without ``model`` the shipped weights for ``input_mode`` (default "binned") are used."""
+    from rmbvideo.net.weights import default_model_path
+    from rmbvideo.recon.flow import FlowUpsampler
+
+    if model is None:
+        model = default_model_path(input_mode or "binned")
+    upsampler = None if upsampling == "interp" else FlowUpsampler(method=upsampling)
+    return RmbNetReconstructor.from_file(
+        model, device=device, input_mode=input_mode, align=align, precision=precision, upsampler=upsampler
+    )
+

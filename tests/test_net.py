@@ -1,0 +1,113 @@
+"""RMB-Net parts and the whole network: shapes, ablations, hard inputs, precision."""
+
+from __future__ import annotations
+
+import torch
+import pytest
+
+from rmbvideo.net.attention import PairProjection
+from rmbvideo.net.config import RmbNetConfig
+from rmbvideo.net.model import RmbNet, inverse_mu_law, mu_law, window_indices
+
+
+def small(**kw) -> RmbNet:
+    torch.manual_seed(0)
+    return RmbNet(RmbNetConfig(width=0.25, **{"w": 1, **kw})).eval()
+
+
+def run(model: RmbNet, i_s: torch.Tensor, i_m: torch.Tensor) -> torch.Tensor:
+    with torch.inference_mode():
+        return model.forward_sequence(i_s, i_m)[0]
+
+
+def random_inputs(k: int = 4, h: int = 20, w: int = 13, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    return (torch.randint(0, 11, (1, k, h, w), generator=g).float(),
+            torch.randint(0, 71, (1, k, h, w), generator=g).float())
+
+
+def test_output_shape_odd_size_finite_nonnegative():
+    model = small()
+    out = run(model, *random_inputs(h=20, w=13))
+    assert out.shape == (1, 4, 20, 13)
+    assert torch.isfinite(out).all() and (out >= 0).all()
+
+
+def test_split_projection_equals_conv_on_concatenation():
+    torch.manual_seed(1)
+    proj = PairProjection((3, 5), hidden=4, out_channels=2, kernel=3)
+    a, b = torch.randn(2, 3, 8, 8), torch.randn(2, 5, 8, 8)
+    whole = torch.nn.Conv2d(8, 4, 3, padding=1)
+    with torch.no_grad():
+        whole.weight.copy_(torch.cat([proj.parts[0].weight, proj.parts[1].weight], dim=1))
+        whole.bias.copy_(proj.parts[0].bias)
+        expected = proj.out(torch.relu(whole(torch.cat([a, b], dim=1))))
+        got = proj.combine(proj.part(0, a) + proj.part(1, b))
+    torch.testing.assert_close(got, expected, rtol=1e-5, atol=1e-6)
+
+
+def test_ablations_change_the_graph():
+    names = lambda m: {n for n, _ in m.named_parameters()}  # noqa: E731
+    full, no_xba, no_xta = small(), small(use_xba=False), small(use_xta=False)
+    assert any(n.startswith("xba.") for n in names(full))
+    assert not any(n.startswith("xba.") for n in names(no_xba))
+    assert any(n.startswith("time_fusion.") for n in names(full))
+    assert not any(n.startswith("time_fusion.") for n in names(no_xta))
+    inputs = random_inputs()
+    for model in (no_xba, no_xta, small(w=0)):
+        out = run(model, *inputs)
+        assert torch.isfinite(out).all() and (out >= 0).all()
+
+
+@pytest.mark.parametrize("case", ["dark", "saturated", "single_spike"])
+def test_hard_inputs_stay_finite(case):
+    model = small()
+    i_s = torch.zeros(1, 3, 16, 16)
+    i_m = torch.zeros(1, 3, 16, 16)
+    if case == "saturated":
+        i_s += 10
+        i_m += 70
+    elif case == "single_spike":
+        i_s[0, 1, 7, 9] = 1
+    out = run(model, i_s, i_m)
+    assert torch.isfinite(out).all() and (out >= 0).all()
+    assert out.max() <= inverse_mu_law(torch.tensor(model.config.output_max), model.config.output_mu) + 1e-3
+
+
+def test_bf16_autocast_close_to_fp32():
+    model = small()
+    inputs = random_inputs(k=3, h=16, w=16)
+    with torch.inference_mode():
+        ref = model.forward_sequence(*inputs, linear=False)[0]
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            low = model.forward_sequence(*inputs, linear=False)[0]
+    assert low.dtype == torch.float32
+    assert (low - ref).abs().max() < 0.05 * ref.abs().max()
+
+
+def test_mu_law_round_trip_and_window_edges():
+    x = torch.tensor([0.0, 1e-4, 0.5, 1.0, 30.0])
+    torch.testing.assert_close(inverse_mu_law(mu_law(x, 5000.0), 5000.0), x, rtol=1e-4, atol=1e-7)
+    assert window_indices(0, 2, 3) == [0, 0, 0, 1, 2]
+    assert window_indices(2, 2, 3) == [0, 1, 2, 2, 2]
+    assert window_indices(5, 1, None) == [4, 5, 6]
+
+
+def test_config_validation_and_dict_round_trip():
+    cfg = RmbNetConfig(w=2, width=0.5, input_mode="native", use_xta=False)
+    assert RmbNetConfig.from_dict(cfg.to_dict()) == cfg
+    with pytest.raises(KeyError):
+        RmbNetConfig.from_dict({**cfg.to_dict(), "heads": 4})
+    with pytest.raises(ValueError):
+        RmbNetConfig(w=4)
+    with pytest.raises(ValueError):
+        RmbNetConfig(input_mode="raw")
+
+
+def test_gradients_reach_every_parameter():
+    model = small()
+    model.train()
+    out = model.forward_sequence(*random_inputs(k=3, h=16, w=16), linear=False)[0]
+    out.mean().backward()
+    missing = [n for n, p in model.named_parameters() if p.grad is None or not torch.isfinite(p.grad).all()]
+    assert not missing

@@ -1,0 +1,128 @@
+"""The streaming RMB-Net engine: chunk-size independence, equality with the plain forward pass,
+edges of the capture, long recurrent runs, and the NaN guard."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from rmbvideo.chunks import RmbChunk
+from rmbvideo.net.config import RmbNetConfig
+from rmbvideo.net.model import RmbNet
+from rmbvideo.recon.prelim import PreliminaryFrames, PrelimFrame
+from rmbvideo.recon.rmbnet import RmbNetReconstructor
+from rmbvideo.sensor.readout import RmbReadout
+
+H, W = 20, 13
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def tiny(**kw) -> RmbNet:
+    torch.manual_seed(0)
+    return RmbNet(RmbNetConfig(**{"w": 2, "width": 0.25, **kw})).eval()
+
+
+def rmb_stream(readouts: int, seed: int = 0) -> RmbChunk:
+    rng = np.random.default_rng(seed)
+    light = rng.random((H, W)) * np.linspace(0.05, 4.0, W)[None, :]
+    multi = np.minimum(rng.poisson(light * 2, (readouts, H, W)), 7).astype(np.uint8)
+    single = (rng.random((readouts, H, W)) < np.minimum(light, 1)).astype(np.uint8)
+    full = RmbChunk(single, multi, np.ones((readouts, H), bool), start=0, rate_hz=10_000.0)
+    return RmbReadout(band=4, shift=2).apply(full)
+
+
+def split(chunk: RmbChunk, size: int) -> list[RmbChunk]:
+    return [RmbChunk(chunk.single[a:a + size], chunk.multi[a:a + size], chunk.multi_rows[a:a + size],
+                     a, chunk.rate_hz) for a in range(0, len(chunk.single), size)]
+
+
+def stream(model: RmbNet, chunks: list, **kw):
+    engine = RmbNetReconstructor(model, device="cpu", **kw)
+    frames = [f for c in chunks for f in engine.push(c)] + engine.flush()
+    return frames, engine
+
+
+def test_chunk_size_independent_and_equal_to_forward_sequence():
+    model = tiny()
+    data = rmb_stream(95)
+    results = {size: stream(model, split(data, size))[0] for size in (1, 7, 95)}
+    prelim = PreliminaryFrames(n=10)
+    pframes = prelim.push(data) + prelim.flush()
+    assert len(pframes) == 9
+    with torch.inference_mode():
+        reference = model.forward_sequence(torch.from_numpy(np.stack([p.i_s for p in pframes]))[None],
+                                           torch.from_numpy(np.stack([p.i_m for p in pframes]))[None])[0][0]
+    for size, frames in results.items():
+        assert [f.index for f in frames] == [p.index for p in pframes], size
+        assert [f.time_s for f in frames] == [p.time_s for p in pframes]
+        images = np.stack([f.image for f in frames])
+        assert images.dtype == np.float32 and np.isfinite(images).all() and (images >= 0).all()
+        np.testing.assert_allclose(images, reference.numpy(), rtol=1e-5, atol=1e-7 * float(reference.max()))
+    assert not np.allclose(results[1][0].image, results[1][4].image)
+
+
+def test_ring_buffer_and_caches_stay_bounded():
+    model = tiny()
+    rng = np.random.default_rng(1)
+    engine = RmbNetReconstructor(model, device="cpu")
+    window = model.config.window
+    for k in range(30):
+        engine.push(PrelimFrame(k, k * 1e-3, rng.integers(0, 11, (H, W)).astype(np.float32),
+                                rng.integers(0, 71, (H, W)).astype(np.float32), np.ones(H, bool)))
+        assert len(engine._encoded) <= window
+        assert len(engine._pair_cache) <= 3 * window * window
+
+
+def test_capture_of_one_preliminary_frame():
+    frames, _ = stream(tiny(), [rmb_stream(10)])
+    assert len(frames) == 1 and frames[0].image.shape == (H, W) and np.isfinite(frames[0].image).all()
+
+
+def test_empty_capture_gives_no_frames():
+    assert stream(tiny(), [rmb_stream(5)])[0] == []
+
+
+def test_long_run_state_does_not_grow():
+    torch.manual_seed(0)
+    model = RmbNet(RmbNetConfig(w=1, width=0.125)).eval()
+    engine = RmbNetReconstructor(model, device="cpu")
+    rng = np.random.default_rng(2)
+    peaks = []
+    for k in range(2000):
+        bright = 10.0 if (k // 100) % 2 else 0.0
+        i_s = np.full((16, 16), bright, np.float32)
+        i_m = (rng.random((16, 16)) * 70).astype(np.float32)
+        for frame in engine.push(PrelimFrame(k, k * 1e-3, i_s, i_m, np.ones(16, bool))):
+            assert np.isfinite(frame.image).all() and frame.image.min() >= 0
+        if k in (999, 1999):
+            peaks.append(max(float(t.abs().max()) for layer in engine._state for t in layer))
+    assert engine.nonfinite_frames == 0
+    assert peaks[1] <= 1.5 * peaks[0] + 1e-3
+
+
+def test_nonfinite_network_output_is_guarded():
+    model = tiny()
+    with torch.no_grad():
+        model.decoder.head[1].bias.fill_(float("nan"))
+    frames, engine = stream(model, [rmb_stream(40)])
+    assert len(frames) == 4 and engine.nonfinite_frames == 4
+    assert all(np.isfinite(f.image).all() and (f.image >= 0).all() for f in frames)
+
+
+def test_alignment_with_flow_runs_and_is_chunk_independent():
+    model = tiny(w=1)
+    data = rmb_stream(60)
+    a = np.stack([f.image for f in stream(model, split(data, 13), align="dis")[0]])
+    b = np.stack([f.image for f in stream(model, [data], align="dis")[0]])
+    c = np.stack([f.image for f in stream(model, [data])[0]])
+    assert a.shape == (6, H, W) and np.isfinite(a).all()
+    np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
+    assert not np.allclose(a, c)

@@ -1,0 +1,97 @@
+"""Safe weight files: round trip, mismatched cards, and refusal of foreign or unsafe files."""
+
+from __future__ import annotations
+
+import json
+import pickle
+
+import pytest
+import torch
+
+from rmbvideo.errors import ModelError
+from rmbvideo.net.config import RmbNetConfig
+from rmbvideo.net.model import RmbNet
+from rmbvideo.net.weights import ModelCard, load_model, save_model
+
+
+def tiny(**kw) -> RmbNet:
+    torch.manual_seed(0)
+    return RmbNet(RmbNetConfig(w=1, width=0.25, **kw)).eval()
+
+
+CARD = ModelCard(name="tiny", training={"loss": "mu-law L2 + SSIM"}, data={"scenes": "none"}, metrics={"psnr": 1.5})
+
+
+def test_round_trip_same_outputs_and_card(tmp_path):
+    model = tiny(input_mode="native")
+    with torch.no_grad():  # make BN statistics non-default so they must travel too
+        model.encoder_s.blocks[0][1].running_mean.fill_(0.3)
+    path = save_model(tmp_path / "m", model, CARD)
+    assert path.name == "m.safetensors" and (tmp_path / "m.json").is_file()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+    loaded, card = load_model(path, expect_input_mode="native")
+    assert card == CARD and loaded.config == model.config
+    x = torch.rand(1, 3, 16, 16) * 10
+    with torch.inference_mode():
+        torch.testing.assert_close(loaded.forward_sequence(x, x * 7)[0], model.forward_sequence(x, x * 7)[0])
+
+
+def _card(tmp_path) -> dict:
+    return json.loads((tmp_path / "m.json").read_text())
+
+
+def test_mismatched_cards_are_refused(tmp_path):
+    path = save_model(tmp_path / "m", tiny(), CARD)
+    with pytest.raises(ModelError, match="'binned'.*'native'"):
+        load_model(path, expect_input_mode="native")
+    original = _card(tmp_path)
+    cases = {
+        "unknown config keys": {**original, "architecture": {**original["architecture"], "heads": 8}},
+        "shape mismatch": {**original, "architecture": {**original["architecture"], "width": 0.5}},
+        "missing tensors": {**original, "architecture": {**original["architecture"], "use_xba": True,
+                                                         "use_xta": True, "w": 1}},
+        "unknown model card keys": {**original, "extra": 1},
+    }
+    # a weight file without XTA tensors, described by a card that promises XTA
+    save_model(tmp_path / "noxta", tiny(use_xta=False), CARD)
+    for problem, document in cases.items():
+        target = "noxta" if problem == "missing tensors" else "m"
+        (tmp_path / f"{target}.json").write_text(json.dumps(document))
+        with pytest.raises(ModelError, match=problem):
+            load_model(tmp_path / f"{target}.safetensors")
+    (tmp_path / "m.json").write_text("{not json")
+    with pytest.raises(ModelError, match="not valid JSON"):
+        load_model(path)
+    (tmp_path / "m.json").unlink()
+    with pytest.raises(ModelError, match="model card not found"):
+        load_model(path)
+
+
+class _Marker:
+    """Unpickling this would create a file: proof that code ran."""
+
+    def __init__(self, target: str) -> None:
+        self.target = target
+
+    def __reduce__(self):
+        return (open, (self.target, "w"))
+
+
+@pytest.mark.parametrize("kind", ["random", "pickle", "torch_save", "empty"])
+def test_foreign_files_are_refused_without_running_code(tmp_path, kind):
+    save_model(tmp_path / "m", tiny(), CARD)
+    path = tmp_path / "m.safetensors"
+    marker = tmp_path / "marker"
+    if kind == "random":
+        path.write_bytes(torch.randint(0, 256, (4096,), generator=torch.Generator().manual_seed(3),
+                                       dtype=torch.uint8).numpy().tobytes())
+    elif kind == "pickle":
+        path.write_bytes(pickle.dumps(_Marker(str(marker))))
+    elif kind == "torch_save":
+        torch.save({"x": _Marker(str(marker))}, path)
+    else:
+        path.write_bytes(b"")
+    assert not marker.exists()
+    with pytest.raises(ModelError, match="refused: not a safetensors file"):
+        load_model(path)
+    assert not marker.exists()
