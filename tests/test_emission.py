@@ -15,7 +15,7 @@ NOISE = ["shot_noise", "dark_current", "threshold_mismatch", "reset_noise", "the
 
 
 def test_deterministic_multibit_rule_and_reset() -> None:
-    params = SensorParams(voltage=10.0)  # Q_th = 10 electrons exactly
+    params = SensorParams(capacitance=1.0, voltage=10.0)  # Q_th = 10 electrons exactly
     emitter = SpikeEmitter(1, 3, params, effects=[], seed=0)
     photo = np.array([[[4.0, 10.0, 25.0]]] * 3)
     out = emitter.emit(photo, level=3)

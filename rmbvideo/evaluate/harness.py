@@ -1,0 +1,279 @@
+"""Run any reconstruction method on a held-out sequence, match its frames to ground truth, score, time.
+
+Input: every method on the RMB stream gets the sequence's binned pure-M stream passed through the
+row's readout design (``RmbReadout(mode=...)``; "rmb" for the baselines and RMB-Net, the ablation
+designs for the pure-S/pure-M/full-M rows). Methods on raw 1-bit planes (TFI) get the raw stream at
+twice the size and rate; their frames are 2x2 area-averaged to the ground-truth size. Frame indices
+and times are the same for both (frame i: binned readout 10i + 5 = raw plane 20i + 10).
+
+Scores: mu-law PSNR and SSIM (mu = 5000) and PU21 PSNR per scored frame (``Sequence.scored_frames``),
+averaged over the frames of a sequence; a row's score over several sequences is the mean of the
+per-sequence means (``aggregate``). Time: wall-clock seconds from the first chunk pushed to the last
+frame returned (readout design, upsampling, preliminary frames and the method itself; not the
+simulation or the unpacking of the cached arrays), over every frame the method emits.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from rmbvideo.chunks import Frame
+from rmbvideo.evaluate.heldout import Sequence
+from rmbvideo.evaluate.metrics import mu_law_psnr, mu_law_ssim, pu21_psnr
+from rmbvideo.recon.pipeline import finite_frame, make_reconstructor
+from rmbvideo.sensor.readout import RmbReadout
+
+log = logging.getLogger(__name__)
+
+CHUNK_READOUTS = 64  # binned readouts pushed at once (results do not depend on it)
+
+
+@dataclass(frozen=True)
+class MethodSpec:
+    """A table row: display ``name``, registered ``method`` (``recon.pipeline.RECONSTRUCTORS``), its
+    keyword ``options``, and the readout design applied to RMB input (ignored for raw-input methods)."""
+
+    name: str
+    method: str
+    options: dict[str, Any] = field(default_factory=dict)
+    readout: str = "rmb"
+
+    @property
+    def model_path(self) -> Path | None:
+        """The weight file this row needs, if any (``options["model"]``)."""
+        model = self.options.get("model")
+        return Path(model) if model is not None else None
+
+    @property
+    def available(self) -> bool:
+        """False when the row needs a weight file that does not exist (an untrained ablation)."""
+        path = self.model_path
+        return path is None or path.with_suffix(".safetensors").is_file()
+
+
+@dataclass
+class MethodResult:
+    """One method on one sequence: its scored ``frames`` (index -> linear image, at GT size), mean
+    metrics over them, wall-clock ``seconds`` for all ``frames_emitted`` frames, and for RMB-Net the
+    part of that spent in the network (``network_seconds``; None for other methods)."""
+
+    frames: dict[int, np.ndarray]
+    psnr: float
+    ssim: float
+    pu21: float
+    seconds: float
+    frames_emitted: int
+    network_seconds: float | None = None
+
+    @property
+    def frames_per_second(self) -> float:
+        """Output frames per wall-clock second, end to end from the input stream."""
+        return self.frames_emitted / self.seconds if self.seconds > 0 else math.inf
+
+
+def downsample_2x(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """2x2 area average of a raw-resolution frame, cropped to the binned ``shape`` (H, W)."""
+    h, w = shape
+    return cv2.resize(image[: 2 * h, : 2 * w], (w, h), interpolation=cv2.INTER_AREA)
+
+
+def _rmbnet_upsampler(options: dict[str, Any]) -> Any:
+    from rmbvideo.recon.flow import FlowUpsampler
+
+    upsampling = options.get("upsampling", "interp")
+    return None if upsampling == "interp" else FlowUpsampler(method=upsampling)
+
+
+def _run_rmbnet(spec: MethodSpec, seq: Sequence, readout: RmbReadout) -> tuple[list[Frame], float, float]:
+    """RMB-Net with its preliminary frames computed here, so the network's share can be timed apart."""
+    from rmbvideo.recon.prelim import PreliminaryFrames
+
+    recon = make_reconstructor(spec.method, **spec.options)
+    prelim = PreliminaryFrames(n=recon.n, upsampler=_rmbnet_upsampler(spec.options))
+    chunks = list(seq.rmb_chunks(CHUNK_READOUTS))
+    frames: list[Frame] = []
+    network = 0.0
+    began = time.perf_counter()
+    for chunk in chunks:
+        pending = prelim.push(readout.apply(chunk))
+        tick = time.perf_counter()
+        frames += recon.push(pending)
+        network += time.perf_counter() - tick
+    pending = prelim.flush()
+    tick = time.perf_counter()
+    frames += recon.push(pending) + recon.flush()
+    network += time.perf_counter() - tick
+    return frames, time.perf_counter() - began, network
+
+
+def run_frames(spec: MethodSpec, seq: Sequence) -> tuple[list[Frame], float, float | None]:
+    """All frames of ``spec`` on ``seq`` (at GT size, finite), wall-clock seconds, network seconds."""
+    readout = RmbReadout(mode=spec.readout)
+    if spec.method == "rmbnet":
+        frames, seconds, network = _run_rmbnet(spec, seq, readout)
+        return [finite_frame(f)[0] for f in frames], seconds, network
+    recon = make_reconstructor(spec.method, **spec.options)
+    frames = []
+    if recon.input_kind == "rmb":
+        chunks: list[Any] = list(seq.rmb_chunks(CHUNK_READOUTS))
+        began = time.perf_counter()
+        for chunk in chunks:
+            frames += recon.push(readout.apply(chunk))
+        frames += recon.flush()
+    else:
+        chunks = list(seq.raw_chunks(2 * CHUNK_READOUTS))
+        began = time.perf_counter()
+        for chunk in chunks:
+            frames += recon.push(chunk)
+        frames += recon.flush()
+        frames = [Frame(f.index, f.time_s, downsample_2x(f.image, seq.shape)) for f in frames]
+    seconds = time.perf_counter() - began
+    return [finite_frame(f)[0] for f in frames], seconds, None
+
+
+def score_frames(frames: dict[int, np.ndarray], seq: Sequence) -> tuple[float, float, float]:
+    """Mean mu-law PSNR, mu-law SSIM and PU21 PSNR of ``frames`` (index -> image) against ``seq.gt``."""
+    scores = np.array([(mu_law_psnr(image, seq.gt[i]), mu_law_ssim(image, seq.gt[i]), pu21_psnr(image, seq.gt[i]))
+                       for i, image in frames.items()])
+    return tuple(float(v) for v in scores.mean(axis=0))  # type: ignore[return-value]
+
+
+def run_method(spec: MethodSpec, seq: Sequence) -> MethodResult:
+    """Run ``spec`` on ``seq``, keep the scored frames, and score them against the ground truth.
+
+    Raises ``ValueError`` when the method does not produce every scored frame (at the right time).
+    """
+    frames, seconds, network = run_frames(spec, seq)
+    by_index = {f.index: f for f in frames}
+    scored: dict[int, np.ndarray] = {}
+    for i in seq.scored_frames:
+        frame = by_index.get(i)
+        if frame is None:
+            raise ValueError(f"{spec.name} on {seq.name}: no frame {i} (emitted {sorted(by_index)})")
+        if not math.isclose(frame.time_s, seq.frame_time(i), rel_tol=1e-9, abs_tol=1e-9):
+            raise ValueError(f"{spec.name} on {seq.name}: frame {i} at {frame.time_s} s, "
+                             f"ground truth at {seq.frame_time(i)} s")
+        if frame.image.shape != seq.shape:
+            raise ValueError(f"{spec.name} on {seq.name}: frame shape {frame.image.shape}, GT {seq.shape}")
+        scored[i] = frame.image
+    psnr, ssim, pu21 = score_frames(scored, seq)
+    return MethodResult(frames=scored, psnr=psnr, ssim=ssim, pu21=pu21, seconds=seconds,
+                        frames_emitted=len(frames), network_seconds=network)
+
+
+@dataclass
+class RowResult:
+    """A table row over the whole set: ``status`` "ok", "not trained" or "failed: ..."; means of the
+    per-sequence scores; frames per second over all sequences; frames of the figure sequence."""
+
+    name: str
+    status: str
+    psnr: float = math.nan
+    ssim: float = math.nan
+    pu21: float = math.nan
+    fps: float = math.nan
+    network_fps: float = math.nan
+    figure_frames: dict[int, np.ndarray] = field(default_factory=dict)
+
+
+def aggregate(name: str, results: list[MethodResult]) -> RowResult:
+    """Combine per-sequence results: metric means of the sequence means, fps over all frames and time."""
+    frames = sum(r.frames_emitted for r in results)
+    seconds = sum(r.seconds for r in results)
+    network = [r.network_seconds for r in results if r.network_seconds is not None]
+    return RowResult(
+        name=name, status="ok",
+        psnr=float(np.mean([r.psnr for r in results])),
+        ssim=float(np.mean([r.ssim for r in results])),
+        pu21=float(np.mean([r.pu21 for r in results])),
+        fps=frames / seconds if seconds > 0 else math.inf,
+        network_fps=(frames / sum(network) if sum(network) > 0 else math.inf) if network else math.nan,
+        figure_frames=results[0].frames,
+    )
+
+
+def evaluate_rows(specs: Iterable[MethodSpec], sequences: list[Sequence], progress: bool = False) -> list[RowResult]:
+    """Every row on every sequence; the frames of the first sequence are kept for the figure.
+
+    A row whose weight file is missing is "not trained"; a weight file that cannot be used
+    (``RmbvideoError``) gives "failed: <reason>" for that row only.
+    """
+    from tqdm import tqdm
+
+    from rmbvideo.errors import RmbvideoError
+
+    specs = list(specs)
+    rows = []
+    total = sum(len(sequences) for s in specs if s.available)
+    with tqdm(total=total, unit="run", disable=not progress, dynamic_ncols=True) as bar:
+        for spec in specs:
+            if not spec.available:
+                log.info("%s: %s not found: not trained", spec.name, spec.model_path)
+                rows.append(RowResult(name=spec.name, status="not trained"))
+                continue
+            bar.set_description(spec.name)
+            results = []
+            try:
+                for seq in sequences:
+                    results.append(run_method(spec, seq))
+                    bar.update(1)
+            except RmbvideoError as exc:
+                log.warning("%s: %s", spec.name, exc)
+                rows.append(RowResult(name=spec.name, status=f"failed: {exc}"))
+                bar.update(len(sequences) - len(results))
+                continue
+            row = aggregate(spec.name, results)
+            log.info("%s: mu-PSNR %.2f dB, SSIM %.3f, PU21 %.2f dB, %.1f fps",
+                     row.name, row.psnr, row.ssim, row.pu21, row.fps)
+            rows.append(row)
+    return rows
+
+
+#: Ablation row name -> (weight file stem, readout design of its input). The stems are the ``name``s of
+#: the short recipes ``rmbvideo/train/recipes/ablation-*.toml``.
+ABLATIONS: dict[str, tuple[str, str]] = {
+    "w = 0": ("rmbnet-binned-w0", "rmb"),
+    "Pure-S": ("rmbnet-binned-pure-s", "pure-s"),
+    "Pure-M": ("rmbnet-binned-pure-m", "pure-m"),
+    "Full-M": ("rmbnet-binned-full-m", "full-m"),
+    "w/o XBA": ("rmbnet-binned-no-xba", "rmb"),
+    "w/o XTA": ("rmbnet-binned-no-xta", "rmb"),
+}
+
+
+def ablation_model_path(models_dir: Path, stem: str) -> Path:
+    """``models_dir/ablations/<stem>.safetensors``, or ``models_dir/<stem>.safetensors`` when only that
+    exists (where ``rmbvideo train`` writes by default)."""
+    nested = models_dir / "ablations" / f"{stem}.safetensors"
+    flat = models_dir / f"{stem}.safetensors"
+    return flat if flat.is_file() and not nested.is_file() else nested
+
+
+def table2_specs(models_dir: Path, device: str = "auto") -> list[MethodSpec]:
+    """The rows of the paper's Table 2 (without Spk2ImgNet): baselines, RMB-Net (``rmbnet-binned``
+    in ``models_dir``), and the ablations (``ablation_model_path``)."""
+    models_dir = Path(models_dir)
+
+    def rmbnet(name: str, path: Path, readout: str) -> MethodSpec:
+        return MethodSpec(name, "rmbnet", {"model": str(path), "device": device, "input_mode": "binned"}, readout)
+
+    specs = [
+        MethodSpec("TFW-S", "tfw", {"window": 10, "step": 10}),
+        MethodSpec("TFW-L", "tfw", {"window": 70, "step": 10}),
+        MethodSpec("TFI", "tfi", {"step": 20}),
+        MethodSpec("GC20", "gc20", {}),
+        MethodSpec("MG20", "mg20", {}),
+        rmbnet("RMB-Net", models_dir / "rmbnet-binned.safetensors", "rmb"),
+    ]
+    specs += [rmbnet(name, ablation_model_path(models_dir, stem), readout)
+              for name, (stem, readout) in ABLATIONS.items()]
+    return specs

@@ -1,0 +1,238 @@
+"""The held-out synthetic evaluation set (the analog of the paper's Table 2 test data), cached on disk.
+
+Each sequence is a random HDR scene from ``rmbvideo.train.random_scenes`` with a seed from the
+evaluation range (``>= EVAL_SEED_START``; those seeds may also draw the held-out panorama), so no
+sequence was ever seen in training. It is simulated exactly as real captures are processed: 1-bit
+spikes at twice the output size and rate with the generator's realistic noise effects, then 2x2x2
+binning (``rmbvideo.sensor.binning``) into a pure-M RMB stream at half size and 10 kHz.
+
+Frames: frame ``i`` is centred at binned readout ``i*FRAME_STEP + FRAME_STEP/2`` (raw plane
+``20i + 10``), the schedule of every reconstructor here; its ground truth is the scene's linear
+radiance at that instant (``rmbvideo.scenes.render.ground_truth``: expected photo-charge per raw
+readout relative to the threshold, 2x2-averaged to the binned size).
+
+Scored frames (edge policy): only frames whose whole ``edge_readouts``-readout neighbourhood on both
+sides lies inside the sequence are scored, for every method alike. The default, 35 readouts, is half
+of TFW-L's/GC20's 70-readout window and RMB-Net's 2w+1 = 7 frames, so no scored frame comes from a
+window clipped or padded at an edge.
+
+Cache: one ``.npz`` per sequence (``np.savez_compressed``, no pickle; raw planes bit-packed), named by
+the cache format version and every setting that changes its content, written to a temporary name and
+renamed when complete.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import tempfile
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from rmbvideo.chunks import RmbChunk, SpikeChunk
+from rmbvideo.errors import InputError, OutputError
+from rmbvideo.io.atomic import atomic_path
+from rmbvideo.sensor.binning import MULTI_LEVEL, bin_2x2x2
+
+log = logging.getLogger(__name__)
+
+CACHE_FORMAT = 1
+FRAME_STEP = 10  # binned readouts per output frame (N of the paper)
+RAW_RATE_HZ = 20000.0
+_SIMULATE_CHUNK = 64  # raw planes simulated at once
+
+
+@dataclass(frozen=True)
+class HeldoutConfig:
+    """Size of the held-out set: ``count`` sequences of ``readouts`` binned readouts at the binned size
+    ``width`` x ``height`` (raw: twice each), seeds ``EVAL_SEED_START + first_seed_offset + k``."""
+
+    count: int = 6
+    width: int = 200
+    height: int = 125
+    readouts: int = 200
+    edge_readouts: int = 35
+    first_seed_offset: int = 0
+
+    def __post_init__(self) -> None:
+        if self.count < 1 or self.width < 8 or self.height < 8:
+            raise ValueError(f"need >= 1 sequence of at least 8x8 pixels, got {self}")
+        if self.readouts < FRAME_STEP or self.readouts % FRAME_STEP:
+            raise ValueError(f"readouts must be a positive multiple of {FRAME_STEP}, got {self.readouts}")
+        if self.edge_readouts < 0:
+            raise ValueError(f"edge_readouts must be >= 0, got {self.edge_readouts}")
+
+
+#: The full set: 6 sequences of 200 binned readouts (20 ms, 20 frames, 14 scored) at 200x125.
+FULL = HeldoutConfig()
+#: ``--quick``: 2 smaller, shorter sequences (112x64, 120 readouts: 12 frames, 6 scored).
+QUICK = HeldoutConfig(count=2, width=112, height=64, readouts=120)
+
+
+@dataclass
+class Sequence:
+    """One held-out sequence: the binned pure-M stream, the raw 1-bit planes, and per-frame ground truth.
+
+    ``single``/``multi``: (T, H, W) uint8 binned readouts at ``rate_hz``; ``raw_packed``: (2T, 2H,
+    ceil(2W/8)) bit-packed raw planes (little bit order) at ``2 * rate_hz``; ``gt``: (F, H, W) float32
+    linear ground truth of frames ``0 .. F-1`` with F = T / FRAME_STEP.
+    """
+
+    name: str
+    seed: int
+    rate_hz: float
+    single: np.ndarray
+    multi: np.ndarray
+    raw_packed: np.ndarray
+    gt: np.ndarray
+    edge_readouts: int
+    description: str = ""
+
+    @property
+    def readouts(self) -> int:
+        """Binned readouts in the sequence."""
+        return len(self.single)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(H, W) of the binned stream and of the ground truth."""
+        return self.single.shape[1:]
+
+    @property
+    def raw_shape(self) -> tuple[int, int]:
+        """(H, W) of the raw 1-bit planes."""
+        return 2 * self.shape[0], 2 * self.shape[1]
+
+    @property
+    def scored_frames(self) -> list[int]:
+        """Frame indices scored for every method (see the module docstring's edge policy)."""
+        last = self.readouts - self.edge_readouts
+        return [i for i in range(len(self.gt))
+                if i * FRAME_STEP + FRAME_STEP / 2 - self.edge_readouts >= 0
+                and i * FRAME_STEP + FRAME_STEP / 2 <= last]
+
+    def frame_time(self, index: int) -> float:
+        """Capture time (s) of frame ``index``: the centre of its readouts."""
+        return (index * FRAME_STEP + FRAME_STEP / 2) / self.rate_hz
+
+    def rmb_chunks(self, chunk_readouts: int = 64) -> Iterator[RmbChunk]:
+        """The binned stream as pure-M ``RmbChunk``s (every row multi-bit), as ``DatReader.binned_chunks``."""
+        for start in range(0, self.readouts, chunk_readouts):
+            stop = min(start + chunk_readouts, self.readouts)
+            yield RmbChunk(single=self.single[start:stop], multi=self.multi[start:stop],
+                           multi_rows=np.ones((stop - start, self.shape[0]), dtype=bool), start=start,
+                           rate_hz=self.rate_hz, level=MULTI_LEVEL, raw_per_readout=2)
+
+    def raw_chunks(self, chunk_planes: int = 128) -> Iterator[SpikeChunk]:
+        """The raw 1-bit planes as ``SpikeChunk``s at the raw rate."""
+        width = self.raw_shape[1]
+        for start in range(0, len(self.raw_packed), chunk_planes):
+            packed = self.raw_packed[start:start + chunk_planes]
+            planes = np.unpackbits(packed, axis=-1, count=width, bitorder="little")
+            yield SpikeChunk(planes=planes, start=start, rate_hz=2 * self.rate_hz)
+
+
+def default_cache_dir() -> Path:
+    """``$XDG_CACHE_HOME/rmbvideo/heldout`` (``~/.cache/...``), or a temp folder without a home."""
+    base = os.environ.get("XDG_CACHE_HOME") or (Path.home() / ".cache" if Path.home().is_dir() else None)
+    root = Path(base) if base else Path(tempfile.gettempdir())
+    return root / "rmbvideo" / "heldout"
+
+
+def _cache_name(config: HeldoutConfig, seed: int) -> str:
+    return f"heldout-v{CACHE_FORMAT}-seed{seed}-{config.width}x{config.height}-{config.readouts}.npz"
+
+
+def simulate_sequence(seed: int, config: HeldoutConfig) -> Sequence:
+    """Simulate the held-out sequence of ``seed`` (an evaluation seed) at ``config``'s size and length."""
+    from rmbvideo.scenes.render import ground_truth
+    from rmbvideo.sensor.emission import CaptureSimulator
+    from rmbvideo.train.random_scenes import is_eval_seed, random_scene
+
+    if not is_eval_seed(seed):
+        raise ValueError(f"seed {seed} is a training seed; held-out sequences use evaluation seeds only")
+    raw_planes = 2 * config.readouts
+    scene = random_scene(seed, 2 * config.width, 2 * config.height, duration_s=raw_planes / RAW_RATE_HZ,
+                         rate_hz=RAW_RATE_HZ)
+    simulator = CaptureSimulator(scene)
+    if simulator.total_readouts != raw_planes:
+        raise RuntimeError(f"scene {scene.name}: simulated {simulator.total_readouts} raw planes, "
+                           f"expected {raw_planes}")
+    single, multi, packed = [], [], []
+    for chunk in simulator.chunks(_SIMULATE_CHUNK):
+        s, m = bin_2x2x2(chunk.planes)  # chunks are even-sized from plane 0: bins never straddle them
+        single.append(s)
+        multi.append(m)
+        packed.append(np.packbits(chunk.planes, axis=-1, bitorder="little"))
+    frames = config.readouts // FRAME_STEP
+    gt = np.stack([ground_truth(simulator.renderer, (20 * i + 10) / RAW_RATE_HZ) for i in range(frames)])
+    background = scene.background
+    description = json.dumps({"scene": scene.name, "panorama": background.panorama,
+                              "exposure": scene.exposure, "objects": len(scene.objects),
+                              "dark_regions": len(scene.dark_regions), "effects": list(scene.effects)})
+    return Sequence(name=scene.name, seed=seed, rate_hz=RAW_RATE_HZ / 2, single=np.concatenate(single),
+                    multi=np.concatenate(multi), raw_packed=np.concatenate(packed),
+                    gt=gt.astype(np.float32), edge_readouts=config.edge_readouts, description=description)
+
+
+def save_sequence(sequence: Sequence, path: Path) -> None:
+    """Write ``sequence`` as a compressed ``.npz`` (arrays only), atomically."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as temp:
+        with open(temp, "wb") as fh:
+            np.savez_compressed(fh, single=sequence.single, multi=sequence.multi,
+                                raw_packed=sequence.raw_packed, gt=sequence.gt,
+                                rate_hz=np.float64(sequence.rate_hz), seed=np.int64(sequence.seed),
+                                name=np.str_(sequence.name), description=np.str_(sequence.description))
+
+
+def load_sequence(path: Path, edge_readouts: int) -> Sequence:
+    """Read a cached sequence; a damaged or foreign file is an ``InputError`` naming it."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            seq = Sequence(name=str(data["name"]), seed=int(data["seed"]), rate_hz=float(data["rate_hz"]),
+                           single=data["single"], multi=data["multi"], raw_packed=data["raw_packed"],
+                           gt=data["gt"], edge_readouts=edge_readouts, description=str(data["description"]))
+    except (OSError, KeyError, ValueError) as exc:
+        raise InputError(f"{path}: not a readable held-out sequence ({exc}); delete it to rebuild") from None
+    frames = seq.readouts // FRAME_STEP
+    if seq.multi.shape != seq.single.shape or seq.gt.shape != (frames, *seq.shape) \
+            or seq.raw_packed.shape[0] != 2 * seq.readouts or not np.isfinite(seq.gt).all():
+        raise InputError(f"{path}: inconsistent held-out sequence arrays; delete it to rebuild")
+    return seq
+
+
+def heldout_seeds(config: HeldoutConfig) -> list[int]:
+    """The evaluation seeds of ``config``'s sequences."""
+    from rmbvideo.train.random_scenes import EVAL_SEED_START
+
+    return [EVAL_SEED_START + config.first_seed_offset + k for k in range(config.count)]
+
+
+def load_heldout_config(config: HeldoutConfig, cache: Path | None = None) -> list[Sequence]:
+    """The sequences of ``config``, simulated once and then read from ``cache``."""
+    cache = Path(cache) if cache is not None else default_cache_dir()
+    sequences = []
+    for seed in heldout_seeds(config):
+        path = cache / _cache_name(config, seed)
+        if path.is_file():
+            sequences.append(load_sequence(path, config.edge_readouts))
+            continue
+        log.info("simulating held-out sequence seed %d (%dx%d, %d readouts) into %s",
+                 seed, config.width, config.height, config.readouts, path)
+        sequence = simulate_sequence(seed, config)
+        try:
+            save_sequence(sequence, path)
+        except (OSError, OutputError) as exc:
+            log.warning("%s: cannot cache the held-out sequence (%s); continuing without cache", path, exc)
+        sequences.append(sequence)
+    return sequences
+
+
+def load_heldout(quick: bool, cache: Path | None = None) -> list[Sequence]:
+    """The held-out set (``QUICK`` when ``quick``, else ``FULL``), cached under ``cache``."""
+    return load_heldout_config(QUICK if quick else FULL, cache)

@@ -1,0 +1,183 @@
+"""Held-out set, evaluation harness and Table 2 outputs on a tiny sequence (48x40 binned, 60 readouts)."""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from rmbvideo.chunks import Frame
+from rmbvideo.evaluate.harness import (
+    MethodSpec,
+    evaluate_rows,
+    run_method,
+    score_frames,
+    table2_specs,
+)
+from rmbvideo.evaluate.heldout import HeldoutConfig, load_heldout_config
+from rmbvideo.evaluate.metrics import PSNR_CAP_DB
+from rmbvideo.evaluate.table import csv_table, pick_regions, write_comparison_png, write_tables
+from rmbvideo.net.config import RmbNetConfig
+from rmbvideo.net.model import RmbNet
+from rmbvideo.net.weights import ModelCard, save_model
+from rmbvideo.recon.pipeline import RECONSTRUCTORS, register_reconstructor
+
+TINY = HeldoutConfig(count=1, width=48, height=40, readouts=60, edge_readouts=20)
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("heldout")
+
+
+@pytest.fixture(scope="module")
+def sequence(cache):
+    return load_heldout_config(TINY, cache)[0]
+
+
+@pytest.fixture(scope="module")
+def models_dir(tmp_path_factory) -> Path:
+    """A models folder with a random-init tiny RMB-Net as the main model and one ablation (w/o XBA)."""
+    folder = tmp_path_factory.mktemp("models")
+    torch.manual_seed(0)
+    tiny = dict(w=1, width=0.25)
+    save_model(folder / "rmbnet-binned.safetensors", RmbNet(RmbNetConfig(**tiny)), ModelCard(name="tiny"))
+    (folder / "ablations").mkdir()
+    save_model(folder / "ablations" / "rmbnet-binned-no-xba.safetensors", RmbNet(RmbNetConfig(use_xba=False, **tiny)),
+               ModelCard(name="tiny-no-xba"))
+    return folder
+
+
+@pytest.fixture(scope="module")
+def rows(sequence, models_dir):
+    torch.set_num_threads(1)
+    return evaluate_rows(table2_specs(models_dir, device="cpu"), [sequence])
+
+
+def test_heldout_sequence_is_cached_and_consistent(sequence, cache):
+    files = list(cache.glob("*.npz"))
+    assert len(files) == 1 and "seed1000000" in files[0].name  # an evaluation seed, cached as npz
+    again = load_heldout_config(TINY, cache)[0]  # read back from the cache
+    for name in ("single", "multi", "raw_packed", "gt"):
+        assert np.array_equal(getattr(again, name), getattr(sequence, name))
+    assert sequence.single.shape == sequence.multi.shape == (60, 40, 48)
+    assert sequence.gt.shape == (6, 40, 48) and np.isfinite(sequence.gt).all() and sequence.gt.min() >= 0
+    assert sequence.multi.max() <= 7 and sequence.single.max() <= 1
+    # binned multi-bit value = spike count of the 2x2x2 raw bin (clamped at 7)
+    raw = np.concatenate([c.planes for c in sequence.raw_chunks(32)])
+    assert raw.shape == (120, 80, 96)
+    counts = raw.reshape(60, 2, 40, 2, 48, 2).sum(axis=(1, 3, 5))
+    assert np.array_equal(np.minimum(counts, 7), sequence.multi)
+    # edge policy: frames whose +-20 readouts lie inside 60 readouts: centres 25 and 35
+    assert sequence.scored_frames == [2, 3]
+    assert sequence.frame_time(2) == pytest.approx(25 / 10000)
+
+
+def test_table2_rows_scores_and_not_trained(rows):
+    names = [r.name for r in rows]
+    assert names == ["TFW-S", "TFW-L", "TFI", "GC20", "MG20", "RMB-Net",
+                     "w = 0", "Pure-S", "Pure-M", "Full-M", "w/o XBA", "w/o XTA"]
+    status = {r.name: r.status for r in rows}
+    assert all(status[n] == "not trained" for n in ("w = 0", "Pure-S", "Pure-M", "Full-M", "w/o XTA"))
+    ok = [r for r in rows if r.status == "ok"]
+    assert [r.name for r in ok] == ["TFW-S", "TFW-L", "TFI", "GC20", "MG20", "RMB-Net", "w/o XBA"]
+    for row in ok:
+        values = (row.psnr, row.ssim, row.pu21, row.fps)
+        assert all(math.isfinite(v) for v in values), row
+        assert 0 < row.psnr < PSNR_CAP_DB and -1 <= row.ssim < 1 and row.fps > 0
+        assert sorted(row.figure_frames) == [2, 3]
+        assert all(img.shape == (40, 48) and np.isfinite(img).all() for img in row.figure_frames.values())
+    rmbnet = next(r for r in rows if r.name == "RMB-Net")
+    assert math.isfinite(rmbnet.network_fps) and rmbnet.network_fps >= rmbnet.fps
+    # the longer window averages more evidence: TFW-L beats TFW-S on a noisy binned stream
+    by_name = {r.name: r for r in ok}
+    assert by_name["TFW-L"].psnr > by_name["TFW-S"].psnr
+
+
+def test_outputs_written(rows, sequence, tmp_path):
+    md, table = write_tables(rows, tmp_path, notes="notes here\n")
+    text = md.read_text()
+    assert "| RMB-Net |" in text and "| Pure-S | — | — | — | — | — | not trained |" in text
+    assert text.rstrip().endswith("notes here")
+    with open(table, newline="") as fh:
+        records = list(csv.DictReader(fh))
+    assert [r["method"] for r in records] == [r.name for r in rows]
+    for record in records:
+        if record["status"] == "ok":
+            assert math.isfinite(float(record["mu_psnr_db"])) and float(record["fps"]) > 0
+        else:
+            assert record["mu_psnr_db"] == "" and record["status"] == "not trained"
+    assert csv_table(rows) == table.read_text()
+    png = write_comparison_png(rows, sequence.gt[2], 2, tmp_path / "evaluation.png")
+    image = cv2.imread(str(png))
+    assert image is not None and image.ndim == 3
+    columns = 1 + sum(r.status == "ok" for r in rows)  # GT + every method with frames
+    assert image.shape[1] >= columns * 160  # each column at least one zoom wide
+    assert not list(tmp_path.glob(".*tmp*"))  # no temporary files left behind
+
+
+def test_regions_are_darkest_and_brightest_textured():
+    rng = np.random.default_rng(1)
+    gt = np.full((64, 64), 1.0, np.float32) + rng.uniform(0, 0.5, (64, 64)).astype(np.float32)
+    gt[:16, :16] = 0.01 * (1 + rng.uniform(0, 0.5, (16, 16)))  # dark textured corner
+    gt[48:, 48:] = 100.0 * (1 + rng.uniform(0, 0.5, (16, 16)))  # bright textured corner
+    dark, bright = pick_regions(gt)
+    assert dark.crop(gt).mean() < 1.0 < 50.0 < bright.crop(gt).mean()
+
+
+class _GroundTruthMethod:
+    """A perfect "method": emits the held-out ground truth on the binned frame schedule."""
+
+    input_kind = "rmb"
+
+    def __init__(self, gt: np.ndarray) -> None:
+        self.gt = gt
+        self.readouts = 0
+
+    def push(self, chunk) -> list[Frame]:
+        self.readouts = chunk.stop
+        return []
+
+    def flush(self) -> list[Frame]:
+        return [Frame(i, (10 * i + 5) / 10000, self.gt[i].copy()) for i in range(self.readouts // 10)]
+
+
+def test_perfect_method_scores_maximal(sequence):
+    scored = {i: sequence.gt[i] for i in sequence.scored_frames}
+    psnr, ssim, pu21 = score_frames(scored, sequence)
+    assert psnr == PSNR_CAP_DB and pu21 == PSNR_CAP_DB and ssim == pytest.approx(1.0, abs=1e-6)
+    register_reconstructor("test-ground-truth", lambda: _GroundTruthMethod(sequence.gt))
+    try:
+        result = run_method(MethodSpec("GT", "test-ground-truth"), sequence)
+        tfw = run_method(MethodSpec("TFW-L", "tfw", {"window": 70, "step": 10}), sequence)
+    finally:
+        RECONSTRUCTORS.pop("test-ground-truth")
+    assert result.psnr == PSNR_CAP_DB and result.pu21 == PSNR_CAP_DB and result.ssim == pytest.approx(1.0, abs=1e-6)
+    assert result.frames_emitted == 6 and sorted(result.frames) == [2, 3]
+    assert tfw.psnr < result.psnr and tfw.ssim < result.ssim
+
+
+def test_missing_scored_frame_is_an_error(sequence):
+    class Late(_GroundTruthMethod):
+        def flush(self) -> list[Frame]:
+            return super().flush()[3:]  # no frame 2
+
+    register_reconstructor("test-late", lambda: Late(sequence.gt))
+    try:
+        with pytest.raises(ValueError, match="no frame 2"):
+            run_method(MethodSpec("late", "test-late"), sequence)
+    finally:
+        RECONSTRUCTORS.pop("test-late")
+
+
+def test_ablation_weights_found_flat_or_nested(tmp_path):
+    save_model(tmp_path / "rmbnet-binned-w0.safetensors", RmbNet(RmbNetConfig(w=0, width=0.25)), ModelCard(name="w0"))
+    specs = {s.name: s for s in table2_specs(tmp_path, device="cpu")}
+    assert specs["w = 0"].available and specs["w = 0"].model_path == tmp_path / "rmbnet-binned-w0.safetensors"
+    assert not specs["Pure-S"].available and specs["Pure-S"].readout == "pure-s"
+    assert specs["Pure-S"].model_path == tmp_path / "ablations" / "rmbnet-binned-pure-s.safetensors"
