@@ -14,8 +14,14 @@ from rmbvideo.cli.options import capture_options, open_capture
 @click.argument("input_path", metavar="INPUT", type=click.Path(path_type=Path))
 @capture_options
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object on stdout.")
-def info(input_path: Path, width, height, flip, header_cols, rate_hz, as_json: bool) -> None:
+@click.option("--guess-geometry", is_flag=True,
+              help="Rank likely plane geometries from the data itself instead (geometry options are ignored).")
+def info(input_path: Path, width, height, flip, header_cols, rate_hz, as_json: bool,
+         guess_geometry: bool) -> None:
     """Planes, duration, geometry, mean firing rate and trailing bytes of a .dat capture."""
+    if guess_geometry:
+        show_geometry_guesses(input_path, as_json)
+        return
     reader = open_capture(input_path, width, height, flip, header_cols, rate_hz)
     geometry = reader.geometry
     record = {
@@ -42,3 +48,25 @@ def info(input_path: Path, width, height, flip, header_cols, rate_hz, as_json: b
                f" {'flipped' if record['flip'] else 'not flipped'})")
     click.echo(f"mean firing     {record['mean_firing_rate']:.4f} spikes/pixel/plane")
     click.echo(f"trailing bytes  {record['trailing_bytes']}")
+
+
+def show_geometry_guesses(input_path: Path, as_json: bool) -> None:
+    """Print the likeliest geometries of ``input_path``, best first, with the options selecting them."""
+    from rmbvideo.io.geometry_guess import CONVINCING_SCORE, guess_geometry
+
+    guesses = guess_geometry(input_path)
+    records = [{"width": g.geometry.width, "height": g.geometry.height, "header_cols": g.geometry.header_cols,
+                "score": round(g.score, 4), "row_correlation": round(g.row_correlation, 4),
+                "plane_correlation": round(g.plane_correlation, 4), "planes": g.planes,
+                "trailing_bytes": g.trailing_bytes, "options": g.options} for g in guesses]
+    if as_json:
+        click.echo(json.dumps({"file": str(input_path), "guesses": records}))
+        return
+    click.echo(f"likely geometries of {input_path} (best first; orientation cannot be told, flip assumed):")
+    click.echo("  score  row-corr  plane-corr  stored WxH   whole planes  trailing bytes  options")
+    for r in records:
+        size = f"{r['width']}x{r['height']}"
+        click.echo(f"  {r['score']:5.3f}  {r['row_correlation']:8.3f}  {r['plane_correlation']:10.3f}  {size:<10}  "
+                   f"{r['planes']:>12}  {r['trailing_bytes']:>14}  {r['options']}")
+    if not guesses or guesses[0].score < CONVINCING_SCORE:
+        click.echo("no geometry makes this data look like images: is it a spike capture?")

@@ -1,0 +1,81 @@
+"""``rmbvideo batch``: convert many captures, unattended and resumable (see :mod:`rmbvideo.batch`).
+
+It takes every option of ``reconstruct`` (copied from that command, so options added there are
+accepted here too) and passes them to ``run_reconstruction``: its own keywords by name, the
+geometry options as ``capture``, the RMB-Net options through ``rmbnet_extra_options`` (as
+``reconstruct`` does), and any other option that is set as ``extra_options``.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import inspect
+from pathlib import Path
+from typing import Any
+
+import click
+
+from rmbvideo.batch import REPORT_NAME, plan_jobs, run_batch, summary_table
+from rmbvideo.cli import progress_enabled
+from rmbvideo.cli.reconstruct import method_options, reconstruct, rmbnet_extra_options, run_reconstruction
+from rmbvideo.recon.pipeline import make_reconstructor
+
+CAPTURE_KEYS = ("width", "height", "flip", "header_cols", "rate_hz")
+# parameters of reconstruct that batch replaces with its own
+_OWN_PARAMS = {"input_path", "outdir", "quiet"}
+_RECON_KEYWORDS = set(inspect.signature(run_reconstruction).parameters) - {"input_path", "outdir", "capture",
+                                                                           "extra_options", "progress"}
+_RMBNET_KEYWORDS = set(inspect.signature(rmbnet_extra_options).parameters)
+
+
+def reconstruction_options(params: dict[str, Any]) -> dict[str, Any]:
+    """Map reconstruct's command-line values onto ``run_reconstruction`` keywords (None extras dropped)."""
+    options: dict[str, Any] = {k: v for k, v in params.items() if k in _RECON_KEYWORDS}
+    options["capture"] = {k: params.get(k) for k in CAPTURE_KEYS}
+    extra = rmbnet_extra_options(**{k: params.get(k) for k in _RMBNET_KEYWORDS})
+    extra.update({k: v for k, v in params.items() if v is not None and k not in _RECON_KEYWORDS
+                  and k not in CAPTURE_KEYS and k not in _RMBNET_KEYWORDS})
+    if extra:
+        options["extra_options"] = extra
+    return options
+
+
+def check_method(options: dict[str, Any]) -> None:
+    """Build the reconstructor once, so bad method options (or a bad model) stop the batch before it starts."""
+    keywords = method_options(options["method"], options.get("window"), options["step"])
+    keywords.update(options.get("extra_options") or {})
+    try:
+        make_reconstructor(options["method"], **keywords)
+    except ValueError as exc:
+        raise click.UsageError(str(exc)) from None
+
+
+@click.command()
+@click.argument("inputs", metavar="INPUTS...", nargs=-1, required=True)
+@click.option("-o", "--output", "outdir", required=True, type=click.Path(path_type=Path),
+              help="Batch folder: one output folder per capture, plus batch-report.json.")
+@click.option("--jobs", type=click.IntRange(min=1), default=None,
+              help="Parallel worker processes [default: one per core].")
+@click.option("--scheduler", metavar="ADDRESS", default=None,
+              help="Run on an existing Dask cluster (e.g. tcp://host:8786); needs rmbvideo[cluster].")
+@click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
+def batch(inputs: tuple[str, ...], outdir: Path, jobs: int | None, scheduler: str | None, quiet: bool,
+          **params: Any) -> None:
+    """Convert captures INPUTS (files, folders searched for .dat, or quoted globs) into OUTDIR.
+
+    A capture whose output is complete is skipped; one that fails does not stop the others. Exit
+    status 1 when any capture failed.
+    """
+    if scheduler is not None and importlib.util.find_spec("distributed") is None:
+        raise click.UsageError("--scheduler needs Dask: pip install 'rmbvideo[cluster]'")
+    options = reconstruction_options(params)
+    check_method(options)
+    plan = plan_jobs(inputs, outdir, options)
+    results = run_batch(plan, outdir, workers=jobs, scheduler=scheduler, progress=progress_enabled(quiet))
+    click.echo(summary_table(results))
+    click.echo(f"report: {outdir / REPORT_NAME}")
+    if any(r.status == "failed" for r in results):
+        click.get_current_context().exit(1)
+
+
+batch.params[2:2] = [p for p in reconstruct.params if p.name not in _OWN_PARAMS]

@@ -1,0 +1,212 @@
+"""Batch conversion: discovery and naming, failure isolation, report, resume, interruption, parallel runs."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path, PurePath
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from rmbvideo.batch import (
+    MARKER_NAME,
+    REPORT_NAME,
+    FoundCapture,
+    batch_lock,
+    discover_captures,
+    output_names,
+)
+from rmbvideo.cli import main
+from rmbvideo.io.dat import DatGeometry, write_dat
+from rmbvideo.io.exr import read_exr
+
+GEOM = ("--width", "64", "--height", "48")
+EXR = ("--format", "exr", "--exr-dtype", "float")
+
+
+def capture(path: Path, planes: int = 60, seed: int = 0) -> Path:
+    """A small random capture with a brightness ramp (64x48)."""
+    rng = np.random.default_rng(seed)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    spikes = (rng.random((planes, 48, 64)) < np.linspace(0.05, 0.9, 64)).astype(np.uint8)
+    write_dat(path, spikes, DatGeometry(64, 48))
+    return path
+
+
+def run(*args: object) -> "CliRunner.Result":
+    return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+
+
+def report(outdir: Path) -> dict[str, dict]:
+    data = json.loads((outdir / REPORT_NAME).read_text())
+    return {Path(c["input"]).name if "sub" not in c["input"] else "sub/" + Path(c["input"]).name: c
+            for c in data["captures"]}
+
+
+def snapshot(folder: Path) -> dict[str, tuple[int, int]]:
+    """(inode, mtime_ns) of every file under ``folder``."""
+    return {str(p.relative_to(folder)): (p.stat().st_ino, p.stat().st_mtime_ns)
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_discovery_of_files_folders_and_quoted_globs(tmp_path: Path) -> None:
+    a = capture(tmp_path / "in" / "a.dat")
+    b = capture(tmp_path / "in" / "sub" / "b.DAT")
+    (tmp_path / "in" / "notes.txt").write_text("not a capture")
+    c = capture(tmp_path / "other" / "c.dat")
+    found = discover_captures([tmp_path / "in", str(tmp_path / "oth*" / "*.dat"), a, tmp_path / "gone.dat"])
+    assert [f.path.resolve() for f in found] == [a.resolve(), b.resolve(), c.resolve(),
+                                                 (tmp_path / "gone.dat").resolve()]
+    assert [f.relative for f in found] == [PurePath("a.dat"), PurePath("sub/b.DAT"), PurePath("other/c.dat"),
+                                           PurePath("gone.dat")]
+
+
+def test_output_names_are_flat_unique_and_deterministic(tmp_path: Path) -> None:
+    found = [FoundCapture(tmp_path / "x" / "a" / "b.dat", PurePath("a/b.dat")),
+             FoundCapture(tmp_path / "y" / "a__b.dat", PurePath("a__b.dat")),
+             FoundCapture(tmp_path / "y" / "A__B.dat", PurePath("A__B.dat")),
+             FoundCapture(tmp_path / "y" / "c d.dat", PurePath("c d.dat")),
+             FoundCapture(tmp_path / "y" / ".hidden.dat", PurePath(".hidden.dat"))]
+    names = output_names(found)
+    assert names == output_names(list(found))
+    assert len({n.casefold() for n in names}) == len(names)
+    assert names[0].startswith("a__b-") and names[1].startswith("a__b-") and names[2].startswith("A__B-")
+    assert names[3] == "c_d" and names[4] == "_hidden"
+    assert all("/" not in n and not n.startswith(".") for n in names)
+
+
+def test_one_bad_capture_does_not_stop_the_others_and_is_reported(tmp_path: Path) -> None:
+    capture(tmp_path / "in" / "a.dat")
+    capture(tmp_path / "in" / "sub" / "b.dat", seed=1)
+    (tmp_path / "in" / "bad.dat").write_bytes(b"\x00" * 10)
+    out = tmp_path / "out"
+    result = run("batch", tmp_path / "in", "-o", out, *GEOM, *EXR, "--jobs", "1", "-q")
+    assert result.exit_code == 1
+    assert "bad.dat" in result.stdout and "3 captures: 2 ok, 0 skipped, 1 failed" in result.stdout
+    entries = report(out)
+    assert entries["bad.dat"]["status"] == "failed" and "less than one 64x48 plane" in entries["bad.dat"]["error"]
+    assert entries["a.dat"]["status"] == "ok" and entries["a.dat"]["frames"] == 3
+    assert entries["sub/b.dat"]["output"] == str(out / "sub__b")
+    assert sorted(p.name for p in out.iterdir()) == [".batch.lock", "a", REPORT_NAME, "sub__b"]
+    marker = json.loads((out / "a" / MARKER_NAME).read_text())
+    assert {f["path"] for f in marker["files"]} == {"frames.csv", "frame_000000.exr", "frame_000001.exr",
+                                                    "frame_000002.exr"}
+
+
+def test_rerun_skips_complete_outputs_untouched_and_redoes_changed_options(tmp_path: Path) -> None:
+    capture(tmp_path / "in" / "a.dat")
+    capture(tmp_path / "in" / "b.dat", seed=1)
+    out = tmp_path / "out"
+    assert run("batch", tmp_path / "in", "-o", out, *GEOM, *EXR, "--jobs", "1", "-q").exit_code == 0
+    before = snapshot(out / "a")
+    # Same options (the chunk size does not change the output): nothing is rewritten.
+    result = run("batch", tmp_path / "in", "-o", out, *GEOM, *EXR, "--chunk-planes", "7", "--jobs", "1", "-q")
+    assert result.exit_code == 0
+    assert {c["status"] for c in report(out).values()} == {"skipped"}
+    assert report(out)["a.dat"]["frames"] == 3
+    assert snapshot(out / "a") == before
+    # An option that changes the output invalidates the marker.
+    assert run("batch", tmp_path / "in", "-o", out, *GEOM, *EXR, "--step", "30", "--jobs", "1", "-q").exit_code == 0
+    assert {c["status"] for c in report(out).values()} == {"ok"}
+    assert len(list((out / "a").glob("*.exr"))) == 2
+    # A changed input is redone too.
+    capture(tmp_path / "in" / "a.dat", planes=90, seed=5)
+    assert run("batch", tmp_path / "in", "-o", out, *GEOM, *EXR, "--step", "30", "--jobs", "1", "-q").exit_code == 0
+    entries = report(out)
+    assert entries["a.dat"]["status"] == "ok" and entries["a.dat"]["frames"] == 3
+    assert entries["b.dat"]["status"] == "skipped"
+
+
+def test_half_written_outputs_are_redone_never_taken_as_complete(tmp_path: Path) -> None:
+    capture(tmp_path / "in" / "a.dat")
+    capture(tmp_path / "in" / "b.dat", seed=1)
+    out = tmp_path / "out"
+    assert run("batch", tmp_path / "in", "-o", out, *GEOM, *EXR, "--jobs", "1", "-q").exit_code == 0
+    reference = read_exr(out / "a" / "frame_000001.exr")[0]
+    # What crashes leave behind: a partial folder, and an output missing a listed file.
+    partial = out / ".a.partial-123-abcd"
+    partial.mkdir()
+    (partial / "frame_000000.exr").write_bytes(b"half")
+    (out / "b" / "frame_000002.exr").unlink()
+    result = run("batch", tmp_path / "in", "-o", out, *GEOM, *EXR, "--jobs", "1", "-q")
+    assert result.exit_code == 0
+    entries = report(out)
+    assert entries["a.dat"]["status"] == "skipped" and entries["b.dat"]["status"] == "ok"
+    assert not partial.exists()
+    assert (out / "b" / "frame_000002.exr").is_file()
+    np.testing.assert_array_equal(read_exr(out / "a" / "frame_000001.exr")[0], reference)
+
+
+def test_kill_9_mid_capture_then_resume(tmp_path: Path) -> None:
+    big = tmp_path / "in" / "big.dat"
+    big.parent.mkdir()
+    rng = np.random.default_rng(0)
+    write_dat(big, (rng.random((6000, 16, 16)) < 0.3).astype(np.uint8), DatGeometry(16, 16))
+    out = tmp_path / "out"
+    command = [sys.executable, "-m", "rmbvideo", "batch", str(big), "-o", str(out), "--width", "16",
+               "--height", "16", "--format", "exr", "--step", "2", "--jobs", "1", "-q"]
+    proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and proc.poll() is None:
+            partial = [p for p in out.glob(".big.partial-*") if len(list(p.glob("*.exr"))) > 20]
+            if partial:
+                break
+            time.sleep(0.05)
+        else:
+            pytest.skip("the run ended before it could be interrupted")
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait()
+    assert not (out / "big").exists()
+    result = subprocess.run(command, capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert report(out)["big.dat"]["status"] == "ok"
+    assert len(list((out / "big").glob("*.exr"))) == 3000
+    assert not list(out.glob(".big.*"))
+
+
+def test_parallel_processes_give_the_same_outputs(tmp_path: Path) -> None:
+    for k in range(3):
+        capture(tmp_path / "in" / f"c{k}.dat", seed=k)
+    serial, parallel = tmp_path / "serial", tmp_path / "parallel"
+    assert run("batch", tmp_path / "in", "-o", serial, *GEOM, *EXR, "--jobs", "1", "-q").exit_code == 0
+    assert run("batch", tmp_path / "in", "-o", parallel, *GEOM, *EXR, "--jobs", "2", "-q").exit_code == 0
+    assert {c["status"] for c in report(parallel).values()} == {"ok"}
+    for k in range(3):
+        for frame in sorted((serial / f"c{k}").glob("*.exr")):
+            np.testing.assert_array_equal(read_exr(frame)[0], read_exr(parallel / f"c{k}" / frame.name)[0])
+
+
+def test_a_second_batch_into_the_same_folder_is_refused(tmp_path: Path) -> None:
+    capture(tmp_path / "a.dat")
+    out = tmp_path / "out"
+    out.mkdir()
+    with batch_lock(out):
+        proc = subprocess.run([sys.executable, "-m", "rmbvideo", "batch", str(tmp_path / "a.dat"), "-o", str(out),
+                               *GEOM, "-q"], capture_output=True, text=True)
+    assert proc.returncode == 2 and "another batch is running" in proc.stderr
+    assert "Traceback" not in proc.stderr and not (out / "a").exists()
+
+
+def test_scheduler_runs_the_batch_on_a_dask_cluster(tmp_path: Path) -> None:
+    distributed = pytest.importorskip("distributed")
+    capture(tmp_path / "in" / "a.dat")
+    capture(tmp_path / "in" / "b.dat", seed=1)
+    (tmp_path / "in" / "bad.dat").write_bytes(b"\x01")
+    out = tmp_path / "out"
+    with distributed.LocalCluster(n_workers=2, processes=True, threads_per_worker=1, dashboard_address=None) \
+            as cluster:
+        result = run("batch", tmp_path / "in", "-o", out, *GEOM, *EXR, "--scheduler", cluster.scheduler_address,
+                     "-q")
+    assert result.exit_code == 1
+    entries = report(out)
+    assert entries["a.dat"]["status"] == entries["b.dat"]["status"] == "ok"
+    assert entries["bad.dat"]["status"] == "failed"
+    assert len(list((out / "b").glob("*.exr"))) == 3
