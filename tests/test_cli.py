@@ -148,3 +148,23 @@ def test_real_capture_end_to_end(tmp_path: Path, shared_data: Path) -> None:
     assert len(rows) == 10
     frame = iio.imread(out / rows[5]["file"])
     assert frame.shape == (250, 400) and frame.std() > 5
+
+
+def test_native_rmb_capture_reconstructs_without_binning(tmp_path: Path) -> None:
+    """A simulated native RMB sensor (.dat + .mbit) opens by itself and is not binned again."""
+    scene = tmp_path / "native.toml"
+    scene.write_text(
+        'width = 48\nheight = 32\nrate_hz = 20000\nduration_s = 0.004\nexposure = 20.0\nseed = 3\n'
+        'effects = []\n[readout]\ntype = "rmb"\n[background]\npanorama = "city"\ncenter = [300, 215]\n'
+    )
+    dat = tmp_path / "native.dat"
+    assert run("simulate", scene, "-o", dat, "-q").exit_code == 0
+    assert (tmp_path / "native.mbit").is_file()
+    out = tmp_path / "out"
+    result = run("reconstruct", dat, "-o", out, "--method", "tfw", "--format", "exr",
+                 "--exr-dtype", "float", "-q")
+    assert result.exit_code == 0, result.output
+    rows = read_index(out)
+    assert len(rows) == 80 // 10  # one frame per N = 10 native readouts, full resolution
+    image, _ = read_exr(out / rows[3]["file"])
+    assert image.shape == (32, 48) and np.isfinite(image).all() and image.max() > 0

@@ -77,7 +77,7 @@ def test_rmb_capture_round_trips(tmp_path: Path) -> None:
     scene_path = write_scene(tmp_path, "rmb")
     out = tmp_path / "rmb.dat"
     assert run([str(scene_path), "-o", str(out), "-q", "--duration", "0.002"]).exit_code == 0
-    read = list(RmbFileReader(out).chunks(17))
+    read = list(RmbFileReader(out).rmb_chunks(17))
     expected = list(CaptureSimulator(load_scene(scene_path), 0.002).chunks(64))
     for name in ("single", "multi", "multi_rows"):
         np.testing.assert_array_equal(np.concatenate([getattr(c, name) for c in read]),
@@ -95,7 +95,7 @@ def test_lbit_capture_round_trips(tmp_path: Path) -> None:
     scene_path = write_scene(tmp_path, "Lbit")
     out = tmp_path / "l.dat"
     assert run([str(scene_path), "-o", str(out), "-q"]).exit_code == 0
-    read = np.concatenate([c.multi for c in RmbFileReader(out).chunks(30)])
+    read = np.concatenate([c.multi for c in RmbFileReader(out).rmb_chunks(30)])
     expected = np.concatenate([c.multi for c in CaptureSimulator(load_scene(scene_path)).chunks(64)])
     np.testing.assert_array_equal(read, expected)
     assert set(np.unique(read)) > {0, 7}

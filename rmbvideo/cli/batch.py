@@ -42,7 +42,7 @@ def reconstruction_options(params: dict[str, Any]) -> dict[str, Any]:
 
 def check_method(options: dict[str, Any]) -> None:
     """Build the reconstructor once, so bad method options (or a bad model) stop the batch before it starts."""
-    keywords = method_options(options["method"], options.get("window"), options["step"])
+    keywords = method_options(options["method"], options.get("window"), options.get("step") or 20)
     keywords.update(options.get("extra_options") or {})
     try:
         make_reconstructor(options["method"], **keywords)

@@ -33,8 +33,16 @@ def capture_options(func: Callable) -> Callable:
 
 def open_capture(path: Path, width: int | None, height: int | None, flip: bool | None,
                  header_cols: int | None, rate_hz: float | None):
-    """Open ``path`` as a ``DatReader``: options override the sidecar, which overrides defaults."""
+    """Open ``path`` as a ``DatReader``: options override the sidecar, which overrides defaults.
+
+    A capture with a ``.mbit`` multi-bit sidecar (a native multi-bit/RMB sensor, see
+    ``rmbvideo.io.rmbfile``) opens as an ``RmbFileReader``, whose header fixes its geometry.
+    """
     from rmbvideo.io.dat import DatGeometry, DatReader
+    from rmbvideo.io.rmbfile import RmbFileReader, mbit_path
+
+    if Path(path).is_file() and mbit_path(Path(path)).is_file():
+        return RmbFileReader(Path(path))
 
     info = read_sidecar(Path(path)).override(width=width, height=height, flip=flip,
                                              header_cols=header_cols, rate_hz=rate_hz)

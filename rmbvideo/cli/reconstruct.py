@@ -11,6 +11,7 @@ import click
 from rmbvideo.cli import progress_enabled
 from rmbvideo.cli.options import capture_options, open_capture
 from rmbvideo.errors import InputError
+from rmbvideo.io.rmbfile import RmbFileReader
 from rmbvideo.io.sinks import SINK_FORMATS, make_sink
 from rmbvideo.recon.pipeline import RECONSTRUCTORS, RunSummary, make_reconstructor, reconstruct_stream
 from rmbvideo.recon.tonemap import ToneMapConfig
@@ -22,22 +23,23 @@ DEFAULT_METHOD = "tfp"
 TONEMAPS = ("mulaw", "reinhard", "drago", "mantiuk")
 
 
-def method_options(method: str, window: int | None, step: int) -> dict:
-    """Keyword options for ``method``; ``step`` is in raw planes (halved for the binned stream)."""
+def method_options(method: str, window: int | None, step: int, raw_per_readout: int = 2) -> dict:
+    """Keyword options for ``method``. ``step`` is in raw planes; methods on the mixed-bit stream
+    count readouts, each ``raw_per_readout`` raw planes (2 for binned data, 1 for a native sensor)."""
     if method == "tfp":
         return {"step": step, **({"window": window} if window else {})}
     if method == "tfi":
         return {"step": step}
-    if method == "rmbnet":
-        if step != 20 or window:
-            raise click.BadParameter("RMB-Net's frame step and window are fixed by its model "
-                                     "(N = 10 binned readouts = 20 raw planes; window 2w+1)",
-                                     param_hint="--step/--window")
-        return {}
-    if step % 2:
+    if step % raw_per_readout:
         raise click.BadParameter(f"methods on the binned stream need an even step, got {step}",
                                  param_hint="--step")
-    options: dict = {"step": step // 2}
+    if method == "rmbnet":
+        if step != 10 * raw_per_readout or window:
+            raise click.BadParameter(
+                f"RMB-Net's frame step and window are fixed by its model (N = 10 readouts = "
+                f"{10 * raw_per_readout} raw planes; window 2w+1)", param_hint="--step/--window")
+        return {}
+    options: dict = {"step": step // raw_per_readout}
     if window:
         options["window"] = window
     return options
@@ -73,7 +75,7 @@ def rmbnet_extra_options(method: str, model, align: str, device: str, upsampling
 
 
 def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_METHOD,
-                       window: int | None = None, step: int = 20, fmt: str = "mp4",
+                       window: int | None = None, step: int | None = None, fmt: str = "mp4",
                        fps: float = 30.0, tonemap: str = "mulaw", exr_dtype: str = "half",
                        readout: str = "rmb", start_s: float = 0.0, duration_s: float | None = None,
                        chunk_planes: int = 1024, progress: bool = False,
@@ -90,13 +92,18 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
     if start >= reader.n_planes:
         raise InputError(f"{input_path}: --start {start_s} s is past the end of the capture "
                          f"({reader.duration_s:.6f} s)")
-    options = method_options(method, window, step)
+    native = isinstance(reader, RmbFileReader)
+    step = step or (10 if native else 20)
+    options = method_options(method, window, step, raw_per_readout=1 if native else 2)
     options.update(extra_options or {})
+    if native and method == "rmbnet":
+        options.setdefault("input_mode", "native")
     try:
         recon = make_reconstructor(method, **options)
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None
-    rmb_readout = RmbReadout(mode=ReadoutMode(readout)) if recon.input_kind == "rmb" else None
+    # A native capture was read out by its sensor already; binned data gets the chosen design.
+    rmb_readout = RmbReadout(mode=ReadoutMode(readout)) if recon.input_kind == "rmb" and not native else None
     created = not outdir.exists()
     try:
         with make_sink(fmt, outdir, fps=fps, tonemap=ToneMapConfig(method=tonemap),
@@ -120,8 +127,9 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
               show_default=True, help="Reconstruction method.")
 @click.option("--window", type=click.IntRange(min=1), default=None,
               help="Window: raw planes for tfp [41]; binned readouts for tfw [10 = TFW-S; 70 = TFW-L].")
-@click.option("--step", type=click.IntRange(min=1), default=20, show_default=True,
-              help="Raw planes per output frame (20 at 20 kHz = 1000 frames per second of capture).")
+@click.option("--step", type=click.IntRange(min=1), default=None,
+              help="Raw planes per output frame [default: 20 (1000 frames per second of a 20 kHz "
+                   "capture); 10 for a native RMB capture, whose readouts are not binned].")
 @click.option("--format", "fmt", type=click.Choice(SINK_FORMATS), default="mp4", show_default=True,
               help="mp4 (tone-mapped H.264), exr (linear HDR), png (tone-mapped 8-bit), null (timing).")
 @click.option("--fps", type=click.FloatRange(min=0, min_open=True), default=30.0, show_default=True,
@@ -141,7 +149,7 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
               help="Raw planes read per chunk (memory bound; the output does not depend on it).")
 @rmbnet_options
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
-def reconstruct(input_path: Path, outdir: Path, method: str, window, step: int, fmt: str, fps: float,
+def reconstruct(input_path: Path, outdir: Path, method: str, window, step, fmt: str, fps: float,
                 tonemap: str, exr_dtype: str, readout: str, width, height, flip, header_cols, rate_hz,
                 start_s: float, duration_s, chunk_planes: int, model, align: str, device: str,
                 upsampling: str, precision: str, quiet: bool) -> None:

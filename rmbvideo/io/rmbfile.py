@@ -169,21 +169,59 @@ class RmbFileReader:
     def n_readouts(self) -> int:
         return len(self._records)
 
-    def chunks(self, chunk_readouts: int = 256) -> Iterator[RmbChunk]:
-        """Consecutive chunks of at most ``chunk_readouts`` readouts."""
-        for start in range(0, self.n_readouts, chunk_readouts):
-            stop = min(start + chunk_readouts, self.n_readouts)
-            single = self.dat.read(start, stop)
-            count = stop - start
-            values = _unpack(np.asarray(self._records[start:stop]), self.rows_per_readout * self.width,
+    # The pipeline's source interface: raw 1-bit planes via the .dat, the RMB stream natively.
+    @property
+    def n_planes(self) -> int:
+        """Readouts of the capture (a native sensor's raw planes)."""
+        return self.n_readouts
+
+    @property
+    def geometry(self) -> DatGeometry:
+        return self.dat.geometry
+
+    @property
+    def duration_s(self) -> float:
+        return self.n_readouts / self.rate_hz
+
+    @property
+    def trailing_bytes(self) -> int:
+        return self.dat.trailing_bytes
+
+    def plane_index(self, time_s: float) -> int:
+        return self.dat.plane_index(time_s)
+
+    def mean_firing_rate(self, max_planes: int = 64) -> float:
+        return self.dat.mean_firing_rate(max_planes)
+
+    def read(self, start: int = 0, stop: int | None = None) -> np.ndarray:
+        return self.dat.read(start, stop)
+
+    def chunks(self, chunk_planes: int = 1024, start: int = 0, stop: int | None = None):
+        """The 1-bit planes of the capture (as a 1-bit camera would see them)."""
+        return self.dat.chunks(chunk_planes, start, stop)
+
+    def binned_chunks(self, chunk_planes: int = 1024, start: int = 0,
+                      stop: int | None = None) -> Iterator[RmbChunk]:
+        """The native mixed-bit stream (already in RMB or L-bit form; nothing to bin)."""
+        return self.rmb_chunks(chunk_planes, start, stop)
+
+    def rmb_chunks(self, chunk_readouts: int = 256, start: int = 0,
+                   stop: int | None = None) -> Iterator[RmbChunk]:
+        """Consecutive chunks of at most ``chunk_readouts`` readouts from ``start`` to ``stop``."""
+        stop = self.n_readouts if stop is None else min(stop, self.n_readouts)
+        for first in range(start, stop, chunk_readouts):
+            last = min(first + chunk_readouts, stop)
+            single = self.dat.read(first, last)
+            count = last - first
+            values = _unpack(np.asarray(self._records[first:last]), self.rows_per_readout * self.width,
                              self.bits).reshape(count, self.rows_per_readout, self.width)
             multi = np.zeros((count, self.height, self.width), dtype=np.uint8)
             if self.readout is None:
                 multi[:] = values
                 multi_rows = np.ones((count, self.height), dtype=bool)
             else:
-                multi_rows = self.readout.multi_rows(start, count, self.height)
+                multi_rows = self.readout.multi_rows(first, count, self.height)
                 for t in range(count):
-                    multi[t, self.readout.band_rows(start + t, self.height)] = values[t]
-            yield RmbChunk(single=single, multi=multi, multi_rows=multi_rows, start=start,
+                    multi[t, self.readout.band_rows(first + t, self.height)] = values[t]
+            yield RmbChunk(single=single, multi=multi, multi_rows=multi_rows, start=first,
                            rate_hz=self.rate_hz, level=self.level, raw_per_readout=1)
