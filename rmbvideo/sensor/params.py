@@ -17,12 +17,14 @@ class SensorParams:
     The threshold is Q_th = (C + C^S)(V + V^S + V^T0) (supplement Eqn. 18) with Q_r = C*V.
     C^S is fixed per pixel (capacitance mismatch), V^S is drawn per reset and V^T0 per readout.
     Dark electrons per interval are round(N(dark_mean, dark_std^2)) (supplement Eqn. 16).
-    Defaults follow supplement Sec. 10 ("Q_r = 105, mu_d = 0.05, variance of all noise 0.005").
+    Defaults follow supplement Sec. 10 ("Q_r = 105, mu_d = 0.05, variance of all noise 0.005"). The
+    paper does not give the split of Q_r into C and V; C = 1.4, V = 75 reproduces its Table 1
+    (``rmbvideo.sensor.theory``).
     """
 
     level: int = 1                     # L = 2^B - 1
-    capacitance: float = 1.0           # C (arbitrary units; Q_r = C * V)
-    voltage: float = 105.0             # V
+    capacitance: float = 1.4           # C (arbitrary units; Q_r = C * V = 105)
+    voltage: float = 75.0              # V
     cap_std: float = math.sqrt(0.005)  # sigma of C^S, fixed per pixel
     reset_v_std: float = math.sqrt(0.005)  # sigma of V^S, drawn per reset
     temp_v_std: float = math.sqrt(0.005)   # sigma of V^T0, drawn per readout
