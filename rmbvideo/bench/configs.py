@@ -1,0 +1,75 @@
+"""The benchmark's configurations: every baseline of paper Table 2 and the RMB-Net speed knobs.
+
+RMB-Net knobs (window half-width w, alignment, width multiplier, precision, device) are varied one
+at a time around the default model (w = 3, no alignment, width 1, fp32) unless the full grid is
+asked for, which multiplies them out (4 x 3 x 2 x 2 = 48 runs per device).
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+from typing import Any
+
+BASELINES: dict[str, tuple[str, dict[str, Any]]] = {
+    # name -> (pipeline method, options); windows and steps in binned readouts except TFI (raw planes)
+    "TFW-S": ("tfw", {"window": 10, "step": 10}),
+    "TFW-L": ("tfw", {"window": 70, "step": 10}),
+    "TFI": ("tfi", {"step": 20}),
+    "GC20": ("gc20", {}),
+    "MG20": ("mg20", {}),
+}
+W_VALUES = (0, 1, 2, 3)
+ALIGNMENTS = ("none", "dis", "tvl1")
+WIDTHS = (0.5, 1.0)
+PRECISIONS = ("fp32", "bf16")
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    """One row of the benchmark: a baseline (``method`` + ``options``) or an RMB-Net setting."""
+
+    name: str
+    method: str
+    options: dict[str, Any] = field(default_factory=dict, hash=False, compare=False)
+    w: int | None = None
+    align: str | None = None
+    width: float | None = None
+    precision: str | None = None
+    device: str = "cpu"
+
+    @property
+    def is_rmbnet(self) -> bool:
+        """Whether this row runs the network (and so has network-alone timing)."""
+        return self.method == "rmbnet"
+
+
+def rmbnet_config(w: int = 3, align: str = "none", width: float = 1.0, precision: str = "fp32",
+                  device: str = "cpu") -> BenchConfig:
+    """An RMB-Net row named after its knobs, e.g. ``RMB-Net w3 none x1 fp32 cpu``."""
+    name = f"RMB-Net w{w} {align} x{width:g} {precision} {device}"
+    return BenchConfig(name=name, method="rmbnet", w=w, align=align, width=width, precision=precision,
+                       device=device)
+
+
+def default_configs(devices: tuple[str, ...] = ("cpu",), full_grid: bool = False,
+                    baselines: bool = True, alignments: tuple[str, ...] = ALIGNMENTS) -> list[BenchConfig]:
+    """Baselines (on CPU, where they run) then RMB-Net rows for each device.
+
+    One-at-a-time: the default model plus each other value of each knob; ``full_grid``: every
+    combination. ``alignments`` restricts the alignment knob (TV-L1 takes seconds per flow field).
+    """
+    rows = [BenchConfig(name=name, method=method, options=dict(options))
+            for name, (method, options) in BASELINES.items()] if baselines else []
+    for device in devices:
+        default = rmbnet_config(device=device)
+        if full_grid:
+            combos = itertools.product(W_VALUES, alignments, WIDTHS, PRECISIONS)
+            rows += [rmbnet_config(w, a, wd, p, device) for w, a, wd, p in combos]
+            continue
+        rows.append(default)
+        rows += [rmbnet_config(w, "none", 1.0, "fp32", device) for w in W_VALUES if w != 3]
+        rows += [rmbnet_config(3, a, 1.0, "fp32", device) for a in alignments if a != "none"]
+        rows += [rmbnet_config(3, "none", wd, "fp32", device) for wd in WIDTHS if wd != 1.0]
+        rows += [rmbnet_config(3, "none", 1.0, p, device) for p in PRECISIONS if p != "fp32"]
+    return rows

@@ -1,0 +1,133 @@
+"""Peak memory: sampled RSS of this process during a run, and the peak RSS of a ``reconstruct`` run
+in a fresh subprocess (so captures of different lengths can be compared)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+
+_PAGE = os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else 4096
+
+# Runs ``rmbvideo reconstruct`` in-process and prints its peak RSS (ru_maxrss, KiB on Linux) and the
+# sampled peak of its anonymous RSS (RssAnon: heap and arrays, without file pages of memory maps).
+_CHILD = """
+import json, resource, sys, threading
+from rmbvideo.bench.memory import anonymous_rss_bytes
+from rmbvideo.cli import main
+peak = [anonymous_rss_bytes()]
+stop = threading.Event()
+def sample():
+    while not stop.wait(0.002):
+        peak[0] = max(peak[0], anonymous_rss_bytes())
+thread = threading.Thread(target=sample, daemon=True)
+thread.start()
+try:
+    main(sys.argv[1:], prog_name="rmbvideo", standalone_mode=False)
+finally:
+    stop.set()
+    thread.join()
+    peak[0] = max(peak[0], anonymous_rss_bytes())
+    print(json.dumps({"maxrss_kib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, "anon_peak": peak[0]}))
+"""
+
+
+@dataclass(frozen=True)
+class PeakMemory:
+    """Peak memory of a process in bytes: ``rss`` (ru_maxrss, including file pages of memory-mapped
+    input, which the kernel can drop at will) and ``anonymous`` (sampled peak of RssAnon)."""
+
+    rss: int
+    anonymous: int
+
+
+def anonymous_rss_bytes() -> int:
+    """RssAnon of this process now, in bytes (0 where /proc is unavailable)."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("RssAnon:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return 0
+
+
+def current_rss_bytes() -> int:
+    """Resident set size of this process now (0 where /proc is unavailable)."""
+    try:
+        with open("/proc/self/statm") as fh:
+            return int(fh.read().split()[1]) * _PAGE
+    except OSError:
+        return 0
+
+
+class PeakRss:
+    """Context manager sampling this process's RSS every ``interval_s``; ``peak``/``baseline`` in bytes.
+
+    ``ru_maxrss`` cannot be reset within a process, so the peak of one run is sampled instead.
+    """
+
+    def __init__(self, interval_s: float = 0.005) -> None:
+        self.interval_s = interval_s
+        self.baseline = 0
+        self.peak = 0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def __enter__(self) -> "PeakRss":
+        self.baseline = self.peak = current_rss_bytes()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+        self._thread.start()
+        return self
+
+    def _sample(self) -> None:
+        while not self._stop.wait(self.interval_s):
+            self.peak = max(self.peak, current_rss_bytes())
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        self.peak = max(self.peak, current_rss_bytes())
+
+    @property
+    def growth(self) -> int:
+        """Bytes the peak rose above the RSS at entry."""
+        return max(0, self.peak - self.baseline)
+
+
+def reconstruct_peak_rss(args: list[str], env: dict[str, str] | None = None,
+                         timeout_s: float = 600.0) -> PeakMemory:
+    """Peak memory of ``rmbvideo reconstruct ARGS`` run in a fresh Python subprocess.
+
+    Raises ``RuntimeError`` with the child's stderr if it fails.
+    """
+    result = subprocess.run([sys.executable, "-c", _CHILD, "reconstruct", *args], capture_output=True,
+                            text=True, timeout=timeout_s, env={**os.environ, **(env or {})})
+    last = result.stdout.strip().splitlines()[-1] if result.stdout.strip() else ""
+    if result.returncode != 0 or not last.startswith("{"):
+        raise RuntimeError(f"reconstruct {' '.join(args)} failed ({result.returncode}): {result.stderr[-2000:]}")
+    result_json = json.loads(last)
+    return PeakMemory(rss=int(result_json["maxrss_kib"]) * 1024, anonymous=int(result_json["anon_peak"]))
+
+
+def write_random_capture(path: Path, n_planes: int, width: int, height: int, rate: float = 0.3,
+                         seed: int = 0) -> Path:
+    """A .dat capture of ``n_planes`` Bernoulli(``rate``) planes, written in bounded chunks."""
+    import numpy as np
+
+    from rmbvideo.io.dat import DatGeometry, DatWriter
+
+    rng = np.random.default_rng(seed)
+    pool = (rng.random((64, height, width)) < rate).astype(np.uint8)
+    with DatWriter(path, DatGeometry(width=width, height=height)) as writer:
+        for s in range(0, n_planes, len(pool)):
+            writer.write(pool[: min(len(pool), n_planes - s)])
+    return path

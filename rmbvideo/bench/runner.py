@@ -1,0 +1,197 @@
+"""Run one benchmark configuration over the held-out sequences: accuracy, speed and peak memory.
+
+End to end means what ``rmbvideo reconstruct --format null`` does: each sequence's raw 1-bit planes
+are written once as a ``.dat`` capture and streamed through decode, 2x2x2 binning, the method and a
+sink (one that keeps the scored frames). As in the evaluation harness (``rmbvideo.evaluate.harness``),
+methods on the binned stream read it through the RMB readout design, frames of methods on raw planes
+(TFI) are 2x2 area-averaged to the ground-truth size, and scores are per-sequence means of mu-law
+PSNR/SSIM (a row: the mean over sequences). For RMB-Net the network alone (the streaming engine on
+precomputed preliminary frames, window alignment included) is timed separately.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rmbvideo.bench.configs import BenchConfig
+from rmbvideo.bench.memory import PeakRss
+from rmbvideo.bench.models import ModelChoice, build_network, find_model
+from rmbvideo.chunks import Frame
+from rmbvideo.evaluate.heldout import Sequence
+from rmbvideo.evaluate.harness import downsample_2x, score_frames
+from rmbvideo.io.dat import DatGeometry, DatReader, DatWriter
+from rmbvideo.recon.pipeline import make_reconstructor, reconstruct_stream
+from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
+
+log = logging.getLogger(__name__)
+
+CHUNK_PLANES = 1024
+_MIB = 1024.0 * 1024.0
+
+
+@dataclass
+class BenchRecord:
+    """One benchmark row. Accuracy is None ("n/a") for an untrained (random-init) network.
+
+    ``fps``: output frames per wall second end to end; ``net_fps``: the network alone (RMB-Net
+    only); ``realtime_factor``: seconds of capture processed per wall second end to end (>= 1 is real
+    time); ``peak_rss_mib``: peak resident memory during the end-to-end runs; ``rss_growth_mib``: how
+    far it rose above the RSS before them.
+    """
+
+    name: str
+    method: str
+    w: int | None
+    align: str | None
+    width: float | None
+    precision: str | None
+    device: str
+    threads: int
+    model: str
+    trained: bool
+    frames: int
+    scored_frames: int
+    psnr: float | None
+    ssim: float | None
+    fps: float
+    net_fps: float | None
+    realtime_factor: float
+    peak_rss_mib: float
+    rss_growth_mib: float
+    pareto: bool = False
+
+    @property
+    def seconds_per_frame(self) -> float:
+        """Wall seconds per output frame end to end (inf when nothing was produced)."""
+        return 1.0 / self.fps if self.fps > 0 else math.inf
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON/CSV-ready dictionary."""
+        return asdict(self)
+
+
+class _KeepFrames:
+    """A sink that keeps the frames whose times are in ``wanted`` (seconds, matched to 1 us)."""
+
+    def __init__(self, wanted: dict[int, float]) -> None:
+        self._wanted = {round(t * 1e6): i for i, t in wanted.items()}
+        self.kept: dict[int, np.ndarray] = {}
+        self.count = 0
+
+    def write(self, frame: Frame) -> None:
+        self.count += 1
+        index = self._wanted.get(round(frame.time_s * 1e6))
+        if index is not None:
+            self.kept[index] = frame.image
+
+
+def write_sequence_dat(sequence: Sequence, folder: Path) -> tuple[Path, DatGeometry]:
+    """The sequence's raw planes as a .dat capture in ``folder`` (camera orientation, flipped rows)."""
+    height, width = sequence.raw_shape
+    geometry = DatGeometry(width=width, height=height)
+    path = folder / f"heldout-{sequence.seed}.dat"
+    if not path.exists():
+        with DatWriter(path, geometry) as writer:
+            for chunk in sequence.raw_chunks():
+                writer.write(chunk.planes)
+    return path, geometry
+
+
+def _make(config: BenchConfig, network, threads: int):
+    if not config.is_rmbnet:
+        return make_reconstructor(config.method, **config.options)
+    from rmbvideo.recon.rmbnet import RmbNetReconstructor
+
+    return RmbNetReconstructor(network, device=config.device, align=config.align or "none",
+                               precision=config.precision or "fp32", threads=threads)
+
+
+def _network_seconds(config: BenchConfig, network, sequence: Sequence, threads: int) -> tuple[int, float]:
+    """Frames and wall seconds of the RMB-Net engine alone on precomputed preliminary frames."""
+    from rmbvideo.recon.prelim import PreliminaryFrames
+
+    prelim = PreliminaryFrames(n=network.config.n)
+    readout = RmbReadout(mode=ReadoutMode("rmb"))
+    frames = [f for c in sequence.rmb_chunks() for f in prelim.push(readout.apply(c))] + prelim.flush()
+    engine = _make(config, network, threads)
+    _sync(config.device)
+    began = time.perf_counter()
+    out = engine.push(frames) + engine.flush()
+    _sync(config.device)
+    return len(out), time.perf_counter() - began
+
+
+def _sync(device: str) -> None:
+    if device.startswith("cuda"):
+        import torch
+
+        torch.cuda.synchronize()
+
+
+def run_config(config: BenchConfig, sequences: list[Sequence], workdir: Path, models_dir: Path,
+               threads: int = 1) -> BenchRecord:
+    """Benchmark ``config`` on ``sequences`` (their .dat files are cached in ``workdir``)."""
+    choice = ModelChoice(None)
+    network = None
+    if config.is_rmbnet:
+        choice = find_model(config.w, config.width, models_dir)
+        network = build_network(config.w, config.width, choice)
+    frames = 0
+    seconds = capture_s = 0.0
+    net_frames, net_seconds = 0, 0.0
+    psnrs: list[float] = []
+    ssims: list[float] = []
+    peak = growth = scored_frames = 0
+    for sequence in sequences:
+        path, geometry = write_sequence_dat(sequence, workdir)
+        reader = DatReader(path, geometry, rate_hz=2 * sequence.rate_hz)
+        scored = {i: sequence.frame_time(i) for i in sequence.scored_frames}
+        sink = _KeepFrames(scored)
+        recon = _make(config, network, threads)
+        readout = RmbReadout(mode=ReadoutMode("rmb")) if recon.input_kind == "rmb" else None
+        with PeakRss() as rss:
+            summary = reconstruct_stream(reader, recon, sink, chunk_planes=CHUNK_PLANES, readout=readout)
+            _sync(config.device)
+        del reader
+        peak, growth = max(peak, rss.peak), max(growth, rss.growth)
+        frames += summary.frames
+        seconds += summary.seconds
+        capture_s += summary.planes / (2 * sequence.rate_hz)
+        missing = sorted(set(scored) - set(sink.kept))
+        if missing:
+            log.warning("%s on %s: no output for scored frames %s", config.name, sequence.name, missing[:5])
+        if (choice.trained or not config.is_rmbnet) and sink.kept:
+            kept = {i: image if image.shape == sequence.shape else downsample_2x(image, sequence.shape)
+                    for i, image in sink.kept.items()}
+            psnr, ssim, _pu21 = score_frames(kept, sequence)
+            psnrs.append(psnr)
+            ssims.append(ssim)
+            scored_frames += len(kept)
+        if config.is_rmbnet:
+            n, s = _network_seconds(config, network, sequence, threads)
+            net_frames += n
+            net_seconds += s
+    fps = frames / seconds if seconds > 0 else 0.0
+    return BenchRecord(
+        name=config.name, method=config.method, w=config.w, align=config.align, width=config.width,
+        precision=config.precision, device=config.device, threads=threads, model=choice.label if config.is_rmbnet else "-",
+        trained=choice.trained or not config.is_rmbnet, frames=frames, scored_frames=scored_frames,
+        psnr=_finite_mean(psnrs), ssim=_finite_mean(ssims), fps=fps,
+        net_fps=(net_frames / net_seconds if net_seconds > 0 else 0.0) if config.is_rmbnet else None,
+        realtime_factor=capture_s / seconds if seconds > 0 else 0.0,
+        peak_rss_mib=peak / _MIB, rss_growth_mib=growth / _MIB,
+    )
+
+
+def _finite_mean(values: list[float]) -> float | None:
+    """Mean of the finite per-sequence values, or None when there are none."""
+    finite = [v for v in values if math.isfinite(v)]
+    return float(np.mean(finite)) if finite else None
+

@@ -1,0 +1,157 @@
+"""``rmbvideo bench``: what accuracy costs in time, on the held-out synthetic scenes; ``rmbvideo bench
+decode``: decode+bin speed."""
+
+from __future__ import annotations
+
+import json
+import logging
+import tempfile
+from pathlib import Path
+
+import click
+
+log = logging.getLogger(__name__)
+
+
+def _devices(choice: str) -> tuple[str, ...]:
+    if choice != "auto":
+        return (choice,)
+    import torch
+
+    return ("cpu", "cuda") if torch.cuda.is_available() else ("cpu",)
+
+
+def memory_scaling(method: str, planes: int, factor: int = 5, width: int = 400, height: int = 250,
+                   extra: tuple[str, ...] = ()) -> dict:
+    """Peak RSS of ``reconstruct --format null`` on a capture of ``planes`` and of ``factor`` x as many."""
+    from rmbvideo.bench.memory import reconstruct_peak_rss, write_random_capture
+
+    peaks = []
+    with tempfile.TemporaryDirectory(prefix="rmbvideo-memory-") as folder:
+        for count in (planes, factor * planes):
+            path = write_random_capture(Path(folder) / f"c{count}.dat", count, width, height)
+            peaks.append(reconstruct_peak_rss([str(path), "-o", str(Path(folder) / "out"), "--format", "null",
+                                               "--method", method, "--width", str(width), "--height", str(height),
+                                               "-q", *extra]))
+            path.unlink()
+    return {"method": method, "planes": planes, "factor": factor,
+            "peak_anon_mib": [p.anonymous / 2**20 for p in peaks], "peak_rss_mib": [p.rss / 2**20 for p in peaks],
+            "growth": peaks[1].anonymous / peaks[0].anonymous - 1.0}
+
+
+def _stage_table(stages: dict[str, float]) -> str:
+    lines = [f"Per-stage time of RMB-Net (w = 3, no alignment, fp32, CPU) at {stages.pop('size')}, "
+             f"ms per output frame over {int(stages.pop('frames'))} frames:", "",
+             "| stage | ms/frame |", "|---|---|"]
+    lines += [f"| {k} | {v:.2f} |" for k, v in stages.items()]
+    return "\n".join(lines) + "\n"
+
+
+@click.group(invoke_without_command=True)
+@click.option("--quick", is_flag=True, help="Small held-out set (2 scenes, 112x64), short timing captures, "
+              "no TV-L1 row: a few minutes.")
+@click.option("-o", "--output", "outdir", type=click.Path(path_type=Path), default=Path("bench-results"),
+              show_default=True, help="Folder for bench.md, bench.csv and bench.png.")
+@click.option("--json", "as_json", is_flag=True, help="Print the records as JSON on stdout.")
+@click.option("--device", type=click.Choice(["auto", "cpu", "cuda"]), default="auto", show_default=True,
+              help="Devices for RMB-Net rows (auto: CPU, plus CUDA when available).")
+@click.option("--full-grid", is_flag=True,
+              help="Every combination of w, alignment, width and precision (default: one knob at a time).")
+@click.option("--threads", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Torch threads for the network (1 is fastest on a shared CPU).")
+@click.option("--models", "models_dir", type=click.Path(path_type=Path), default=None,
+              help="Folder of trained weights (with ablations/) [default: the shipped models].")
+@click.option("--cache", type=click.Path(path_type=Path), default=None,
+              help="Held-out scene cache folder [default: ~/.cache/rmbvideo/heldout].")
+@click.option("--no-baselines", is_flag=True, help="Only RMB-Net rows.")
+@click.option("--no-extras", is_flag=True,
+              help="Skip the per-stage breakdown, the real-time tfp check and the memory-scaling runs.")
+@click.pass_context
+def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: str, full_grid: bool,
+          threads: int, models_dir: Path | None, cache: Path | None, no_baselines: bool, no_extras: bool) -> None:
+    """Benchmark every method on the held-out synthetic scenes: accuracy against time.
+
+    Rows: TFW-S, TFW-L, TFI, GC20, MG20 and RMB-Net with w in {0,1,2,3}, alignment none/DIS/TV-L1,
+    width x0.5/x1, fp32/bf16, per device. Each row reports mu-law PSNR and SSIM, output frames per
+    second end to end (decode to sink) and for the network alone, the real-time factor (capture
+    seconds per wall second) and peak memory. RMB-Net configurations without trained weights in
+    the models folder are timed with a random-init network and their accuracy is n/a.
+
+    Writes bench.md (table, per-stage breakdown, real-time and memory checks), bench.csv and
+    bench.png (PSNR against time, Pareto front marked). `rmbvideo bench decode` measures decoding.
+    """
+    if ctx.invoked_subcommand is not None:
+        return
+    from rmbvideo.bench.configs import ALIGNMENTS, default_configs
+    from rmbvideo.bench.models import build_network
+    from rmbvideo.bench.report import mark_pareto, markdown_table, write_csv, write_plot
+    from rmbvideo.bench.runner import run_config
+    from rmbvideo.evaluate.heldout import load_heldout
+    from rmbvideo.io.atomic import atomic_write_text
+    from rmbvideo.net.weights import MODELS_DIR
+
+    models_dir = models_dir or MODELS_DIR
+    outdir.mkdir(parents=True, exist_ok=True)
+    sequences = load_heldout(quick, cache)
+    alignments = tuple(a for a in ALIGNMENTS if not (quick and a == "tvl1"))
+    configs = default_configs(_devices(device), full_grid=full_grid, baselines=not no_baselines,
+                              alignments=alignments)
+    records = []
+    with tempfile.TemporaryDirectory(prefix="rmbvideo-bench-") as work:
+        for config in configs:
+            record = run_config(config, sequences, Path(work), models_dir, threads=threads)
+            log.info("%-32s %6.1f frames/s  PSNR %s", record.name, record.fps,
+                     "n/a" if record.psnr is None else f"{record.psnr:.2f}")
+            records.append(record)
+    mark_pareto(records)
+    document = ["# rmbvideo bench", "",
+                f"{len(sequences)} held-out scenes at {sequences[0].shape[1]}x{sequences[0].shape[0]}, "
+                f"{threads} torch thread(s). '*' = Pareto front of (time per frame, PSNR) among rows with "
+                "accuracy; 'n/a' = untrained (random-init) network, timed only.", "", markdown_table(records)]
+    extras: dict = {}
+    if not no_extras:
+        from rmbvideo.bench.realtime import bench_realtime
+        from rmbvideo.bench.stages import stage_breakdown
+
+        stages = stage_breakdown(build_network(3, 1.0, _choice(models_dir)), planes=600 if quick else 2000,
+                                 threads=threads)
+        extras["stages_ms_per_frame"] = dict(stages)
+        stages["size"] = "200x125"  # type: ignore[assignment]
+        document += [_stage_table(stages)]
+        realtime = bench_realtime(0.5 if quick else 5.0).to_dict()
+        extras["realtime_tfp"] = realtime
+        document += [f"tfp --format null on {realtime['capture_s']:.1f} s of 400x250 capture "
+                     f"({realtime['planes']} planes): {realtime['reconstruct_s']:.2f} s "
+                     f"(real-time factor {realtime['realtime_factor']:.2f}; reading alone {realtime['read_s']:.2f} s).", ""]
+        memory = [memory_scaling("tfp", 400 if quick else 2000), memory_scaling("tfw", 400 if quick else 2000)]
+        extras["memory_scaling"] = memory
+        document += [f"Peak anonymous RSS, {m['method']}: {m['peak_anon_mib'][0]:.0f} MiB for {m['planes']} "
+                     f"planes, {m['peak_anon_mib'][1]:.0f} MiB for {m['factor']}x as many ({100 * m['growth']:+.1f} %; "
+                     f"total RSS with mapped file pages {m['peak_rss_mib'][0]:.0f} -> {m['peak_rss_mib'][1]:.0f} MiB)."
+                     for m in memory]
+    atomic_write_text(outdir / "bench.md", "\n".join(document) + "\n")
+    write_csv(records, outdir / "bench.csv")
+    write_plot(records, outdir / "bench.png")
+    if as_json:
+        click.echo(json.dumps({"records": [r.to_dict() for r in records], **extras}, indent=2))
+    else:
+        click.echo(markdown_table(records), nl=False)
+        click.echo(f"wrote {outdir / 'bench.md'}, bench.csv, bench.png", err=True)
+
+
+def _choice(models_dir: Path):
+    from rmbvideo.bench.models import find_model
+
+    return find_model(3, 1.0, models_dir)
+
+
+@bench.command("decode")
+@click.option("--planes", type=click.IntRange(min=2), default=20000, show_default=True,
+              help="Raw 400x250 planes in the generated capture.")
+@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
+def decode(planes: int, as_json: bool) -> None:
+    """Decode+bin planes/s: the fused path against plain numpy and a per-plane loop (one core)."""
+    from rmbvideo.bench.decode import _summary, bench_decode
+
+    result = bench_decode(planes)
+    click.echo(json.dumps(result, indent=2) if as_json else _summary(result))

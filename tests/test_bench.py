@@ -1,0 +1,116 @@
+"""``rmbvideo bench`` on a tiny configuration: record fields, finiteness, Pareto marking, files."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+
+from rmbvideo.bench.configs import BASELINES, BenchConfig, default_configs, rmbnet_config
+from rmbvideo.bench.models import find_model
+from rmbvideo.bench.pareto import pareto_front
+from rmbvideo.bench.report import mark_pareto, markdown_table, write_csv, write_plot
+from rmbvideo.bench.runner import BenchRecord, run_config
+from rmbvideo.cli import main
+from rmbvideo.evaluate.heldout import Sequence
+from rmbvideo.net.config import RmbNetConfig
+from rmbvideo.net.model import RmbNet
+from rmbvideo.net.weights import ModelCard, save_model
+from rmbvideo.sensor.binning import bin_2x2x2
+
+H, W, READOUTS = 16, 24, 80
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def tiny_sequence(seed: int = 0) -> Sequence:
+    """A static scene of firing probabilities 0.05..0.6 seen by a 1-bit camera, binned."""
+    rng = np.random.default_rng(seed)
+    light = np.linspace(0.05, 0.6, 2 * W, dtype=np.float32)[None, :].repeat(2 * H, axis=0)
+    raw = (rng.random((2 * READOUTS, 2 * H, 2 * W)) < light).astype(np.uint8)
+    single, multi = bin_2x2x2(raw)
+    gt = light.reshape(H, 2, W, 2).mean(axis=(1, 3))
+    return Sequence(name=f"tiny{seed}", seed=seed, rate_hz=10_000.0, single=single, multi=multi,
+                    raw_packed=np.packbits(raw, axis=-1, bitorder="little"),
+                    gt=np.repeat(gt[None], READOUTS // 10, axis=0), edge_readouts=20)
+
+
+def test_pareto_front_marks_only_undominated_points():
+    points = [(1.0, 30.0), (2.0, 35.0), (3.0, 34.0), (0.5, 20.0), (1.0, 30.0), (None, 40.0), (4.0, math.nan)]
+    assert pareto_front(points) == [True, True, False, True, True, False, False]
+    assert pareto_front([]) == []
+
+
+def test_default_configs_cover_the_issue():
+    names = [c.name for c in default_configs(("cpu",))]
+    assert names[:5] == list(BASELINES)
+    rmb = [c for c in default_configs(("cpu", "cuda")) if c.is_rmbnet]
+    for device in ("cpu", "cuda"):
+        mine = [c for c in rmb if c.device == device]
+        assert {c.w for c in mine} == {0, 1, 2, 3} and {c.align for c in mine} == {"none", "dis", "tvl1"}
+        assert {c.width for c in mine} == {0.5, 1.0} and {c.precision for c in mine} == {"fp32", "bf16"}
+    assert len(set(names)) == len(names)
+    assert len([c for c in default_configs(("cpu",), full_grid=True) if c.is_rmbnet]) == 48
+
+
+def test_run_config_records_are_complete_and_finite(tmp_path):
+    models = tmp_path / "models"
+    (models / "ablations").mkdir(parents=True)
+    torch.manual_seed(1)
+    save_model(models / "ablations" / "tiny-w1", RmbNet(RmbNetConfig(w=1, width=0.25)), ModelCard(name="tiny"))
+    assert find_model(1, 0.25, models).trained and not find_model(2, 0.25, models).trained
+    sequences = [tiny_sequence(0), tiny_sequence(1)]
+    configs = [BenchConfig("TFW-S", "tfw", {"window": 10, "step": 10}), BenchConfig("TFI", "tfi", {"step": 20}),
+               rmbnet_config(w=1, width=0.25), rmbnet_config(w=2, width=0.25)]
+    records = [run_config(c, sequences, tmp_path, models) for c in configs]
+    tfw, tfi, trained, untrained = records
+    for r in records:
+        assert r.frames == 2 * READOUTS // 10
+        assert math.isfinite(r.fps) and r.fps > 0 and r.realtime_factor > 0
+        assert r.peak_rss_mib > 0 and r.rss_growth_mib >= 0
+    for r in (tfw, tfi, trained):
+        assert r.trained and r.scored_frames == 2 * len(sequences[0].scored_frames)
+        assert math.isfinite(r.psnr) and 0 <= r.ssim <= 1
+    assert tfw.net_fps is None and trained.net_fps > 0 and untrained.net_fps > 0
+    assert tfw.psnr > 20  # a static scene: the 10-readout mean is close to the truth
+    assert untrained.model == "random-init" and untrained.psnr is None and untrained.ssim is None
+    assert trained.model == "tiny-w1.safetensors"
+
+    mark_pareto(records)
+    assert not untrained.pareto and any(r.pareto for r in records)
+    best = max((r for r in records if r.psnr is not None), key=lambda r: r.psnr)
+    assert best.pareto
+    table = markdown_table(records)
+    assert table.count("\n") == len(records) + 2 and "n/a" in table
+    write_csv(records, tmp_path / "bench.csv")
+    rows = list(csv.DictReader((tmp_path / "bench.csv").open()))
+    assert [r["name"] for r in rows] == [c.name for c in configs] and rows[3]["psnr"] == ""
+    write_plot(records, tmp_path / "bench.png")
+    assert (tmp_path / "bench.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_record_json_roundtrip():
+    record = BenchRecord(name="x", method="tfw", w=None, align=None, width=None, precision=None, device="cpu",
+                         threads=1, model="-", trained=True, frames=3, scored_frames=2, psnr=30.0, ssim=0.9,
+                         fps=0.0, net_fps=None, realtime_factor=0.0, peak_rss_mib=1.0, rss_growth_mib=0.0)
+    assert json.loads(json.dumps(record.to_dict()))["name"] == "x" and record.seconds_per_frame == math.inf
+
+
+def test_cli_help_and_decode():
+    runner = CliRunner()
+    result = runner.invoke(main, ["bench", "--help"])
+    assert result.exit_code == 0 and "--quick" in result.output and "decode" in result.output
+    result = runner.invoke(main, ["bench", "decode", "--planes", "64", "--json"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.output)["bit_exact"] is True
