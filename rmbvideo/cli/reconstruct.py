@@ -59,6 +59,8 @@ def rmbnet_options(func):
                      help="Dense multi-bit planes from the rolling band: flow-free interpolation or optical flow."),
         click.option("--precision", type=click.Choice(["auto", "fp32", "bf16"]), default="auto",
                      show_default=True, help="Network precision (auto: bf16 autocast on CUDA, fp32 on CPU)."),
+        click.option("--threads", type=click.IntRange(min=1), default=None,
+                     help="CPU threads for the network [default: torch's choice; 1 is fastest on a busy machine]."),
     ]
     for option in reversed(options):
         func = option(func)
@@ -66,12 +68,12 @@ def rmbnet_options(func):
 
 
 def rmbnet_extra_options(method: str, model, align: str, device: str, upsampling: str,
-                         precision: str) -> dict:
+                         precision: str, threads: int | None = None) -> dict:
     """Keyword options for the RMB-Net factory; empty for the other methods."""
     if method != "rmbnet":
         return {}
     return {"model": model, "align": align, "device": device, "upsampling": upsampling,
-            "precision": precision}
+            "precision": precision, "threads": threads}
 
 
 def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_METHOD,
@@ -152,9 +154,9 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
 def reconstruct(input_path: Path, outdir: Path, method: str, window, step, fmt: str, fps: float,
                 tonemap: str, exr_dtype: str, readout: str, width, height, flip, header_cols, rate_hz,
                 start_s: float, duration_s, chunk_planes: int, model, align: str, device: str,
-                upsampling: str, precision: str, quiet: bool) -> None:
+                upsampling: str, precision: str, threads, quiet: bool) -> None:
     """Reconstruct a .dat capture INPUT into frames in OUTDIR."""
-    extra = rmbnet_extra_options(method, model, align, device, upsampling, precision)
+    extra = rmbnet_extra_options(method, model, align, device, upsampling, precision, threads)
     summary = run_reconstruction(
         input_path, outdir, method=method, window=window, step=step, fmt=fmt, fps=fps,
         tonemap=tonemap, exr_dtype=exr_dtype, readout=readout, start_s=start_s,
