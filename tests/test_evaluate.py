@@ -81,9 +81,9 @@ def test_heldout_sequence_is_cached_and_consistent(sequence, cache):
 def test_table2_rows_scores_and_not_trained(rows):
     names = [r.name for r in rows]
     assert names == ["TFW-S", "TFW-L", "TFI", "GC20", "MG20", "RMB-Net",
-                     "w = 0", "Pure-S", "Pure-M", "Full-M", "w/o XBA", "w/o XTA"]
+                     "RMB-Net (ablation budget)", "w = 0", "Pure-S", "Pure-M", "Full-M", "w/o XBA", "w/o XTA"]
     status = {r.name: r.status for r in rows}
-    assert all(status[n] == "not trained" for n in ("w = 0", "Pure-S", "Pure-M", "Full-M", "w/o XTA"))
+    assert all(status[n] == "not trained" for n in ("RMB-Net (ablation budget)", "w = 0", "Pure-S", "Pure-M", "Full-M", "w/o XTA"))
     ok = [r for r in rows if r.status == "ok"]
     assert [r.name for r in ok] == ["TFW-S", "TFW-L", "TFI", "GC20", "MG20", "RMB-Net", "w/o XBA"]
     for row in ok:
