@@ -4,13 +4,15 @@ A stored plane of W x H pixels is W*H/8 bytes; pixel ``i`` (row-major) is bit ``
 ``i >> 3``, least significant bit first. Stored rows are upside down (image = ``stored[::-1]``)
 unless ``flip=False``. Some cameras store 416-column rows whose last 16 columns are a header;
 ``header_cols`` drops them (and the writer fills them with zeros). The reader memory-maps the
-file, so any range is decoded without reading the rest.
+file, so any range is decoded without reading the rest, and its chunk iterators hand the pages they
+have consumed back to the kernel, so resident memory stays flat however long the capture.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import mmap
 import os
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -25,6 +27,7 @@ from rmbvideo.sensor.binning import bin_2x2x2, bin_packed, binned_rmb_chunk
 
 logger = logging.getLogger(__name__)
 
+_PAGE_BYTES = mmap.PAGESIZE
 MAX_SIDE = 16384  # larger than any spiking camera; rejects typos such as 4000x2500000
 DEFAULT_RATE_HZ = 20000.0
 _WRITE_BLOCK_PLANES = 1024
@@ -75,6 +78,34 @@ COMMON_GEOMETRIES: tuple[DatGeometry, ...] = (
 )
 
 
+def unpack_planes(packed: np.ndarray, geometry: DatGeometry) -> np.ndarray:
+    """Stored plane bytes (T, plane_bytes) -> (T, H, image_width) uint8 0/1 planes in image orientation."""
+    g = geometry
+    bits = np.unpackbits(packed, axis=1, bitorder="little").reshape(len(packed), g.height, g.width)
+    if g.flip:
+        bits = bits[:, ::-1]
+    return np.ascontiguousarray(bits[:, :, : g.image_width])
+
+
+@dataclass
+class PackedChunk:
+    """Consecutive planes exactly as stored: ``data`` is (T, plane_bytes) uint8, file orientation,
+    header columns included, laid out by ``geometry``; for methods that work on the bits directly."""
+
+    data: np.ndarray
+    start: int
+    rate_hz: float
+    geometry: DatGeometry
+
+    @property
+    def stop(self) -> int:
+        return self.start + len(self.data)
+
+    def unpack(self) -> SpikeChunk:
+        """The same planes decoded into a ``SpikeChunk`` (image orientation, header dropped)."""
+        return SpikeChunk(planes=unpack_planes(self.data, self.geometry), start=self.start, rate_hz=self.rate_hz)
+
+
 def _geometry_hint(size: int) -> str:
     fits = [f"{g.width}x{g.height}" for g in COMMON_GEOMETRIES if size % g.plane_bytes == 0]
     return f" (the size fits {', '.join(fits)})" if fits else ""
@@ -122,7 +153,12 @@ class DatReader:
                 self.path, self._trailing_bytes, self._n_planes, geometry.width, geometry.height,
                 _geometry_hint(size),
             )
-        self._flat = np.memmap(self.path, dtype=np.uint8, mode="r", shape=(self._n_planes, plane_bytes))
+        try:
+            with open(self.path, "rb") as file:
+                self._map = mmap.mmap(file.fileno(), self._n_planes * plane_bytes, access=mmap.ACCESS_READ)
+        except (OSError, ValueError) as exc:
+            raise InputError(f"{self.path}: cannot memory-map: {getattr(exc, 'strerror', None) or exc}") from None
+        self._flat = np.frombuffer(self._map, dtype=np.uint8).reshape(self._n_planes, plane_bytes)
 
     @property
     def n_planes(self) -> int:
@@ -162,18 +198,25 @@ class DatReader:
             raise InputError(f"{self.path}: planes {start}..{stop} are outside the capture's 0..{self._n_planes}")
         return start, stop
 
-    def _decode(self, flat: np.ndarray) -> np.ndarray:
-        """Stored plane bytes (T, plane_bytes) -> (T, H, image_width) 0/1 planes, image orientation."""
-        g = self.geometry
-        bits = np.unpackbits(flat, axis=1, bitorder="little").reshape(len(flat), g.height, g.width)
-        if g.flip:
-            bits = bits[:, ::-1]
-        return np.ascontiguousarray(bits[:, :, : g.image_width])
+    def release_pages(self, start: int, stop: int) -> None:
+        """Tell the kernel the mapped pages of planes ``start..stop`` are not needed any more.
+
+        Pages are released from the one holding plane ``start`` up to, not including, the one holding
+        plane ``stop``'s first byte, so consecutive calls over consecutive ranges release every page
+        once. Correctness never depends on it: a page read again is faulted back in from the file.
+        """
+        if not hasattr(mmap, "MADV_DONTNEED"):
+            return
+        plane_bytes = self.geometry.plane_bytes
+        begin = start * plane_bytes // _PAGE_BYTES * _PAGE_BYTES
+        end = stop * plane_bytes // _PAGE_BYTES * _PAGE_BYTES
+        if end > begin:
+            self._map.madvise(mmap.MADV_DONTNEED, begin, end - begin)
 
     def read(self, start: int = 0, stop: int | None = None) -> np.ndarray:
         """Planes ``start..stop-1`` as (T, H, image_width) uint8 0/1 in image orientation."""
         start, stop = self._range(start, stop)
-        return self._decode(self._flat[start:stop])
+        return unpack_planes(self._flat[start:stop], self.geometry)
 
     def chunks(self, chunk_planes: int = 1024, start: int = 0, stop: int | None = None) -> Iterator[SpikeChunk]:
         """Consecutive ``SpikeChunk``s of at most ``chunk_planes`` planes covering ``start..stop``."""
@@ -183,6 +226,21 @@ class DatReader:
         for s in range(start, stop, chunk_planes):
             e = min(s + chunk_planes, stop)
             yield SpikeChunk(planes=self.read(s, e), start=s, rate_hz=self.rate_hz)
+            self.release_pages(s, e)
+
+    def packed_chunks(self, chunk_planes: int = 1024, start: int = 0, stop: int | None = None) -> Iterator[PackedChunk]:
+        """Consecutive ``PackedChunk``s of at most ``chunk_planes`` planes covering ``start..stop``.
+
+        ``data`` is a read-only view of the memory map (no copy, no decoding); it stays valid, but
+        the pages behind it are released once the next chunk is asked for.
+        """
+        if chunk_planes < 1:
+            raise ValueError(f"chunk_planes must be >= 1, got {chunk_planes}")
+        start, stop = self._range(start, stop)
+        for s in range(start, stop, chunk_planes):
+            e = min(s + chunk_planes, stop)
+            yield PackedChunk(data=self._flat[s:e], start=s, rate_hz=self.rate_hz, geometry=self.geometry)
+            self.release_pages(s, e)
 
     def read_binned(self, start: int = 0, stop: int | None = None) -> RmbChunk:
         """2x2x2-binned readouts of raw planes ``start..stop`` as a pure-M ``RmbChunk``.
@@ -211,14 +269,16 @@ class DatReader:
             raise ValueError(f"binned reading must start at an even raw plane, got {start}")
         stop -= (stop - start) % 2
         for s in range(start, stop, chunk_planes):
-            yield self.read_binned(s, min(s + chunk_planes, stop))
+            e = min(s + chunk_planes, stop)
+            yield self.read_binned(s, e)
+            self.release_pages(s, e)
 
     def mean_firing_rate(self, max_planes: int = 64) -> float:
         """Spikes per pixel per plane, estimated from up to ``max_planes`` evenly spaced planes."""
         if max_planes < 1:
             raise ValueError(f"max_planes must be >= 1, got {max_planes}")
         picks = np.unique(np.linspace(0, self._n_planes - 1, min(max_planes, self._n_planes)).round().astype(np.int64))
-        return float(self._decode(self._flat[picks]).mean())
+        return float(unpack_planes(self._flat[picks], self.geometry).mean())
 
 
 class DatWriter:

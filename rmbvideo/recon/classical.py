@@ -18,24 +18,27 @@ plane for a 1-bit camera below saturation.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar, Literal, Protocol, Sequence
+from typing import Callable, ClassVar, Literal, Protocol, Sequence
 
 import numpy as np
 
 from rmbvideo.chunks import Frame, RmbChunk, SpikeChunk
+from rmbvideo.io.dat import DatGeometry, PackedChunk
 from rmbvideo.recon.prelim import DenseChunk, MultiUpsampler, TemporalInterpolation
 
 InputKind = Literal["spikes", "rmb"]
 # Planes handled at once by TFI's (block, H, W) index arrays: bounds memory for any chunk size.
 _TFI_BLOCK_PLANES = 64
 _NONE_IN_BLOCK = np.uint8(255)  # > any offset in a block of _TFI_BLOCK_PLANES
+_EXACT_FLOAT32_INTEGERS = 2**24
 
 
 class Reconstructor(Protocol):
     """A streaming reconstructor: chunks in, frames out, in time order, independent of chunking.
 
     ``input_kind`` says which stream it consumes: ``"spikes"`` (raw :class:`SpikeChunk`) or
-    ``"rmb"`` (binned/mixed-bit :class:`RmbChunk`).
+    ``"rmb"`` (binned/mixed-bit :class:`RmbChunk`). A spikes method may also set ``accepts_packed``
+    to take the stored bits undecoded (:class:`rmbvideo.io.dat.PackedChunk`) where a reader has them.
     """
 
     input_kind: ClassVar[InputKind]
@@ -69,23 +72,164 @@ class _WindowTotal:
     sums: list[np.ndarray]
 
 
+class _Totals(Protocol):
+    """Running totals of every plane added so far; window sums are differences of two moments."""
+
+    def add(self, channels: Sequence[np.ndarray], a: int, b: int) -> None:
+        """Add planes ``a..b`` of this push's channels."""
+        ...
+
+    def snapshot(self) -> object:
+        """The totals now, to subtract later."""
+        ...
+
+    def since(self, snapshot: object) -> list[np.ndarray]:
+        """Per channel, the sum of the planes added after ``snapshot`` was taken."""
+        ...
+
+
+class _DenseTotals:
+    """Totals of unpacked channels: integer channels in int64, others in float64 (exact for the
+    dyadic values produced upstream), so results do not depend on chunking."""
+
+    def __init__(self, channels: Sequence[np.ndarray]) -> None:
+        self._total = [np.zeros(c.shape[1:], dtype=np.int64 if c.dtype.kind in "biu" else np.float64) for c in channels]
+
+    def add(self, channels: Sequence[np.ndarray], a: int, b: int) -> None:
+        for total, channel in zip(self._total, channels):
+            total += channel[a:b].sum(axis=0, dtype=total.dtype)
+
+    def snapshot(self) -> list[np.ndarray]:
+        return [t.copy() for t in self._total]
+
+    def since(self, snapshot: list[np.ndarray]) -> list[np.ndarray]:
+        return [total - snap for total, snap in zip(self._total, snapshot)]
+
+
+def _word_dtype(plane_bytes: int) -> np.dtype:
+    """The widest unsigned word that tiles a stored plane exactly (fewer, wider bitwise operations)."""
+    return next(np.dtype(t) for t in (np.uint64, np.uint32, np.uint16, np.uint8)
+                if plane_bytes % np.dtype(t).itemsize == 0)
+
+
+class _BitSlicedTotals:
+    """Running total of packed 1-bit planes as a bit-sliced ("vertical") counter modulo ``2**bits``.
+
+    Counter bit ``k`` of every pixel sits in word array ``k`` at the pixel's stored bit position, so
+    adding a plane is a ripple of AND/XOR over ``plane_bytes`` and nothing is unpacked per plane.
+    With ``2**bits > window`` every window difference is exact. Planes first go into a small pending
+    counter that is only as wide as its count needs; it is folded into the total at each snapshot.
+    Differences stay bit-sliced (small) until :meth:`decode` turns one into counts per pixel.
+    """
+
+    def __init__(self, window: int, geometry: DatGeometry) -> None:
+        self._geometry = geometry
+        self._word = _word_dtype(geometry.plane_bytes)
+        self._bits = window.bit_length()
+        words = geometry.plane_bytes // self._word.itemsize
+        self._total = np.zeros((self._bits, words), dtype=self._word)
+        self._pending: list[np.ndarray] = []  # bit-sliced count of planes not yet in _total, LSB first
+        self._pending_count = 0
+        self._count_dtype = next(np.dtype(t) for t in (np.uint8, np.uint16, np.uint32, np.uint64)
+                                 if self._bits <= 8 * np.dtype(t).itemsize)
+
+    def add(self, channels: Sequence[np.ndarray], a: int, b: int) -> None:
+        for plane in channels[0][a:b].view(self._word):
+            self._add_plane(plane)
+
+    def _add_plane(self, plane: np.ndarray) -> None:
+        count = self._pending_count + 1
+        grows = len(self._pending) < self._bits and count >> len(self._pending)
+        carry = plane
+        for k, bit in enumerate(self._pending):
+            if k == len(self._pending) - 1 and not grows:
+                np.bitwise_xor(bit, carry, out=bit)  # top bit: its carry is beyond the modulus
+                break
+            next_carry = np.bitwise_and(bit, carry)
+            np.bitwise_xor(bit, carry, out=bit)
+            carry = next_carry
+        if grows:
+            self._pending.append(carry.copy() if carry is plane else carry)
+        self._pending_count = count
+
+    def _fold_pending(self) -> None:
+        """Add the pending counter into the total (a ripple-carry adder, modulo ``2**bits``)."""
+        carry: np.ndarray | None = None
+        for k in range(self._bits):
+            bit = self._total[k]
+            addend = self._pending[k] if k < len(self._pending) else None
+            if addend is None and carry is None:
+                break
+            last = k == self._bits - 1
+            if addend is not None and carry is not None:
+                partial = addend ^ carry
+                next_carry = None if last else (addend & carry) | (bit & partial)
+                addend = partial
+            else:
+                addend = addend if addend is not None else carry
+                next_carry = None if last else bit & addend
+            np.bitwise_xor(bit, addend, out=bit)
+            carry = next_carry
+        self._pending.clear()
+        self._pending_count = 0
+
+    def snapshot(self) -> np.ndarray:
+        self._fold_pending()
+        return self._total.copy()
+
+    def since(self, snapshot: np.ndarray) -> list[np.ndarray]:
+        self._fold_pending()
+        return [self._subtract(self._total, snapshot)]
+
+    def _subtract(self, minuend: np.ndarray, subtrahend: np.ndarray) -> np.ndarray:
+        """Bit-sliced ``minuend - subtrahend`` modulo ``2**bits`` (a ripple-borrow subtractor)."""
+        out = np.empty_like(minuend)
+        borrow: np.ndarray | None = None
+        for k in range(self._bits):
+            a, b = minuend[k], subtrahend[k]
+            differ = a ^ b
+            if borrow is None:
+                out[k] = differ
+                next_borrow = b & ~a
+            else:
+                np.bitwise_xor(differ, borrow, out=out[k])
+                next_borrow = (b & ~a) | (borrow & ~differ)
+            borrow = next_borrow
+        return out
+
+    def decode(self, counter: np.ndarray) -> np.ndarray:
+        """Bit-sliced counter -> (H, image_width) counts in image orientation (a strided view)."""
+        g = self._geometry
+        bits = np.unpackbits(counter.view(np.uint8), axis=1, bitorder="little")
+        counts = bits[-1] if self._count_dtype == bits.dtype else bits[-1].astype(self._count_dtype)
+        for k in range(self._bits - 2, -1, -1):
+            np.add(counts, counts, out=counts)
+            np.add(counts, bits[k], out=counts)
+        image = counts.reshape(g.height, g.width)
+        if g.flip:
+            image = image[::-1]
+        return image[:, : g.image_width]
+
+
 class _WindowSums:
     """Sums of planes over windows of ``window`` planes centred every ``step`` planes, streaming.
 
-    Keeps a running total since the first plane and a snapshot of it at each open window's start,
-    so every plane is added once whatever the overlap. Integer channels sum in int64, others in
-    float64 (exact for the dyadic values produced upstream), so results do not depend on chunking.
+    Keeps running totals since the first plane and a snapshot of them at each open window's start,
+    so every plane is added once whatever the overlap. ``make_totals`` builds the totals from the
+    first push's channels (default: :class:`_DenseTotals`).
     """
 
-    def __init__(self, window: int, step: int) -> None:
+    def __init__(self, window: int, step: int,
+                 make_totals: Callable[[Sequence[np.ndarray]], _Totals] = _DenseTotals) -> None:
         if window < 1 or step < 1:
             raise ValueError(f"window and step must be >= 1, got window={window}, step={step}")
         self.window = window
         self.step = step
+        self._make_totals = make_totals
         self._first: int | None = None  # first plane pushed
         self._pos = 0  # next plane expected
-        self._total: list[np.ndarray] = []
-        self._open: dict[int, list[np.ndarray]] = {}  # frame -> totals at its (clipped) window start
+        self._totals: _Totals | None = None
+        self._open: dict[int, object] = {}  # frame -> snapshot of the totals at its (clipped) window start
         self._next_open = 0
         self._next_close = 0
 
@@ -97,9 +241,7 @@ class _WindowSums:
         if self._first is None:
             self._first = self._pos = start
             self._next_open = self._next_close = _first_frame(start, self.step)
-            self._total = [
-                np.zeros(c.shape[1:], dtype=np.int64 if c.dtype.kind in "biu" else np.float64) for c in channels
-            ]
+            self._totals = self._make_totals(channels)
         elif start != self._pos:
             raise ValueError(f"chunk starts at plane {start}, expected {self._pos}")
         stop = start + len(channels[0])
@@ -112,7 +254,7 @@ class _WindowSums:
                 break
             self._advance(start, channels, position)
             if p_open <= p_close:
-                self._open[self._next_open] = [t.copy() for t in self._total]
+                self._open[self._next_open] = self._totals.snapshot()
                 self._next_open += 1
             else:
                 out.append(self._close(self._next_close, p_close))
@@ -133,45 +275,74 @@ class _WindowSums:
 
     def _advance(self, start: int, channels: Sequence[np.ndarray], position: int) -> None:
         if position > self._pos:
-            a, b = self._pos - start, position - start
-            for total, channel in zip(self._total, channels):
-                total += channel[a:b].sum(axis=0, dtype=total.dtype)
+            self._totals.add(channels, self._pos - start, position - start)
             self._pos = position
 
     def _close(self, i: int, end: int) -> _WindowTotal:
         begin = max(self._window_start(i), self._first)
-        at_start = self._open.pop(i)
         return _WindowTotal(
             index=i,
             centre=_centre2(i, self.step) / 2,
             count=max(end - begin, 1),
-            sums=[total - snap for total, snap in zip(self._total, at_start)],
+            sums=self._totals.since(self._open.pop(i)),
         )
 
 
 class Tfp:
     """Texture from playback: mean of ``window`` raw 1-bit planes centred on each frame time.
 
-    Running sums: each plane is added once, whatever the window overlap.
+    Running sums: each plane is added once, whatever the window overlap. Fed :class:`PackedChunk`s
+    (``accepts_packed``), it sums the stored bits with a bit-sliced counter and decodes once per
+    frame, never unpacking a plane; the frames are identical to those from unpacked planes.
     """
 
     input_kind: ClassVar[InputKind] = "spikes"
+    accepts_packed: ClassVar[bool] = True
 
     def __init__(self, window: int = 41, step: int = 20) -> None:
-        self._sums = _WindowSums(window, step)
+        self._sums = _WindowSums(window, step, self._make_totals)
+        self._packed: bool | None = None  # set by the first chunk: which kind of totals
+        self._geometry: DatGeometry | None = None  # layout of packed chunks
+        self._bit_totals: _BitSlicedTotals | None = None  # the totals of packed chunks, to decode sums
         self._rate_hz = 0.0
 
-    def push(self, chunk: SpikeChunk) -> list[Frame]:
-        """Consume raw planes; return the frames whose window is complete."""
+    def _make_totals(self, channels: Sequence[np.ndarray]) -> _Totals:
+        if not self._packed:
+            return _DenseTotals(channels)
+        self._bit_totals = _BitSlicedTotals(self._sums.window, self._geometry)
+        return self._bit_totals
+
+    def push(self, chunk: SpikeChunk | PackedChunk) -> list[Frame]:
+        """Consume raw planes (unpacked or packed); return the frames whose window is complete."""
+        packed = isinstance(chunk, PackedChunk)
+        if self._packed is None:
+            self._packed = packed
+            if packed:
+                self._geometry = chunk.geometry
+        elif packed and not self._packed:
+            chunk, packed = chunk.unpack(), False
+        elif packed != self._packed:
+            raise ValueError("Tfp: unpacked planes after packed ones; feed one kind of chunk per run")
         self._rate_hz = chunk.rate_hz
-        return [self._frame(w) for w in self._sums.push(chunk.start, [chunk.planes])]
+        data = chunk.data if packed else chunk.planes
+        return [self._frame(w) for w in self._sums.push(chunk.start, [data])]
 
     def flush(self) -> list[Frame]:
         """Return the last frames, their windows clipped at the end of the data."""
         return [self._frame(w) for w in self._sums.flush()]
 
     def _frame(self, total: _WindowTotal) -> Frame:
-        image = (total.sums[0] / total.count).astype(np.float32)
+        if self._packed:
+            # Decoded here, one frame at a time, so the unpacked temporaries never pile up.
+            counts = self._bit_totals.decode(total.sums[0])
+            if total.count < _EXACT_FLOAT32_INTEGERS:
+                # Integers exact in float32: their float32 quotient is the correctly rounded one, the
+                # same value as rounding the float64 quotient of the unpacked path (53 >= 2 * 24 + 2).
+                image = np.divide(counts, np.float32(total.count), dtype=np.float32)
+            else:
+                image = (counts / total.count).astype(np.float32)
+        else:
+            image = (total.sums[0] / total.count).astype(np.float32)
         return Frame(index=total.index, time_s=total.centre / self._rate_hz, image=image)
 
 

@@ -18,6 +18,7 @@ from tqdm import tqdm
 from rmbvideo.chunks import Frame, RmbChunk, SpikeChunk
 from rmbvideo.evaluate.gc20 import Gc20Config, Gc20Reconstructor
 from rmbvideo.evaluate.mg20 import Mg20Config, Mg20Reconstructor
+from rmbvideo.io.dat import PackedChunk
 from rmbvideo.recon.classical import Reconstructor, Tfi, Tfp, Tfw
 from rmbvideo.sensor.readout import RmbReadout
 
@@ -118,6 +119,8 @@ def reconstruct_stream(
     Methods on the RMB stream (``input_kind == "rmb"``) read 2x2x2-binned data, passed through
     ``readout`` when given (default: the binned pure-M stream as is); binning needs an even start and
     chunk size, so odd values are rounded up. ``readout`` is an error for methods on raw spikes.
+    Methods on raw spikes that declare ``accepts_packed`` get the stored bits undecoded
+    (``reader.packed_chunks``) when the reader offers them.
     Memory is bounded by ``chunk_planes`` and the method's own look-ahead. The sink is not closed
     here: the caller commits it (or aborts it on error), e.g. by using it as a context manager.
     """
@@ -128,9 +131,11 @@ def reconstruct_stream(
                      start, start + start % 2, chunk_planes, chunk_planes + chunk_planes % 2)
         start += start % 2
         chunk_planes = max(2, chunk_planes + chunk_planes % 2)
-        chunks: Iterator[SpikeChunk | RmbChunk] = reader.binned_chunks(chunk_planes, start, max(start, stop))
+        chunks: Iterator[SpikeChunk | RmbChunk | PackedChunk] = reader.binned_chunks(chunk_planes, start, max(start, stop))
     elif readout is not None:
         raise ValueError(f"a readout design applies only to methods on the RMB stream, not {type(method).__name__}")
+    elif getattr(method, "accepts_packed", False) and hasattr(reader, "packed_chunks"):
+        chunks = reader.packed_chunks(chunk_planes, start, stop)
     else:
         chunks = reader.chunks(chunk_planes, start, stop)
 
@@ -154,6 +159,8 @@ def reconstruct_stream(
                 advanced = len(chunk.single) * chunk.raw_per_readout
                 if readout is not None:
                     chunk = readout.apply(chunk)
+            elif isinstance(chunk, PackedChunk):
+                advanced = len(chunk.data)
             else:
                 advanced = len(chunk.planes)
             emit(method.push(chunk))
