@@ -19,7 +19,7 @@ from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
 
 log = logging.getLogger(__name__)
 
-DEFAULT_METHOD = "tfp"
+DEFAULT_METHOD = "rmbnet"
 TONEMAPS = ("mulaw", "reinhard", "drago", "mantiuk")
 
 
