@@ -1,0 +1,88 @@
+"""Resumable training checkpoints without pickle: ``checkpoint.safetensors`` holds the model
+weights (``model.*``) and Adam's moment tensors (``adam.<param index>.exp_avg`` / ``.exp_avg_sq``);
+``checkpoint.json`` holds the step, elapsed wall time and Adam's per-parameter step counts.
+
+The step is written into both files; a pair that disagrees (a crash between the two writes) is
+refused rather than resumed from inconsistent state.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+from safetensors import safe_open
+from safetensors.torch import save_file
+
+from rmbvideo.errors import InputError
+from rmbvideo.io.atomic import atomic_path, atomic_write_text
+
+CHECKPOINT_FORMAT = "rmbvideo-train-checkpoint"
+ADAM_MOMENTS = ("exp_avg", "exp_avg_sq")
+
+
+@dataclass(frozen=True)
+class CheckpointState:
+    """Where a run stands: optimisation steps done and training wall time so far (seconds)."""
+
+    step: int
+    elapsed_s: float
+
+
+def checkpoint_paths(out_dir: Path) -> tuple[Path, Path]:
+    """(tensors, metadata) paths of the checkpoint in ``out_dir``."""
+    return out_dir / "checkpoint.safetensors", out_dir / "checkpoint.json"
+
+
+def save_checkpoint(out_dir: Path, model: torch.nn.Module, optimizer: torch.optim.Adam,
+                    state: CheckpointState) -> None:
+    """Write the checkpoint atomically (tensors first, then the JSON that names the step)."""
+    tensor_path, meta_path = checkpoint_paths(out_dir)
+    tensors = {f"model.{k}": v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
+    adam_steps: dict[str, float] = {}
+    params = [p for group in optimizer.param_groups for p in group["params"]]
+    for index, param in enumerate(params):
+        moments = optimizer.state.get(param)
+        if not moments:
+            continue
+        adam_steps[str(index)] = float(moments["step"])
+        for name in ADAM_MOMENTS:
+            tensors[f"adam.{index}.{name}"] = moments[name].detach().cpu().contiguous()
+    with atomic_path(tensor_path) as temp:
+        save_file(tensors, str(temp), metadata={"format": CHECKPOINT_FORMAT, "step": str(state.step)})
+    meta = {"format": CHECKPOINT_FORMAT, "step": state.step, "elapsed_s": state.elapsed_s,
+            "adam_steps": adam_steps}
+    atomic_write_text(meta_path, json.dumps(meta, indent=2) + "\n")
+
+
+def load_checkpoint(out_dir: Path, model: torch.nn.Module, optimizer: torch.optim.Adam) -> CheckpointState:
+    """Restore model and optimizer from ``out_dir``; ``InputError`` if missing or inconsistent."""
+    tensor_path, meta_path = checkpoint_paths(out_dir)
+    if not tensor_path.is_file() or not meta_path.is_file():
+        raise InputError(f"{out_dir}: no checkpoint to resume from (expected {tensor_path.name} and {meta_path.name})")
+    try:
+        meta = json.loads(meta_path.read_text())
+        with safe_open(str(tensor_path), framework="pt", device="cpu") as fh:
+            header = fh.metadata() or {}
+            tensors = {key: fh.get_tensor(key) for key in fh.keys()}
+    except Exception as exc:  # corrupt JSON or safetensors payloads raise their own error types
+        raise InputError(f"{out_dir}: unreadable checkpoint ({exc})") from None
+    if meta.get("format") != CHECKPOINT_FORMAT or header.get("step") != str(meta.get("step")):
+        raise InputError(f"{out_dir}: checkpoint files disagree or are not rmbvideo checkpoints")
+    device = next(model.parameters()).device
+    model_state = {k[len("model."):]: v for k, v in tensors.items() if k.startswith("model.")}
+    try:
+        model.load_state_dict(model_state)
+    except RuntimeError as exc:
+        raise InputError(f"{tensor_path}: checkpoint does not fit this recipe's model ({exc})") from None
+    params = [p for group in optimizer.param_groups for p in group["params"]]
+    optimizer_state = optimizer.state_dict()
+    optimizer_state["state"] = {
+        int(index): {"step": torch.tensor(step),
+                     **{name: tensors[f"adam.{index}.{name}"].to(device) for name in ADAM_MOMENTS}}
+        for index, step in meta["adam_steps"].items() if int(index) < len(params)
+    }
+    optimizer.load_state_dict(optimizer_state)
+    return CheckpointState(step=int(meta["step"]), elapsed_s=float(meta["elapsed_s"]))

@@ -1,0 +1,180 @@
+"""Training recipes: a TOML file parsed into dataclasses (``TrainConfig``).
+
+Top-level keys ``name`` (output file stem), ``seed``, ``minutes`` (wall-time budget) and
+``description``; tables ``[data]`` (``DataConfig``), ``[model]`` (``RmbNetConfig`` fields: w,
+width, use_xba, use_xta, ...; ``input_mode`` and ``n`` come from ``[data]``), ``[optim]``
+(``OptimConfig``) and ``[loss]`` (``LossConfig``). Unknown keys are errors, so a typo never trains
+the wrong model silently.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any
+
+from rmbvideo.errors import InputError
+from rmbvideo.net.config import RmbNetConfig
+from rmbvideo.train.dataset import SampleSpec
+from rmbvideo.train.loss import LossConfig
+from rmbvideo.train.random_scenes import SceneRanges
+
+RECIPES_DIR = Path(__file__).resolve().parent / "recipes"
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """Training data: input ``mode`` (binned/native), ``readout`` design, ``count`` training
+    scenes (seeds 0..count-1), square ``crop`` (output px), ``steps`` K supervised steps per sample,
+    ``exposure`` range (electrons per raw readout at median radiance), ``val_count`` held-out
+    scenes (seeds from 1,000,000)."""
+
+    mode: str = "binned"
+    readout: str = "rmb"
+    count: int = 512
+    crop: int = 64
+    steps: int = 6
+    n: int = 10
+    warmup_frames: int = 3
+    exposure: tuple[float, float] = (2.0, 60.0)
+    val_count: int = 6
+
+
+@dataclass(frozen=True)
+class OptimConfig:
+    """Adam with learning rate ``lr`` (cosine decay to ``lr_final`` over ``steps``), ``batch``
+    samples per step, truncated back-propagation over ``tbptt`` consecutive outputs."""
+
+    lr: float = 1e-3
+    lr_final: float = 1e-4
+    steps: int = 20000
+    batch: int = 2
+    tbptt: int = 3
+    grad_clip: float = 1.0
+    threads: int = 0  # torch intra-op threads; 0 leaves torch's default
+    val_every: int = 250
+    checkpoint_every: int = 50
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """A whole recipe; ``recipe_text`` is the file as written (recorded in the model card)."""
+
+    name: str
+    seed: int = 0
+    minutes: float = 45.0
+    description: str = ""
+    data: DataConfig = field(default_factory=DataConfig)
+    model: RmbNetConfig = field(default_factory=RmbNetConfig)
+    optim: OptimConfig = field(default_factory=OptimConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    recipe_text: str = ""
+    source: str = ""
+
+    def sample_spec(self) -> SampleSpec:
+        """Samples of 2w + K preliminary frames in this recipe's mode and readout."""
+        d = self.data
+        return SampleSpec(mode=d.mode, readout=d.readout, crop=d.crop, frames=2 * self.model.w + d.steps,
+                          n=d.n, warmup_frames=d.warmup_frames, level=self.model.level,
+                          ranges=SceneRanges(exposure=d.exposure))
+
+    def with_minutes(self, minutes: float) -> "TrainConfig":
+        """The same recipe with another wall-time budget."""
+        return replace(self, minutes=minutes)
+
+
+def _typed(cls: type, table: dict[str, Any], where: str, path: Path) -> Any:
+    known = {f.name: f for f in fields(cls)}
+    unknown = sorted(set(table) - set(known))
+    if unknown:
+        raise InputError(f"{path}: unknown key{'s' if len(unknown) > 1 else ''} in [{where}]: {', '.join(unknown)}")
+    values = {}
+    defaults = cls()
+    for name, value in table.items():
+        default = getattr(defaults, name)
+        if isinstance(default, bool):
+            ok = isinstance(value, bool)
+        elif isinstance(default, (int, float)):
+            ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+            if ok and isinstance(default, int) and not isinstance(value, int):
+                ok = False
+        elif isinstance(default, tuple):
+            ok = isinstance(value, list) and (len(value) == len(default) or name == "base_channels")
+            value = tuple(value) if ok else value
+        else:
+            ok = isinstance(value, type(default))
+        if not ok:
+            raise InputError(f"{path}: [{where}] {name} = {value!r} has the wrong type "
+                             f"(expected like {default!r})")
+        values[name] = value
+    return values
+
+
+def load_recipe(path: str | Path) -> TrainConfig:
+    """Parse and validate a recipe file; every problem is an ``InputError`` naming the file."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+        data = tomllib.loads(text)
+    except FileNotFoundError:
+        raise InputError(f"{path}: recipe file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot read recipe ({exc})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{path}: not valid TOML ({exc})") from None
+    top = {"name", "seed", "minutes", "description", "data", "model", "optim", "loss"}
+    unknown = sorted(set(data) - top)
+    if unknown:
+        raise InputError(f"{path}: unknown top-level keys: {', '.join(unknown)}")
+    name = data.get("name", path.stem)
+    if not isinstance(name, str) or not name or "/" in name:
+        raise InputError(f"{path}: name must be a non-empty file stem, not {name!r}")
+    seed, minutes = data.get("seed", 0), data.get("minutes", 45.0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise InputError(f"{path}: seed must be an integer >= 0, not {seed!r}")
+    if isinstance(minutes, bool) or not isinstance(minutes, (int, float)) or not minutes > 0:
+        raise InputError(f"{path}: minutes must be a number > 0, not {minutes!r}")
+    tables = {}
+    for key in ("data", "model", "optim", "loss"):
+        table = data.get(key, {})
+        if not isinstance(table, dict):
+            raise InputError(f"{path}: {key} must be a table ([{key}])")
+        tables[key] = table
+    if {"input_mode", "n"} & set(tables["model"]):
+        raise InputError(f"{path}: [model] input_mode and n are set by [data] mode and n")
+    try:
+        data_config = DataConfig(**_typed(DataConfig, tables["data"], "data", path))
+        model_values = _typed(RmbNetConfig, tables["model"], "model", path)
+        model = RmbNetConfig(**model_values, input_mode=data_config.mode, n=data_config.n)
+        optim = OptimConfig(**_typed(OptimConfig, tables["optim"], "optim", path))
+        loss = LossConfig(**_typed(LossConfig, tables["loss"], "loss", path))
+        config = TrainConfig(name=name, seed=seed, minutes=float(minutes),
+                             description=str(data.get("description", "")), data=data_config, model=model,
+                             optim=optim, loss=loss, recipe_text=text, source=str(path))
+        config.sample_spec()  # validates mode/readout/crop
+    except ValueError as exc:
+        raise InputError(f"{path}: {exc}") from None
+    _check_ranges(config, path)
+    return config
+
+
+def _check_ranges(config: TrainConfig, path: Path) -> None:
+    d, o = config.data, config.optim
+    problems = []
+    if d.count < 1 or d.val_count < 1 or d.steps < 1:
+        problems.append("data.count, data.val_count and data.steps must be >= 1")
+    if not 0 < d.exposure[0] <= d.exposure[1]:
+        problems.append("data.exposure must be [low, high] with 0 < low <= high")
+    if o.lr <= 0 or o.lr_final <= 0 or o.steps < 1 or o.batch < 1 or o.tbptt < 1:
+        problems.append("optim.lr, lr_final, steps, batch and tbptt must be positive")
+    if o.val_every < 1 or o.checkpoint_every < 1 or o.threads < 0:
+        problems.append("optim.val_every and checkpoint_every must be >= 1, threads >= 0")
+    if problems:
+        raise InputError(f"{path}: {'; '.join(problems)}")
+
+
+def bundled_recipe(name: str) -> Path:
+    """Path of a bundled recipe (``rmbvideo/train/recipes/NAME.toml``)."""
+    return RECIPES_DIR / f"{name}.toml"

@@ -1,0 +1,188 @@
+"""Training samples: a short run of preliminary frames of a random scene with its HDR ground
+truth, simulated once and cached on disk (``.npz``, loaded with ``allow_pickle=False``).
+
+Two input modes (two models):
+
+- ``binned``: 1-bit spikes at twice the output size and (raw) rate with realistic camera noise,
+  binned 2x2x2 exactly as real captures are (``StreamBinner``), read out by ``RmbReadout`` (rmb by
+  default; pure-s / pure-m / full-m for ablations), then preliminary frames of N readouts.
+- ``native``: a native RMB sensor simulated directly (multi-bit emission, level L = 7, band 4,
+  shift 2; ``pure-m`` simulates full L-bit planes), then preliminary frames.
+
+Ground truth of frame i is ``ground_truth`` of the scene at the frame's centre time, in the
+project's linear unit (expected photo-charge per raw readout relative to the threshold). The
+sensor starts empty, so the first ``warmup_frames`` frames are simulated and dropped.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import zipfile
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from rmbvideo.chunks import RmbChunk, SpikeChunk
+from rmbvideo.io.atomic import atomic_path, atomic_write_text
+from rmbvideo.recon.prelim import PrelimFrame, PreliminaryFrames
+from rmbvideo.scenes.render import SceneRenderer, ground_truth
+from rmbvideo.sensor.binning import StreamBinner
+from rmbvideo.sensor.emission import CaptureSimulator, ReadoutSpec
+from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
+from rmbvideo.train.random_scenes import SceneRanges, random_scene
+
+log = logging.getLogger(__name__)
+
+SAMPLE_FORMAT_VERSION = 1
+DATA_MODES = ("binned", "native")
+NATIVE_READOUTS = ("rmb", "pure-m")
+RAW_RATE_HZ = 20000.0
+
+
+@dataclass(frozen=True)
+class SampleSpec:
+    """What one training sample is: input mode, readout design, size and length, scene ranges.
+
+    ``crop`` is the output (binned) size, square; ``frames`` = 2w + K preliminary frames of ``n``
+    readouts each. Every field enters the cache key, so changing any of them makes a new cache.
+    """
+
+    mode: str = "binned"
+    readout: str = "rmb"
+    crop: int = 64
+    frames: int = 10
+    n: int = 10
+    warmup_frames: int = 3
+    level: int = 7
+    band: int = 4
+    shift: int = 2
+    ranges: SceneRanges = field(default_factory=SceneRanges)
+
+    def __post_init__(self) -> None:
+        if self.mode not in DATA_MODES:
+            raise ValueError(f"data mode must be one of {DATA_MODES}, got {self.mode!r}")
+        ReadoutMode(self.readout)  # raises ValueError naming the valid modes
+        if self.mode == "native" and self.readout not in NATIVE_READOUTS:
+            raise ValueError(f"native mode supports readouts {NATIVE_READOUTS}, got {self.readout!r}")
+        if self.crop < 16 or self.crop % 8:
+            raise ValueError(f"crop must be a multiple of 8, >= 16, got {self.crop}")
+        if self.frames < 1 or self.n < 1 or self.warmup_frames < 0:
+            raise ValueError("frames and n must be >= 1 and warmup_frames >= 0")
+
+    @property
+    def raw_per_readout(self) -> int:
+        """Raw planes per readout: 2 for binned data, 1 for a native sensor."""
+        return 2 if self.mode == "binned" else 1
+
+    @property
+    def quanta(self) -> int | None:
+        """Raw pixel-planes (Bernoulli trials) behind one multi-bit value, where multi-bit values
+        are per-readout rates: 8 for binned data, L for a native pure-M sensor. None for a native
+        RMB sensor, whose band value reads all charge carried since the pixel's last reset."""
+        if self.mode == "binned":
+            return 8
+        return self.level if self.readout == "pure-m" else None
+
+    def key(self) -> str:
+        """Short stable hash of the spec (and the sample format version): the cache folder name."""
+        text = json.dumps({"version": SAMPLE_FORMAT_VERSION, **asdict(self)}, sort_keys=True)
+        return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+
+@dataclass
+class Sample:
+    """F consecutive preliminary frames and their ground truth: ``i_s``, ``i_m``, ``gt`` (F, H, W)
+    float32, ``m_valid`` (F, H) bool (rows with multi-bit evidence), ``times_s`` (F,) float64."""
+
+    i_s: np.ndarray
+    i_m: np.ndarray
+    gt: np.ndarray
+    m_valid: np.ndarray
+    times_s: np.ndarray
+
+
+def _scene_for(spec: SampleSpec, seed: int):
+    total_frames = spec.frames + spec.warmup_frames
+    raw_planes = total_frames * spec.n * spec.raw_per_readout
+    duration = raw_planes / RAW_RATE_HZ
+    if spec.mode == "binned":
+        readout = ReadoutSpec(kind="binned")
+        size = 2 * spec.crop
+    else:
+        kind = "rmb" if spec.readout == "rmb" else "Lbit"
+        readout = ReadoutSpec(kind=kind, level=spec.level, band=spec.band, shift=spec.shift)
+        size = spec.crop
+    return random_scene(seed, size, size, duration, RAW_RATE_HZ, readout, spec.ranges)
+
+
+def simulate_sample(spec: SampleSpec, seed: int) -> Sample:
+    """Simulate the sample of ``seed`` from scratch (deterministic in ``seed`` and ``spec``)."""
+    scene = _scene_for(spec, seed)
+    prelim = PreliminaryFrames(n=spec.n)
+    frames: list[PrelimFrame] = []
+    if spec.mode == "binned":
+        binner = StreamBinner()
+        readout = RmbReadout(ReadoutMode(spec.readout), spec.band, spec.shift)
+        for chunk in CaptureSimulator(scene).chunks(chunk_readouts=64):
+            assert isinstance(chunk, SpikeChunk)
+            binned = binner.push(chunk)
+            if binned is not None:
+                frames += prelim.push(readout.apply(binned))
+    else:
+        for chunk in CaptureSimulator(scene).chunks(chunk_readouts=64):
+            assert isinstance(chunk, RmbChunk)
+            frames += prelim.push(chunk)
+    frames += prelim.flush()
+    kept = [f for f in frames if f.index >= spec.warmup_frames][: spec.frames]
+    if len(kept) != spec.frames:
+        raise RuntimeError(f"seed {seed}: simulated {len(kept)} frames, expected {spec.frames}")
+    renderer = SceneRenderer(scene)
+    gt = np.stack([ground_truth(renderer, f.time_s) for f in kept]).astype(np.float32)
+    return Sample(
+        i_s=np.stack([f.i_s for f in kept]).astype(np.float32),
+        i_m=np.stack([f.i_m for f in kept]).astype(np.float32),
+        gt=np.nan_to_num(gt, nan=0.0, posinf=0.0, neginf=0.0),
+        m_valid=np.stack([f.m_valid for f in kept]),
+        times_s=np.array([f.time_s for f in kept], dtype=np.float64),
+    )
+
+
+class SampleCache:
+    """Samples of one ``SampleSpec`` on disk under ``root/<mode>-<readout>-<key>/``.
+
+    ``get(seed)`` loads a cached sample or simulates and stores it; ``simulated`` counts the samples
+    this instance had to simulate, so a warm cache provably re-simulates nothing. A cache file that
+    cannot be read is simulated again and replaced.
+    """
+
+    def __init__(self, root: str | Path, spec: SampleSpec) -> None:
+        self.spec = spec
+        self.dir = Path(root) / f"{spec.mode}-{spec.readout}-{spec.key()}"
+        self.dir.mkdir(parents=True, exist_ok=True)
+        spec_file = self.dir / "spec.json"
+        if not spec_file.exists():
+            atomic_write_text(spec_file, json.dumps(asdict(spec), indent=2) + "\n")
+        self.simulated = 0
+
+    def path(self, seed: int) -> Path:
+        """Cache file of ``seed``."""
+        return self.dir / f"sample-{seed:08d}.npz"
+
+    def get(self, seed: int) -> Sample:
+        """The sample of ``seed``, simulated only if it is not cached yet."""
+        path = self.path(seed)
+        if path.exists():
+            try:
+                with np.load(path, allow_pickle=False) as data:
+                    return Sample(**{name: data[name] for name in Sample.__dataclass_fields__})
+            except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
+                log.warning("%s: unreadable cached sample (%s); simulating it again", path, exc)
+        sample = simulate_sample(self.spec, seed)
+        self.simulated += 1
+        with atomic_path(path) as temp:
+            with open(temp, "wb") as handle:
+                np.savez(handle, **{name: getattr(sample, name) for name in Sample.__dataclass_fields__})
+        return sample

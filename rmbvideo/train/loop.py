@@ -1,0 +1,355 @@
+"""The RMB-Net training loop: cached random-scene samples, Adam, truncated back-propagation
+through time over the ConvLSTM, a wall-time budget, resumable checkpoints, a CSV loss log, and a
+model card with held-out validation at the end.
+
+Each sample has F = 2w + K preliminary frames; the network makes K consecutive outputs (frames
+w .. w+K-1, every window inside the sample), carrying its ConvLSTM state from one to the next.
+The K outputs are cut into segments of ``tbptt`` outputs: each segment encodes only the frames
+its windows need, back-propagates its own loss, and hands the state to the next segment detached,
+so the autograd graph never spans more than ``tbptt`` steps. Gradients of all segments are
+accumulated into one Adam step per batch.
+"""
+
+from __future__ import annotations
+
+import csv
+import logging
+import math
+import os
+import platform
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from rmbvideo.evaluate.metrics import mu_law_psnr, mu_law_ssim
+from rmbvideo.net.decoder import DecoderState
+from rmbvideo.net.model import RmbNet
+from rmbvideo.net.weights import ModelCard, save_model
+from rmbvideo.train.checkpoint import CheckpointState, checkpoint_paths, load_checkpoint, save_checkpoint
+from rmbvideo.train.config import TrainConfig
+from rmbvideo.train.dataset import Sample, SampleCache
+from rmbvideo.train.loss import LossConfig, reconstruction_loss
+from rmbvideo.train.random_scenes import EVAL_SEED_START, HELD_OUT_PANORAMA, REALISTIC_EFFECTS, TRAIN_PANORAMAS
+
+log = logging.getLogger(__name__)
+
+LOG_COLUMNS = ("step", "elapsed_s", "lr", "loss", "l2", "ssim", "edge", "val_mu_psnr", "val_mu_ssim",
+               "val_tfw_mu_psnr")
+
+
+@dataclass
+class Batch:
+    """Samples stacked on a device: ``i_s``, ``i_m``, ``gt`` (B, F, H, W) float32."""
+
+    i_s: torch.Tensor
+    i_m: torch.Tensor
+    gt: torch.Tensor
+
+    @classmethod
+    def from_samples(cls, samples: list[Sample], device: torch.device, flips: list[bool] | None = None) -> "Batch":
+        """Stack samples, mirroring sample j left-right where ``flips[j]`` (rows, hence the
+        rolling band, are unchanged by a horizontal mirror)."""
+        flips = flips or [False] * len(samples)
+
+        def stack(name: str) -> torch.Tensor:
+            arrays = [getattr(s, name)[..., ::-1] if f else getattr(s, name) for s, f in zip(samples, flips)]
+            return torch.from_numpy(np.ascontiguousarray(np.stack(arrays), dtype=np.float32)).to(device)
+
+        return cls(stack("i_s"), stack("i_m"), stack("gt"))
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """What a run produced: the weight file, steps done, wall time, why it stopped, final metrics."""
+
+    weights: Path
+    steps: int
+    elapsed_s: float
+    stopped_by: str
+    metrics: dict[str, float]
+
+
+def detach_state(state: DecoderState | None) -> DecoderState | None:
+    """The ConvLSTM state cut from the autograd graph (the truncation point of TBPTT)."""
+    if state is None:
+        return None
+    return tuple((h.detach(), c.detach()) for h, c in state)  # type: ignore[return-value]
+
+
+@dataclass
+class SegmentLoss:
+    """One TBPTT segment: its share of the batch loss (sum over its outputs / K), the loss parts
+    summed over its outputs, and the recurrent state it started from (detached, or None)."""
+
+    loss: torch.Tensor
+    parts: dict[str, float]
+    state_in: DecoderState | None
+
+
+def segment_losses(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossConfig) -> Iterator[SegmentLoss]:
+    """Yield the TBPTT segments of one batch in order; the caller back-propagates each before
+    asking for the next, so only one segment's graph exists at a time."""
+    w = model.config.w
+    count = batch.i_s.shape[1]
+    outputs = count - 2 * w
+    if outputs < 1:
+        raise ValueError(f"samples have {count} frames, need at least 2w+1 = {2 * w + 1}")
+    state: DecoderState | None = None
+    for first in range(w, w + outputs, tbptt):
+        last = min(first + tbptt, w + outputs) - 1
+        lo, hi = first - w, last + w + 1
+        frames = model.encode(batch.i_s[:, lo:hi].transpose(0, 1).flatten(0, 1),
+                              batch.i_m[:, lo:hi].transpose(0, 1).flatten(0, 1), range(lo, hi))
+        cache: dict = {}
+        state_in = state
+        segment_loss = torch.zeros((), device=batch.i_s.device)
+        parts = {"loss": 0.0, "l2": 0.0, "ssim": 0.0, "edge": 0.0}
+        for i in range(first, last + 1):
+            t, state = model.step(frames[i - w - lo: i + w + 1 - lo], state, cache)
+            loss, step_parts = reconstruction_loss(t[:, 0], batch.gt[:, i], loss_config)
+            segment_loss = segment_loss + loss
+            parts["loss"] += float(loss.detach())
+            for key, value in step_parts.items():
+                parts[key] += value
+        yield SegmentLoss(segment_loss / outputs, parts, state_in)
+        state = detach_state(state)
+
+
+def train_batch(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossConfig) -> dict[str, float]:
+    """Forward and backward one batch with TBPTT (gradients accumulate in ``.grad``; the caller
+    steps the optimizer). Returns the mean loss and its parts over the K outputs."""
+    model.train()
+    outputs = batch.i_s.shape[1] - 2 * model.config.w
+    totals = {"loss": 0.0, "l2": 0.0, "ssim": 0.0, "edge": 0.0}
+    for segment in segment_losses(model, batch, tbptt, loss_config):
+        segment.loss.backward()
+        for key, value in segment.parts.items():
+            totals[key] += value
+    return {key: value / outputs for key, value in totals.items()}
+
+
+def tfw_prediction(sample: Sample, i: int, w: int, n: int, quanta: int | None) -> np.ndarray:
+    """TFW over the window of frame ``i``: pooled spike rate (sum I_s + I_m) / (N (2w+1) (1 + q)),
+    with q = ``quanta`` trials per multi-bit value; rows without multi-bit evidence, and all rows
+    when ``quanta`` is None (multi-bit values are not rates), use I_s alone."""
+    frames = slice(i - w, i + w + 1)
+    valid = sample.m_valid[frames].all(axis=0)[:, None] & (quanta is not None)
+    quanta = quanta or 0
+    readouts = n * (2 * w + 1)
+    sum_s = sample.i_s[frames].sum(axis=0, dtype=np.float64)
+    sum_m = sample.i_m[frames].sum(axis=0, dtype=np.float64)
+    pooled = np.where(valid, (sum_s + sum_m) / (readouts * (1 + quanta)), sum_s / readouts)
+    return pooled.astype(np.float32)
+
+
+@torch.no_grad()
+def validate(model: RmbNet, samples: list[Sample], quanta: int | None, saturation: float,
+             device: torch.device) -> dict[str, float]:
+    """Mean mu-law PSNR/SSIM of the model and mu-law PSNR of TFW over all K outputs of the
+    held-out ``samples``, against ground truth clipped at the sensor's ``saturation``."""
+    model.eval()
+    w, n = model.config.w, model.config.n
+    psnr, ssim, tfw = [], [], []
+    for sample in samples:
+        batch = Batch.from_samples([sample], device)
+        count = batch.i_s.shape[1]
+        frames = model.encode(batch.i_s[0], batch.i_m[0], range(count))
+        state = None
+        for i in range(w, count - w):
+            t, state = model.step(frames[i - w: i + w + 1], state)
+            pred = model.to_linear(t)[0, 0].float().cpu().numpy()
+            gt = np.clip(sample.gt[i], 0.0, saturation)
+            psnr.append(mu_law_psnr(pred, gt))
+            ssim.append(mu_law_ssim(pred, gt))
+            tfw.append(mu_law_psnr(np.clip(tfw_prediction(sample, i, w, n, quanta), 0, saturation), gt))
+    return {"val_mu_psnr": float(np.mean(psnr)), "val_mu_ssim": float(np.mean(ssim)),
+            "val_tfw_mu_psnr": float(np.mean(tfw))}
+
+
+def batch_seeds(seed: int, step: int, batch: int, count: int) -> list[int]:
+    """Training seeds of ``step``: a fresh permutation of 0..count-1 per epoch, from ``seed``."""
+    seeds = []
+    for position in range(step * batch, (step + 1) * batch):
+        epoch, offset = divmod(position, count)
+        seeds.append(int(np.random.default_rng([seed, epoch]).permutation(count)[offset]))
+    return seeds
+
+
+def learning_rate(step: int, elapsed_s: float, config: TrainConfig) -> float:
+    """Cosine decay from ``lr`` to ``lr_final`` over the run: progress is the larger of the step
+    fraction and the wall-time fraction, so a run cut short by its budget still anneals."""
+    o = config.optim
+    progress = min(max(step / max(o.steps, 1), elapsed_s / (config.minutes * 60.0)), 1.0)
+    return o.lr_final + 0.5 * (o.lr - o.lr_final) * (1 + math.cos(math.pi * progress))
+
+
+def machine_description(device: torch.device) -> str:
+    """Where a run trained: CPU count and torch threads, or the GPU name."""
+    if device.type == "cuda":
+        return f"{torch.cuda.get_device_name(device)} (CUDA), torch {torch.__version__}"
+    return (f"{platform.machine()} CPU, {os.cpu_count()} cores visible, {torch.get_num_threads()} torch "
+            f"threads, torch {torch.__version__}")
+
+
+class Trainer:
+    """Runs one recipe into ``out_dir``: ``loss.csv``, ``checkpoint.*`` and at the end
+    ``<name>.safetensors`` + ``<name>.json``. Samples are cached under ``cache_dir``."""
+
+    def __init__(self, config: TrainConfig, out_dir: str | Path, cache_dir: str | Path | None = None,
+                 resume: bool = False, progress: bool = False, device: str = "cpu") -> None:
+        self.config = config
+        self.out_dir = Path(out_dir)
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        self.cache = SampleCache(Path(cache_dir) if cache_dir is not None else self.out_dir / "cache",
+                                 config.sample_spec())
+        self.resume = resume
+        self.progress = progress
+        self.device = torch.device(device)
+        self.model = RmbNet(config.model).to(self.device)
+        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=config.optim.lr)
+
+    def validation_samples(self) -> list[Sample]:
+        """The held-out samples (seeds from ``EVAL_SEED_START``)."""
+        return [self.cache.get(EVAL_SEED_START + k) for k in range(self.config.data.val_count)]
+
+    def run(self) -> TrainResult:
+        """Train until the step count or the time budget is reached, then save model and card."""
+        cfg = self.config
+        if cfg.optim.threads:
+            torch.set_num_threads(cfg.optim.threads)
+        torch.manual_seed(cfg.seed)
+        state = CheckpointState(0, 0.0)
+        if self.resume:
+            state = load_checkpoint(self.out_dir, self.model, self.optimizer)
+            log.info("resuming %s at step %d (%.1f min trained)", cfg.name, state.step, state.elapsed_s / 60)
+        elif checkpoint_paths(self.out_dir)[1].exists():
+            log.info("%s: starting afresh over an existing checkpoint (use --resume to continue it)", self.out_dir)
+        log_writer = _LossLog(self.out_dir / "loss.csv", keep_until=state.step if self.resume else None)
+        budget_s = cfg.minutes * 60.0
+        step, elapsed = state.step, state.elapsed_s
+        started = time.monotonic() - elapsed
+        stopped_by = "steps"
+        val_samples: list[Sample] | None = None
+        bar = tqdm(total=cfg.optim.steps, initial=step, disable=not self.progress, unit="step", desc=cfg.name)
+        try:
+            while step < cfg.optim.steps:
+                if time.monotonic() - started >= budget_s:
+                    stopped_by = "time budget"
+                    break
+                seeds = batch_seeds(cfg.seed, step, cfg.optim.batch, cfg.data.count)
+                flips = [bool(np.random.default_rng([cfg.seed, step, j, 1]).integers(2)) for j in range(len(seeds))]
+                batch = Batch.from_samples([self.cache.get(s) for s in seeds], self.device, flips)
+                lr = learning_rate(step, time.monotonic() - started, cfg)
+                for group in self.optimizer.param_groups:
+                    group["lr"] = lr
+                self.optimizer.zero_grad(set_to_none=True)
+                losses = train_batch(self.model, batch, cfg.optim.tbptt, cfg.loss)
+                if not all(math.isfinite(v) for v in losses.values()):
+                    raise FloatingPointError(f"step {step}: non-finite loss {losses} (seeds {seeds})")
+                torch.nn.utils.clip_grad_norm_(self.model.parameters(), cfg.optim.grad_clip)
+                self.optimizer.step()
+                step += 1
+                elapsed = time.monotonic() - started
+                row: dict[str, float] = {"step": step, "elapsed_s": elapsed, "lr": lr, **losses}
+                if step % cfg.optim.val_every == 0:
+                    val_samples = val_samples or self.validation_samples()
+                    row.update(validate(self.model, val_samples, self.cache.spec.quanta, cfg.loss.saturation,
+                                        self.device))
+                    log.info("step %d (%.1f min): loss %.4f, val mu-PSNR %.2f dB (TFW %.2f dB)", step,
+                             elapsed / 60, losses["loss"], row["val_mu_psnr"], row["val_tfw_mu_psnr"])
+                log_writer.write(row)
+                if step % cfg.optim.checkpoint_every == 0:
+                    save_checkpoint(self.out_dir, self.model, self.optimizer, CheckpointState(step, elapsed))
+                bar.update(1)
+                bar.set_postfix(loss=f"{losses['loss']:.4f}")
+        finally:
+            bar.close()
+            log_writer.close()
+        elapsed = time.monotonic() - started
+        save_checkpoint(self.out_dir, self.model, self.optimizer, CheckpointState(step, elapsed))
+        metrics = validate(self.model, val_samples or self.validation_samples(), self.cache.spec.quanta,
+                           cfg.loss.saturation, self.device)
+        metrics["val_samples"] = float(cfg.data.val_count)
+        weights = save_model(self.out_dir / f"{cfg.name}.safetensors", self.model,
+                             self.card(step, elapsed, stopped_by, metrics))
+        log.debug("%s: %d steps in %.1f min (stopped by %s); held-out mu-law PSNR %.2f dB (TFW %.2f dB)",
+                 weights, step, elapsed / 60, stopped_by, metrics["val_mu_psnr"], metrics["val_tfw_mu_psnr"])
+        return TrainResult(weights, step, elapsed, stopped_by, metrics)
+
+    def card(self, steps: int, elapsed_s: float, stopped_by: str, metrics: dict[str, float]) -> ModelCard:
+        """The model card: recipe, loss, data description, wall time, machine, held-out metrics."""
+        cfg, spec = self.config, self.cache.spec
+        w = cfg.model.w
+        return ModelCard(
+            name=cfg.name,
+            description=cfg.description,
+            training={
+                "recipe_file": cfg.source,
+                "recipe": cfg.recipe_text,
+                "steps_done": steps,
+                "steps_planned": cfg.optim.steps,
+                "stopped_by": stopped_by,
+                "wall_time_s": round(elapsed_s, 1),
+                "machine": machine_description(self.device),
+                "optimizer": f"Adam, lr {cfg.optim.lr} cosine to {cfg.optim.lr_final} over steps or wall time, batch {cfg.optim.batch}, "
+                             f"grad-norm clip {cfg.optim.grad_clip}",
+                "tbptt": f"{cfg.data.steps} consecutive outputs per sample, back-propagated in segments of "
+                         f"{cfg.optim.tbptt}",
+                "loss": f"mu-law (mu={cfg.loss.mu:g}) L2 + {cfg.loss.ssim:g} x (1 - SSIM) + {cfg.loss.edge:g} x "
+                        f"gradient L1; ground truth clipped at {cfg.loss.saturation:g} (sensor saturation)",
+                "lpips": "not used (no downloadable weights); replaced by the gradient L1 term"
+                         if cfg.loss.edge > 0 else "not used (no downloadable weights), no replacement",
+            },
+            data={
+                "input_mode": spec.mode,
+                "readout": f"{spec.readout}, band {spec.band}, shift {spec.shift}, level {spec.level}",
+                "description": (
+                    "random HDR scenes: CC0 Poly Haven panoramas with random pan/zoom, 0-3 moving textured "
+                    "objects (some light sources 10-1e4x brighter), random dark regions, exposure "
+                    f"{cfg.data.exposure[0]:g}-{cfg.data.exposure[1]:g} e-/readout at median radiance; "
+                    + ("1-bit simulation at 2x size and rate, binned 2x2x2 as real captures"
+                       if spec.mode == "binned" else "native multi-bit RMB emission")
+                    + f"; effects: {', '.join(REALISTIC_EFFECTS)}"),
+                "sample": f"{spec.crop}x{spec.crop} px, {spec.frames} preliminary frames (2w+K, w={w}, "
+                          f"K={cfg.data.steps}) of N={spec.n} readouts, {spec.warmup_frames} warm-up frames dropped",
+                "train_seeds": f"0..{cfg.data.count - 1}",
+                "train_panoramas": list(TRAIN_PANORAMAS),
+                "eval_seeds": f"{EVAL_SEED_START}..{EVAL_SEED_START + cfg.data.val_count - 1}",
+                "held_out_panorama": HELD_OUT_PANORAMA,
+                "panorama_licence": "CC0 (Poly Haven)",
+                "metrics_note": "validation mu-law PSNR/SSIM (rmbvideo.evaluate.metrics) over all K outputs of "
+                                "the held-out samples, ground truth clipped at saturation; TFW from the same "
+                                "preliminary frames over the same 2w+1 window: "
+                                + ("pooled (I_s + I_m) / (N (2w+1) (1 + q))" if spec.quanta is not None else
+                                   "I_s only (a weak baseline: native band reads reset pixels, so the 1-bit "
+                                   "rate is biased low, and the band value is not a per-readout rate)"),
+            },
+            metrics={k: round(v, 4) for k, v in metrics.items()},
+        )
+
+
+class _LossLog:
+    """Appends rows to ``loss.csv``; on resume, rows after the checkpoint's step are dropped."""
+
+    def __init__(self, path: Path, keep_until: int | None) -> None:
+        rows: list[dict[str, str]] = []
+        if keep_until is not None and path.exists():
+            with path.open(newline="") as fh:
+                rows = [r for r in csv.DictReader(fh) if r.get("step", "").isdigit() and int(r["step"]) <= keep_until]
+        self.handle = path.open("w", newline="")
+        self.writer = csv.DictWriter(self.handle, fieldnames=LOG_COLUMNS, extrasaction="ignore")
+        self.writer.writeheader()
+        self.writer.writerows(rows)
+        self.handle.flush()
+
+    def write(self, row: dict[str, float]) -> None:
+        self.writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
+        self.handle.flush()
+
+    def close(self) -> None:
+        self.handle.close()

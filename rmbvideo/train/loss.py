@@ -1,0 +1,59 @@
+"""Training loss of RMB-Net (paper Eqn. 13) on mu-law tone-mapped frames.
+
+L = L2(T(P), T(G)) + beta1 (1 - SSIM(T(P), T(G))) + beta_edge L1(grad T(P), grad T(G)), with
+T(G) = log(1 + mu G) / log(1 + mu), mu = 5000. LPIPS (beta2 in the paper) needs pretrained
+weights that cannot be downloaded here; the edge term (L1 between horizontal and vertical finite
+differences) stands in for it as a cheap sharpness prior. The ground truth is clipped at
+``saturation`` before tone mapping: above it (1 in the project's units, a pixel firing at every
+readout) the sensor cannot tell radiances apart, so no model can learn them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+
+from rmbvideo.evaluate.metrics import ssim_torch
+from rmbvideo.net.model import mu_law
+
+
+@dataclass(frozen=True)
+class LossConfig:
+    """Weights and constants of the loss: ``ssim`` is beta1, ``edge`` replaces LPIPS (0: off)."""
+
+    mu: float = 5000.0
+    ssim: float = 1.0
+    edge: float = 0.5
+    saturation: float = 1.0
+
+
+def tone_mapped_target(gt: torch.Tensor, config: LossConfig) -> torch.Tensor:
+    """T(min(G, saturation)) of linear ground truth; non-finite values become 0."""
+    clean = torch.nan_to_num(gt.float(), nan=0.0, posinf=0.0, neginf=0.0)
+    return mu_law(clean.clamp(0.0, config.saturation), config.mu)
+
+
+def _gradients(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    return x[..., :, 1:] - x[..., :, :-1], x[..., 1:, :] - x[..., :-1, :]
+
+
+def reconstruction_loss(pred_t: torch.Tensor, gt: torch.Tensor, config: LossConfig) -> tuple[torch.Tensor, dict[str, float]]:
+    """Loss of mu-law-domain predictions ``pred_t`` (B, H, W) against linear ``gt`` (B, H, W).
+
+    Returns the scalar loss and its parts as floats (``l2``, ``ssim`` = 1 - SSIM, ``edge``).
+    """
+    target = tone_mapped_target(gt, config)
+    pred = pred_t.float()
+    l2 = F.mse_loss(pred, target)
+    ssim_term = 1.0 - ssim_torch(pred[:, None], target[:, None], data_range=1.0)
+    total = l2 + config.ssim * ssim_term
+    edge = torch.zeros((), device=pred.device)
+    if config.edge > 0:
+        gx_p, gy_p = _gradients(pred)
+        gx_t, gy_t = _gradients(target)
+        edge = F.l1_loss(gx_p, gx_t) + F.l1_loss(gy_p, gy_t)
+        total = total + config.edge * edge
+    parts = {"l2": float(l2.detach()), "ssim": float(ssim_term.detach()), "edge": float(edge.detach())}
+    return total, parts

@@ -1,0 +1,258 @@
+"""Training: random scenes, cached samples, loss, TBPTT, resumable CLI runs, shipped models."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+
+from rmbvideo.cli import main
+from rmbvideo.errors import InputError
+from rmbvideo.net.config import RmbNetConfig
+from rmbvideo.net.model import RmbNet
+from rmbvideo.train.checkpoint import load_checkpoint
+from rmbvideo.train.config import RECIPES_DIR, load_recipe
+from rmbvideo.train.dataset import SampleCache, SampleSpec, simulate_sample
+from rmbvideo.train.loop import Batch, Trainer, segment_losses, tfw_prediction, train_batch
+from rmbvideo.train.loss import LossConfig
+from rmbvideo.train.random_scenes import (EVAL_SEED_START, HELD_OUT_PANORAMA, TRAIN_PANORAMAS,
+                                          random_scene)
+
+MODELS_DIR = Path(__file__).resolve().parents[1] / "models"
+TINY_SPEC = SampleSpec(mode="binned", crop=16, frames=5, n=4, warmup_frames=1)
+
+TINY_RECIPE = """
+name = "tiny"
+seed = 3
+minutes = 5
+
+[data]
+mode = "binned"
+count = 2
+crop = 16
+steps = 3
+n = 4
+warmup_frames = 1
+val_count = 1
+
+[model]
+w = 1
+width = 0.25
+
+[optim]
+lr = 3e-3
+steps = {steps}
+batch = 1
+tbptt = 2
+threads = 1
+val_every = 2
+checkpoint_every = 1
+"""
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)
+
+
+def _panoramas(scene) -> set[str]:
+    names = {scene.background.panorama}
+    names |= {o.texture.split(":", 1)[1] for o in scene.objects if o.texture.startswith("panorama:")}
+    return names
+
+
+def test_random_scenes_are_reproducible_and_hold_out_a_panorama():
+    assert random_scene(7, 64, 64, 0.01) == random_scene(7, 64, 64, 0.01)
+    assert random_scene(7, 64, 64, 0.01) != random_scene(8, 64, 64, 0.01)
+    train = set().union(*(_panoramas(random_scene(s, 64, 64, 0.01)) for s in range(60)))
+    held = set().union(*(_panoramas(random_scene(EVAL_SEED_START + s, 64, 64, 0.01)) for s in range(60)))
+    assert train <= set(TRAIN_PANORAMAS) and HELD_OUT_PANORAMA not in train
+    assert HELD_OUT_PANORAMA in held
+    lights = [o.radiance for s in range(60) for o in random_scene(s, 64, 64, 0.01).objects if o.radiance >= 10]
+    assert lights and max(lights) > 100
+
+
+@pytest.mark.parametrize("mode", ["binned", "native"])
+def test_sample_shapes_ranges_and_units(mode):
+    spec = SampleSpec(mode=mode, crop=16, frames=4, n=5, warmup_frames=1)
+    sample = simulate_sample(spec, 11)
+    assert sample.i_s.shape == sample.i_m.shape == sample.gt.shape == (4, 16, 16)
+    assert sample.m_valid.shape == (4, 16) and sample.m_valid.all()
+    assert 0 <= sample.i_s.min() and sample.i_s.max() <= 5
+    assert 0 <= sample.i_m.min() and sample.i_m.max() <= 7 * 5
+    assert np.isfinite(sample.gt).all() and sample.gt.min() >= 0
+    assert np.all(np.diff(sample.times_s) > 0)
+    # TFW from the same frames estimates the ground truth where it is below saturation.
+    tfw = tfw_prediction(sample, 1, 1, 5, spec.quanta)
+    gt = sample.gt[1]
+    assert np.isfinite(tfw).all() and tfw.min() >= 0
+    if mode == "binned":  # native RMB band values are not per-readout rates (see tfw_prediction)
+        mid = (gt > 0.05) & (gt < 0.6)
+        assert mid.sum() > 10
+        assert 0.6 < np.median(tfw[mid] / gt[mid]) < 1.5
+
+
+def test_cache_hit_does_not_resimulate(tmp_path):
+    first = SampleCache(tmp_path, TINY_SPEC)
+    a = first.get(5)
+    assert first.simulated == 1 and first.path(5).is_file()
+    with np.load(first.path(5), allow_pickle=False) as data:
+        assert set(data.files) == {"i_s", "i_m", "gt", "m_valid", "times_s"}
+    second = SampleCache(tmp_path, TINY_SPEC)
+    b = second.get(5)
+    assert second.simulated == 0
+    np.testing.assert_array_equal(a.i_m, b.i_m)
+    np.testing.assert_array_equal(a.gt, b.gt)
+    first.path(5).write_bytes(b"not an npz")  # a damaged file is simulated again, identically
+    c = second.get(5)
+    assert second.simulated == 1
+    np.testing.assert_array_equal(a.i_s, c.i_s)
+    other = SampleCache(tmp_path, SampleSpec(mode="binned", readout="pure-s", crop=16, frames=5, n=4))
+    assert other.dir != first.dir
+
+
+def _tiny_model(w: int = 1) -> RmbNet:
+    torch.manual_seed(0)
+    return RmbNet(RmbNetConfig(w=w, width=0.25, n=4))
+
+
+def test_loss_is_finite_and_decreases_on_a_fixed_batch(tmp_path):
+    cache = SampleCache(tmp_path, TINY_SPEC)
+    batch = Batch.from_samples([cache.get(0), cache.get(1)], torch.device("cpu"))
+    model = _tiny_model()
+    optimizer = torch.optim.Adam(model.parameters(), lr=3e-3)
+    losses = []
+    for _ in range(8):
+        optimizer.zero_grad()
+        parts = train_batch(model, batch, tbptt=2, loss_config=LossConfig())
+        assert all(np.isfinite(v) for v in parts.values())
+        optimizer.step()
+        losses.append(parts["loss"])
+    assert losses[-1] < 0.9 * losses[0]
+
+
+def _graph_size(tensor: torch.Tensor) -> int:
+    seen, stack = set(), [tensor.grad_fn]
+    while stack:
+        node = stack.pop()
+        if node is None or node in seen:
+            continue
+        seen.add(node)
+        stack.extend(n for n, _ in node.next_functions)
+    return len(seen)
+
+
+def test_tbptt_cuts_the_graph_between_segments(tmp_path):
+    sample = SampleCache(tmp_path, SampleSpec(mode="binned", crop=16, frames=7, n=4, warmup_frames=1)).get(0)
+    batch = Batch.from_samples([sample], torch.device("cpu"))
+    model = _tiny_model()
+    sizes = []
+    segments = []
+    for segment in segment_losses(model, batch, tbptt=1, loss_config=LossConfig()):
+        if segment.state_in is not None:
+            assert all(not t.requires_grad and t.grad_fn is None for pair in segment.state_in for t in pair)
+        sizes.append(_graph_size(segment.loss))
+        segment.loss.backward()
+        segments.append(segment)
+    assert len(segments) == 5  # K = 7 - 2w outputs, one per segment
+    assert segments[0].state_in is None and segments[1].state_in is not None
+    assert len(set(sizes[1:])) == 1  # later segments do not grow: the graph is bounded
+    whole = next(segment_losses(model, batch, tbptt=5, loss_config=LossConfig()))
+    assert _graph_size(whole.loss) > 3 * sizes[1]
+
+
+def _csv_steps(path: Path) -> list[int]:
+    with path.open(newline="") as fh:
+        return [int(r["step"]) for r in csv.DictReader(fh)]
+
+
+def test_cli_train_resume_and_card(tmp_path):
+    recipe = tmp_path / "tiny.toml"
+    recipe.write_text(TINY_RECIPE.format(steps=2))
+    out, cache = tmp_path / "out", tmp_path / "cache"
+    runner = CliRunner()
+    result = runner.invoke(main, ["train", str(recipe), "--out", str(out), "--cache", str(cache), "-q"])
+    assert result.exit_code == 0, result.output
+    assert _csv_steps(out / "loss.csv") == [1, 2]
+    model = RmbNet(load_recipe(recipe).model)
+    optimizer = torch.optim.Adam(model.parameters())
+    state = load_checkpoint(out, model, optimizer)
+    assert state.step == 2
+    assert all(float(s["step"]) == 2 for s in optimizer.state_dict()["state"].values())
+    saved = {k: v.clone() for k, v in model.state_dict().items()}
+
+    recipe.write_text(TINY_RECIPE.format(steps=4))
+    result = runner.invoke(main, ["train", str(recipe), "--out", str(out), "--cache", str(cache), "--resume", "-q"])
+    assert result.exit_code == 0, result.output
+    assert _csv_steps(out / "loss.csv") == [1, 2, 3, 4]
+    resumed = RmbNet(load_recipe(recipe).model)
+    assert load_checkpoint(out, resumed, torch.optim.Adam(resumed.parameters())).step == 4
+    changed = [k for k in saved if not torch.equal(saved[k], resumed.state_dict()[k])]
+    assert changed  # training went on from the checkpoint
+
+    card = json.loads((out / "tiny.json").read_text())
+    assert card["training"]["steps_done"] == 4 and "gradient L1" in card["training"]["lpips"]
+    assert card["training"]["recipe"] == recipe.read_text()
+    assert card["data"]["held_out_panorama"] == HELD_OUT_PANORAMA
+    assert np.isfinite(card["metrics"]["val_mu_psnr"])
+    from rmbvideo.net.weights import load_model
+
+    loaded, _ = load_model(out / "tiny.safetensors", expect_input_mode="binned")
+    assert loaded.config.w == 1 and loaded.config.n == 4
+
+
+def test_time_budget_stops_cleanly_and_still_saves(tmp_path):
+    recipe = tmp_path / "tiny.toml"
+    recipe.write_text(TINY_RECIPE.format(steps=100))
+    config = load_recipe(recipe).with_minutes(1e-9)
+    result = Trainer(config, tmp_path / "out", cache_dir=tmp_path / "cache").run()
+    assert result.stopped_by == "time budget" and result.steps == 0
+    assert result.weights.is_file() and np.isfinite(result.metrics["val_mu_psnr"])
+
+
+def test_resume_without_checkpoint_is_an_input_error(tmp_path):
+    recipe = tmp_path / "tiny.toml"
+    recipe.write_text(TINY_RECIPE.format(steps=1))
+    result = CliRunner().invoke(main, ["train", str(recipe), "--out", str(tmp_path / "none"), "--resume"])
+    assert result.exit_code == 2 and "no checkpoint" in result.output
+
+
+def test_bundled_recipes_parse_and_bad_keys_are_refused(tmp_path):
+    names = {p.stem for p in RECIPES_DIR.glob("*.toml")}
+    assert {"cpu", "gpu", "native-cpu", "ablation-w0", "ablation-pure-s", "ablation-pure-m",
+            "ablation-full-m", "ablation-no-xba", "ablation-no-xta"} <= names
+    configs = {name: load_recipe(RECIPES_DIR / f"{name}.toml") for name in names}
+    assert configs["cpu"].model.input_mode == "binned" and configs["native-cpu"].model.input_mode == "native"
+    assert configs["ablation-w0"].model.w == 0 and not configs["ablation-no-xba"].model.use_xba
+    assert configs["ablation-pure-s"].data.readout == "pure-s"
+    bad = tmp_path / "bad.toml"
+    bad.write_text('name = "x"\n[optim]\nlearning_rate = 1.0\n')
+    with pytest.raises(InputError, match="learning_rate"):
+        load_recipe(bad)
+
+
+@pytest.mark.parametrize("mode", ["binned", "native"])
+def test_shipped_models_load_and_match_their_cards(mode):
+    from rmbvideo.net.weights import load_model
+
+    weights = MODELS_DIR / f"rmbnet-{mode}.safetensors"
+    assert weights.stat().st_size < 5 * 1024 * 1024
+    model, card = load_model(weights, expect_input_mode=mode)
+    assert model.config.input_mode == mode and model.config.n == 10 and model.config.w == 3
+    document = json.loads(weights.with_suffix(".json").read_text())
+    assert document["architecture"] == model.config.to_dict()
+    assert card.metrics["val_mu_psnr"] > card.metrics["val_tfw_mu_psnr"]
+    recipe_text = card.training["recipe"]
+    assert f'mode = "{mode}"' in recipe_text
+    with torch.no_grad():
+        i_s = torch.full((1, 7, 16, 16), 3.0)
+        out, _ = model.forward_sequence(i_s, i_s * 8)
+    assert torch.isfinite(out).all()
