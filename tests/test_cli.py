@@ -42,13 +42,14 @@ def read_index(outdir: Path) -> list[dict[str, str]]:
 
 
 def test_reconstruct_mp4_decodes_back_with_exact_size_and_count(tmp_path: Path) -> None:
+    """The default job: shipped RMB-Net on the binned stream (half size), H.264 decoded back."""
     dat = small_capture(tmp_path / "cap.dat")
     result = run("reconstruct", dat, "-o", tmp_path / "out", *GEOM, "--quiet")
     assert result.exit_code == 0, result.output
     reader = imageio_ffmpeg.read_frames(str(tmp_path / "out" / "frames.mp4"))
     meta = next(reader)
     count = sum(1 for _ in reader)
-    assert tuple(meta["size"]) == (64, 48)
+    assert tuple(meta["size"]) == (32, 24)
     assert count == 80 // 20
     rows = read_index(tmp_path / "out")
     assert [r["index"] for r in rows] == ["0", "1", "2", "3"]
