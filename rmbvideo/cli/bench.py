@@ -10,6 +10,8 @@ from pathlib import Path
 
 import click
 
+from rmbvideo.bench.configs import DEFAULT_WIDTH
+
 log = logging.getLogger(__name__)
 
 
@@ -40,7 +42,7 @@ def memory_scaling(method: str, planes: int, factor: int = 5, width: int = 400, 
 
 
 def _stage_table(stages: dict[str, float]) -> str:
-    lines = [f"Per-stage time of RMB-Net (w = 3, no alignment, fp32, CPU) at {stages.pop('size')}, "
+    lines = [f"Per-stage time of RMB-Net (w = 3, width {DEFAULT_WIDTH:g}, no alignment, fp32, CPU) at {stages.pop('size')}, "
              f"ms per output frame over {int(stages.pop('frames'))} frames:", "",
              "| stage | ms/frame |", "|---|---|"]
     lines += [f"| {k} | {v:.2f} |" for k, v in stages.items()]
@@ -113,7 +115,7 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
         from rmbvideo.bench.realtime import bench_realtime
         from rmbvideo.bench.stages import stage_breakdown
 
-        stages = stage_breakdown(build_network(3, 1.0, _choice(models_dir)), planes=600 if quick else 2000,
+        stages = stage_breakdown(build_network(3, DEFAULT_WIDTH, _choice(models_dir)), planes=600 if quick else 2000,
                                  threads=threads)
         extras["stages_ms_per_frame"] = dict(stages)
         stages["size"] = "200x125"  # type: ignore[assignment]
@@ -123,7 +125,7 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
         document += [f"tfp --format null on {realtime['capture_s']:.1f} s of 400x250 capture "
                      f"({realtime['planes']} planes): {realtime['reconstruct_s']:.2f} s "
                      f"(real-time factor {realtime['realtime_factor']:.2f}; reading alone {realtime['read_s']:.2f} s).", ""]
-        memory = [memory_scaling("tfp", 400 if quick else 2000), memory_scaling("tfw", 400 if quick else 2000)]
+        memory = [memory_scaling("tfp", 2048 if quick else 8192), memory_scaling("tfw", 2048 if quick else 8192)]
         extras["memory_scaling"] = memory
         document += [f"Peak anonymous RSS, {m['method']}: {m['peak_anon_mib'][0]:.0f} MiB for {m['planes']} "
                      f"planes, {m['peak_anon_mib'][1]:.0f} MiB for {m['factor']}x as many ({100 * m['growth']:+.1f} %; "
@@ -142,7 +144,7 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
 def _choice(models_dir: Path):
     from rmbvideo.bench.models import find_model
 
-    return find_model(3, 1.0, models_dir)
+    return find_model(3, DEFAULT_WIDTH, models_dir)
 
 
 @bench.command("decode")
