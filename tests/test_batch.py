@@ -103,21 +103,21 @@ def test_rerun_skips_complete_outputs_untouched_and_redoes_changed_options(tmp_p
     capture(tmp_path / "in" / "a.dat")
     capture(tmp_path / "in" / "b.dat", seed=1)
     out = tmp_path / "out"
-    assert run("batch", tmp_path / "in", "-o", out, *GEOM, *EXR, "--jobs", "1", "-q").exit_code == 0
+    assert run("batch", tmp_path / "in", "-o", out, *GEOM, *EXR, "--method", "tfp", "--jobs", "1", "-q").exit_code == 0
     before = snapshot(out / "a")
     # Same options (the chunk size does not change the output): nothing is rewritten.
-    result = run("batch", tmp_path / "in", "-o", out, *GEOM, *EXR, "--chunk-planes", "7", "--jobs", "1", "-q")
+    result = run("batch", tmp_path / "in", "-o", out, *GEOM, *EXR, "--method", "tfp", "--chunk-planes", "7", "--jobs", "1", "-q")
     assert result.exit_code == 0
     assert {c["status"] for c in report(out).values()} == {"skipped"}
     assert report(out)["a.dat"]["frames"] == 3
     assert snapshot(out / "a") == before
     # An option that changes the output invalidates the marker.
-    assert run("batch", tmp_path / "in", "-o", out, *GEOM, *EXR, "--step", "30", "--jobs", "1", "-q").exit_code == 0
+    assert run("batch", tmp_path / "in", "-o", out, *GEOM, *EXR, "--method", "tfp", "--step", "30", "--jobs", "1", "-q").exit_code == 0
     assert {c["status"] for c in report(out).values()} == {"ok"}
     assert len(list((out / "a").glob("*.exr"))) == 2
     # A changed input is redone too.
     capture(tmp_path / "in" / "a.dat", planes=90, seed=5)
-    assert run("batch", tmp_path / "in", "-o", out, *GEOM, *EXR, "--step", "30", "--jobs", "1", "-q").exit_code == 0
+    assert run("batch", tmp_path / "in", "-o", out, *GEOM, *EXR, "--method", "tfp", "--step", "30", "--jobs", "1", "-q").exit_code == 0
     entries = report(out)
     assert entries["a.dat"]["status"] == "ok" and entries["a.dat"]["frames"] == 3
     assert entries["b.dat"]["status"] == "skipped"
