@@ -65,12 +65,15 @@ def _stage_table(stages: dict[str, float]) -> str:
               help="Folder of trained weights (with ablations/) [default: the shipped models].")
 @click.option("--cache", type=click.Path(path_type=Path), default=None,
               help="Held-out scene cache folder [default: ~/.cache/rmbvideo/heldout].")
+@click.option("--no-tvl1", is_flag=True,
+              help="Leave out the TV-L1 alignment row (seconds per flow field on a CPU; --quick does).")
 @click.option("--no-baselines", is_flag=True, help="Only RMB-Net rows.")
 @click.option("--no-extras", is_flag=True,
               help="Skip the per-stage breakdown, the real-time tfp check and the memory-scaling runs.")
 @click.pass_context
 def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: str, full_grid: bool,
-          threads: int, models_dir: Path | None, cache: Path | None, no_baselines: bool, no_extras: bool) -> None:
+          threads: int, models_dir: Path | None, cache: Path | None, no_tvl1: bool, no_baselines: bool,
+          no_extras: bool) -> None:
     """Benchmark every method on the held-out synthetic scenes: accuracy against time.
 
     Rows: TFW-S, TFW-L, TFI, GC20, MG20 and RMB-Net with w in {0,1,2,3}, alignment none/DIS/TV-L1,
@@ -95,7 +98,7 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
     models_dir = models_dir or MODELS_DIR
     outdir.mkdir(parents=True, exist_ok=True)
     sequences = load_heldout(quick, cache)
-    alignments = tuple(a for a in ALIGNMENTS if not (quick and a == "tvl1"))
+    alignments = tuple(a for a in ALIGNMENTS if not ((quick or no_tvl1) and a == "tvl1"))
     configs = default_configs(_devices(device), full_grid=full_grid, baselines=not no_baselines,
                               alignments=alignments)
     records = []
