@@ -150,7 +150,7 @@ def test_kill_9_mid_capture_then_resume(tmp_path: Path) -> None:
     write_dat(big, (rng.random((6000, 16, 16)) < 0.3).astype(np.uint8), DatGeometry(16, 16))
     out = tmp_path / "out"
     command = [sys.executable, "-m", "rmbvideo", "batch", str(big), "-o", str(out), "--width", "16",
-               "--height", "16", "--format", "exr", "--step", "2", "--jobs", "1", "-q"]
+               "--height", "16", "--method", "tfp", "--format", "exr", "--step", "2", "--jobs", "1", "-q"]
     proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         deadline = time.monotonic() + 60
