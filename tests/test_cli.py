@@ -169,3 +169,13 @@ def test_native_rmb_capture_reconstructs_without_binning(tmp_path: Path) -> None
     assert len(rows) == 80 // 10  # one frame per N = 10 native readouts, full resolution
     image, _ = read_exr(out / rows[3]["file"])
     assert image.shape == (32, 48) and np.isfinite(image).all() and image.max() > 0
+
+
+def test_rmbnet_window_selects_a_shipped_model_or_refuses(tmp_path: Path) -> None:
+    dat = small_capture(tmp_path / "cap.dat")
+    w0 = run("reconstruct", dat, "-o", tmp_path / "w0", *GEOM, "--window", "0", "--format", "null", "-q")
+    assert w0.exit_code == 0, w0.output
+    proc = subprocess.run([sys.executable, "-m", "rmbvideo", "reconstruct", str(dat), "-o", str(tmp_path / "w1"),
+                           *GEOM, "--window", "1", "-q"], capture_output=True, text=True)
+    assert proc.returncode == 2 and "w = 1" in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "w1").exists()

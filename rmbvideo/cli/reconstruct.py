@@ -26,6 +26,8 @@ TONEMAPS = ("mulaw", "reinhard", "drago", "mantiuk")
 def method_options(method: str, window: int | None, step: int, raw_per_readout: int = 2) -> dict:
     """Keyword options for ``method``. ``step`` is in raw planes; methods on the mixed-bit stream
     count readouts, each ``raw_per_readout`` raw planes (2 for binned data, 1 for a native sensor)."""
+    if window == 0 and method != "rmbnet":
+        raise click.BadParameter("a window of 0 is only meaningful for rmbnet (w = 0)", param_hint="--window")
     if method == "tfp":
         return {"step": step, **({"window": window} if window else {})}
     if method == "tfi":
@@ -34,11 +36,13 @@ def method_options(method: str, window: int | None, step: int, raw_per_readout: 
         raise click.BadParameter(f"methods on the binned stream need an even step, got {step}",
                                  param_hint="--step")
     if method == "rmbnet":
-        if step != 10 * raw_per_readout or window:
+        if step != 10 * raw_per_readout:
             raise click.BadParameter(
-                f"RMB-Net's frame step and window are fixed by its model (N = 10 readouts = "
-                f"{10 * raw_per_readout} raw planes; window 2w+1)", param_hint="--step/--window")
-        return {}
+                f"RMB-Net's frame step is fixed by its model (N = 10 readouts = {10 * raw_per_readout} "
+                "raw planes)", param_hint="--step")
+        if window is not None and window > 3:
+            raise click.BadParameter("RMB-Net's window half-width w is 0..3", param_hint="--window")
+        return {} if window is None else {"w": window}
     options: dict = {"step": step // raw_per_readout}
     if window:
         options["window"] = window
@@ -127,8 +131,9 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
               help="Output folder (created if missing).")
 @click.option("--method", type=click.Choice(sorted(RECONSTRUCTORS)), default=DEFAULT_METHOD,
               show_default=True, help="Reconstruction method.")
-@click.option("--window", type=click.IntRange(min=1), default=None,
-              help="Window: raw planes for tfp [41]; binned readouts for tfw [10 = TFW-S; 70 = TFW-L].")
+@click.option("--window", type=click.IntRange(min=0), default=None,
+              help="Window: raw planes for tfp [41]; binned readouts for tfw [10 = TFW-S; 70 = TFW-L]; "
+                   "for rmbnet the half-width w of the model (0..3; 2w+1 preliminary frames) [3].")
 @click.option("--step", type=click.IntRange(min=1), default=None,
               help="Raw planes per output frame [default: 20 (1000 frames per second of a 20 kHz "
                    "capture); 10 for a native RMB capture, whose readouts are not binned].")

@@ -46,6 +46,22 @@ def default_model_path(input_mode: str = "binned") -> Path:
     return path
 
 
+def shipped_model_with_window(input_mode: str, w: int) -> Path:
+    """A shipped full model (XBA and XTA on, RMB readout) for ``input_mode`` whose window half-width
+    is ``w``: the default model first, then the ablation models in ``models/ablations``."""
+    candidates = [default_model_path(input_mode)] + sorted((MODELS_DIR / "ablations").glob("*.safetensors"))
+    for weights in candidates:
+        try:
+            card = json.loads(weights.with_suffix(".json").read_text())
+        except (OSError, ValueError):
+            continue
+        arch = card.get("architecture", {}) if isinstance(card, dict) else {}
+        if (arch.get("w") == w and arch.get("input_mode") == input_mode and arch.get("use_xba")
+                and arch.get("use_xta") and "rmb" in str(card.get("data", {}).get("readout", "rmb"))):
+            return weights
+    raise ModelError(f"no shipped {input_mode} model with w = {w}; train one (rmbvideo train) and pass --model")
+
+
 @dataclass
 class ModelCard:
     """What a weight file is: how it was trained, on what, how well it does, by which code.

@@ -250,18 +250,25 @@ def make_rmbnet(
     input_mode: str | None = None,
     upsampling: str = "interp",
     threads: int | None = None,
+    w: int | None = None,
 ) -> RmbNetReconstructor:
     """Pipeline factory for method "rmbnet": ``model`` is a .safetensors path; ``upsampling`` is
     "interp" (flow-free band interpolation) or a flow method ("dis", "farneback", "tvl1").
-    Without ``model`` the shipped weights for ``input_mode`` (default "binned") are used."""
-    from rmbvideo.net.weights import default_model_path
+    Without ``model`` the shipped weights for ``input_mode`` (default "binned") are used, the one
+    with window half-width ``w`` when it is given; a ``model`` whose ``w`` differs is refused."""
+    from rmbvideo.errors import ModelError
+    from rmbvideo.net.weights import default_model_path, shipped_model_with_window
     from rmbvideo.recon.flow import FlowUpsampler
 
     if model is None:
-        model = default_model_path(input_mode or "binned")
+        mode = input_mode or "binned"
+        model = default_model_path(mode) if w is None else shipped_model_with_window(mode, w)
     upsampler = None if upsampling == "interp" else FlowUpsampler(method=upsampling)
-    return RmbNetReconstructor.from_file(
+    recon = RmbNetReconstructor.from_file(
         model, device=device, input_mode=input_mode, align=align, precision=precision, upsampler=upsampler,
         threads=threads,
     )
+    if w is not None and recon.network.config.w != w:
+        raise ModelError(f"{model}: the model's window half-width is w = {recon.network.config.w}, not {w}")
+    return recon
 
