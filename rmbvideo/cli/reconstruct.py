@@ -146,7 +146,7 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
 @click.option("--exr-dtype", type=click.Choice(["half", "float"]), default="half", show_default=True,
               help="EXR pixel type; half clips values above 65504.")
 @click.option("--readout", type=click.Choice([m.value for m in ReadoutMode]), default="rmb",
-              show_default=True, help="Readout design applied to the binned stream (tfw and later methods).")
+              show_default=True, help="Readout design applied to the binned stream (rmbnet, tfw, gc20, mg20).")
 @capture_options
 @click.option("--start", "start_s", type=click.FloatRange(min=0), default=0.0, show_default=True,
               help="Start time in seconds from the beginning of the capture.")
