@@ -7,7 +7,8 @@ import pytest
 
 from rmbvideo.net.attention import PairProjection
 from rmbvideo.net.config import RmbNetConfig
-from rmbvideo.net.model import RmbNet, inverse_mu_law, mu_law, window_indices
+from rmbvideo.net.model import RmbNet, inverse_mu_law, window_indices
+from rmbvideo.recon.tonemap import mu_law
 
 
 def small(**kw) -> RmbNet:

@@ -32,6 +32,7 @@ from rmbvideo.net.attention import CrossBitAttention, CrossTimeAttention, PlainB
 from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.decoder import Decoder, DecoderState
 from rmbvideo.net.encoder import Encoder
+from rmbvideo.recon.tonemap import mu_law
 
 PAD_MULTIPLE = 8
 # (scale, query frame index, key frame index) -> XBA mask logits of that pair, (B, C, h, w)
@@ -62,11 +63,6 @@ def window_indices(i: int, w: int, count: int | None) -> list[int]:
     """Frame indices of the window around ``i``, repeating frame 0 / frame ``count-1`` at the edges."""
     last = math.inf if count is None else count - 1
     return [int(min(max(j, 0), last)) for j in range(i - w, i + w + 1)]
-
-
-def mu_law(x: torch.Tensor, mu: float) -> torch.Tensor:
-    """T(x) = log(1 + mu x) / log(1 + mu) for x >= 0."""
-    return torch.log1p(mu * x) / math.log1p(mu)
 
 
 def inverse_mu_law(t: torch.Tensor, mu: float) -> torch.Tensor:
