@@ -83,6 +83,7 @@ def rmbnet_extra_options(method: str, model, align: str, device: str, upsampling
 def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_METHOD,
                        window: int | None = None, step: int | None = None, fmt: str = "mp4",
                        fps: float = 30.0, tonemap: str = "mulaw", exr_dtype: str = "half",
+                       pixel_format: str = "auto",
                        readout: str = "rmb", start_s: float = 0.0, duration_s: float | None = None,
                        chunk_planes: int = 1024, progress: bool = False,
                        capture: dict | None = None, extra_options: dict | None = None) -> RunSummary:
@@ -113,7 +114,7 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
     created = not outdir.exists()
     try:
         with make_sink(fmt, outdir, fps=fps, tonemap=ToneMapConfig(method=tonemap),
-                       exr_dtype=exr_dtype, capture_rate_hz=reader.rate_hz,
+                       exr_dtype=exr_dtype, mp4_pixel_format=pixel_format, capture_rate_hz=reader.rate_hz,
                        frame_rate_hz=reader.rate_hz / step) as sink:
             summary = reconstruct_stream(reader, recon, sink, start=start, stop=stop,
                                          chunk_planes=chunk_planes, progress=progress,
@@ -141,6 +142,10 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
               help="mp4 (tone-mapped H.264), exr (linear HDR), png (tone-mapped 8-bit), null (timing).")
 @click.option("--fps", type=click.FloatRange(min=0, min_open=True), default=30.0, show_default=True,
               help="MP4 playback frame rate.")
+@click.option("--pixel-format", type=click.Choice(["auto", "yuv420p", "yuv444p"]), default="auto",
+              show_default=True,
+              help="MP4 chroma: auto keeps the exact size (yuv444p for odd sizes, which QuickTime and some "
+                   "hardware players cannot open); yuv420p plays everywhere but pads odd sizes by one row/column.")
 @click.option("--tonemap", type=click.Choice(TONEMAPS), default="mulaw", show_default=True,
               help="Tone mapping for mp4/png.")
 @click.option("--exr-dtype", type=click.Choice(["half", "float"]), default="half", show_default=True,
@@ -157,14 +162,14 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
 @rmbnet_options
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
 def reconstruct(input_path: Path, outdir: Path, method: str, window, step, fmt: str, fps: float,
-                tonemap: str, exr_dtype: str, readout: str, width, height, flip, header_cols, rate_hz,
+                pixel_format: str, tonemap: str, exr_dtype: str, readout: str, width, height, flip, header_cols, rate_hz,
                 start_s: float, duration_s, chunk_planes: int, model, align: str, device: str,
                 upsampling: str, precision: str, threads, quiet: bool) -> None:
     """Reconstruct a .dat capture INPUT into frames in OUTDIR."""
     extra = rmbnet_extra_options(method, model, align, device, upsampling, precision, threads)
     summary = run_reconstruction(
         input_path, outdir, method=method, window=window, step=step, fmt=fmt, fps=fps,
-        tonemap=tonemap, exr_dtype=exr_dtype, readout=readout, start_s=start_s,
+        pixel_format=pixel_format, tonemap=tonemap, exr_dtype=exr_dtype, readout=readout, start_s=start_s,
         duration_s=duration_s, chunk_planes=chunk_planes, progress=progress_enabled(quiet),
         capture=dict(width=width, height=height, flip=flip, header_cols=header_cols, rate_hz=rate_hz),
         extra_options=extra,
