@@ -41,10 +41,23 @@ class PairProjection(nn.Module):
         return self.out(torch.relu(flat)).reshape(*lead, -1, *summed.shape[-2:])
 
 
-def attend(logits: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
-    """SoftMax over keys (dim 1, in float32) and weighted sum: (Q,K,B,C,H,W) x (K,B,C,H,W) -> (Q,B,C,H,W)."""
-    weights = torch.softmax(logits.float(), dim=1).to(values.dtype)
+def attend(logits: torch.Tensor, values: torch.Tensor, valid: torch.Tensor | None = None) -> torch.Tensor:
+    """SoftMax over keys (dim 1, in float32) and weighted sum: (Q,K,B,C,H,W) x (K,B,C,H,W) -> (Q,B,C,H,W).
+
+    ``valid`` (K,) bool leaves keys out of the SoftMax (window positions past a clip's edge)."""
+    logits = logits.float()
+    if valid is not None:
+        logits = logits.masked_fill(~valid.view(1, -1, 1, 1, 1, 1), float("-inf"))
+    weights = torch.softmax(logits, dim=1).to(values.dtype)
     return (weights * values.unsqueeze(0)).sum(dim=1)
+
+
+def masked_mean(x: torch.Tensor, valid: torch.Tensor | None) -> torch.Tensor:
+    """Mean over dim 0 of the positions where ``valid`` (K,) is True (all when None)."""
+    if valid is None:
+        return x.mean(dim=0)
+    weights = valid.to(x.dtype).view(-1, *([1] * (x.dim() - 1)))
+    return (x * weights).sum(dim=0) / weights.sum()
 
 
 class CrossBitAttention(nn.Module):
@@ -68,9 +81,11 @@ class CrossBitAttention(nn.Module):
         """Logits of the pairs (query_parts[p], key_parts[p]), both (P, B, Ch, H, W) -> (P, B, C, H, W)."""
         return self.proj.combine(query_parts + key_parts)
 
-    def fuse(self, f_s: torch.Tensor, f_m: torch.Tensor, logits: torch.Tensor) -> torch.Tensor:
-        """F_ms for queries ``f_s`` (Q,B,C,H,W) over keys ``f_m`` (K,B,C,H,W) with ``logits`` (Q,K,...)."""
-        f_m_hat = attend(logits, f_m)
+    def fuse(self, f_s: torch.Tensor, f_m: torch.Tensor, logits: torch.Tensor,
+             valid: torch.Tensor | None = None) -> torch.Tensor:
+        """F_ms for queries ``f_s`` (Q,B,C,H,W) over keys ``f_m`` (K,B,C,H,W) with ``logits`` (Q,K,...);
+        keys where ``valid`` is False are left out."""
+        f_m_hat = attend(logits, f_m, valid)
         q = f_s.shape[0]
         mixed = torch.cat([f_s, f_m_hat], dim=2).flatten(0, 1)
         return self.reduce(mixed).unflatten(0, (q, -1))
@@ -100,19 +115,21 @@ class CrossTimeAttention(nn.Module):
         super().__init__()
         self.proj = PairProjection((channels, channels, channels), hidden, channels, kernel)
 
-    def forward(self, f_ms: torch.Tensor) -> torch.Tensor:
+    def forward(self, f_ms: torch.Tensor, valid: torch.Tensor | None = None) -> torch.Tensor:
+        """F_bar_ms over the window (K,B,C,H,W); positions where ``valid`` is False are neither
+        keys, queries nor part of the bias."""
         k = f_ms.shape[0]
         flat = f_ms.flatten(0, 1)
-        bias = f_ms.mean(dim=0)
+        bias = masked_mean(f_ms, valid)
         q_part = self.proj.part(0, flat).unflatten(0, (k, -1))
         k_part = self.proj.part(1, flat).unflatten(0, (k, -1))
         b_part = self.proj.part(2, bias)
         logits = self.proj.combine(q_part[:, None] + k_part[None] + b_part)
-        return attend(logits, f_ms).mean(dim=0)
+        return masked_mean(attend(logits, f_ms, valid), valid)
 
 
 class TemporalMean(nn.Module):
     """"Without XTA" ablation: F_bar_ms(i) is the plain temporal mean of F_ms over the window."""
 
-    def forward(self, f_ms: torch.Tensor) -> torch.Tensor:
-        return f_ms.mean(dim=0)
+    def forward(self, f_ms: torch.Tensor, valid: torch.Tensor | None = None) -> torch.Tensor:
+        return masked_mean(f_ms, valid)

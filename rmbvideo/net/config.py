@@ -19,6 +19,7 @@ class RmbNetConfig:
     ``input_mode``: "binned" (2x2x2-binned real 1-bit data) or "native" (a native RMB sensor);
     the graph is the same, the weights are not interchangeable. ``input_mu``: mu of the mu-law
     that compresses the normalised inputs I_s/N and I_m/(level*N) before the encoders (HDR range).
+    ``pooled_windows``: odd window lengths (3..2w+1) whose mean input rates the head also sees.
     ``output_mu``/``output_max``: the decoder predicts the mu-law domain T(G) (the training loss
     domain, mu = 5000) through a softplus, capped at ``output_max`` so the inverse cannot overflow.
     """
@@ -38,6 +39,7 @@ class RmbNetConfig:
     input_mu: float = 255.0
     output_mu: float = 5000.0
     output_max: float = 2.0
+    pooled_windows: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
         if not 0 <= self.w <= 3:
@@ -51,6 +53,10 @@ class RmbNetConfig:
         if len(self.base_channels) != 3:
             raise ValueError("base_channels must name three encoder blocks")
         object.__setattr__(self, "base_channels", tuple(int(c) for c in self.base_channels))
+        object.__setattr__(self, "pooled_windows", tuple(int(p) for p in self.pooled_windows))
+        for size in self.pooled_windows:
+            if size % 2 == 0 or not 3 <= size <= self.window:
+                raise ValueError(f"pooled_windows must be odd lengths in 3..{self.window}, got {size}")
 
     @property
     def window(self) -> int:
@@ -66,6 +72,7 @@ class RmbNetConfig:
         """JSON-ready dictionary (tuples become lists)."""
         out = asdict(self)
         out["base_channels"] = list(self.base_channels)
+        out["pooled_windows"] = list(self.pooled_windows)
         return out
 
     @classmethod
@@ -78,4 +85,6 @@ class RmbNetConfig:
         kwargs = dict(data)
         if "base_channels" in kwargs:
             kwargs["base_channels"] = tuple(kwargs["base_channels"])
+        if "pooled_windows" in kwargs:
+            kwargs["pooled_windows"] = tuple(kwargs["pooled_windows"])
         return cls(**kwargs)

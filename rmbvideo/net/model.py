@@ -14,8 +14,13 @@ Choices where the paper and supplement are silent:
 - Output: the decoder's head z becomes t = min(softplus(z), output_max), the mu-law domain
   T(G) = log(1 + mu G)/log(1 + mu) the loss uses (mu = ``output_mu``); the linear HDR image is
   the exact inverse (expm1(t log(1+mu))/mu), so it is >= 0 and finite by construction.
-- Window edges: a window reaching before the first or past the last frame repeats the nearest
-  frame (``window_indices``).
+- Window edges: a window reaching before the first or past the last frame holds the nearest frame
+  in those positions only as a placeholder (``window_indices``); ``window_valid`` marks them and
+  attention, temporal means and pooled inputs leave them out, so a clip's first and last frames use
+  only the evidence that exists on their side.
+- Pooled inputs (``config.pooled_windows``): the head also sees the reference pixel's mean rates
+  over the central 3, 5 or 7 frames of the window (the classical TFW estimates, mu-law compressed),
+  so it can pick per pixel between low noise (static regions) and the reference alone (motion).
 """
 
 from __future__ import annotations
@@ -43,7 +48,8 @@ PairCache = dict[tuple[int, int, int], torch.Tensor]
 class EncodedFrame:
     """Everything RMB-Net derives from one preliminary frame alone, computed once per frame.
 
-    ``inputs``: compressed (I_s, I_m), padded, (B,2,Hp,Wp); ``f_s``/``f_m``: encoder features per
+    ``rates``: normalised (I_s/N, I_m/(level N)) clipped to [0, 1], padded, (B,2,Hp,Wp); ``inputs``:
+    their mu-law compression; ``f_s``/``f_m``: encoder features per
     scale; ``query_parts``/``key_parts``: first-layer XBA terms per scale (empty without XBA);
     ``f_ms``: per-scale F_ms when there is no XBA (it then depends on the frame only).
     ``size``: the unpadded (H, W).
@@ -51,6 +57,7 @@ class EncodedFrame:
 
     index: int
     size: tuple[int, int]
+    rates: torch.Tensor
     inputs: torch.Tensor
     f_s: list[torch.Tensor]
     f_m: list[torch.Tensor]
@@ -60,9 +67,16 @@ class EncodedFrame:
 
 
 def window_indices(i: int, w: int, count: int | None) -> list[int]:
-    """Frame indices of the window around ``i``, repeating frame 0 / frame ``count-1`` at the edges."""
+    """Frame indices of the window around ``i``; positions past the clip's edges hold frame 0 /
+    frame ``count-1`` as placeholders (``window_valid`` says which positions are real)."""
     last = math.inf if count is None else count - 1
     return [int(min(max(j, 0), last)) for j in range(i - w, i + w + 1)]
+
+
+def window_valid(i: int, w: int, count: int | None) -> list[bool]:
+    """Which positions of the window around ``i`` hold a real frame (inside 0..count-1)."""
+    last = math.inf if count is None else count - 1
+    return [0 <= j <= last for j in range(i - w, i + w + 1)]
 
 
 def inverse_mu_law(t: torch.Tensor, mu: float) -> torch.Tensor:
@@ -92,14 +106,18 @@ class RmbNet(nn.Module):
             )
         else:
             self.time_fusion = TemporalMean()
-        self.decoder = Decoder(channels, config.lstm_kernel)
+        self.decoder = Decoder(channels, config.lstm_kernel, input_channels=2 + 2 * len(config.pooled_windows))
 
-    def compress_inputs(self, i_s: torch.Tensor, i_m: torch.Tensor) -> torch.Tensor:
-        """(B,H,W) preliminary sums -> (B,2,H,W) normalised, clipped, mu-law compressed inputs."""
+    def normalise_inputs(self, i_s: torch.Tensor, i_m: torch.Tensor) -> torch.Tensor:
+        """(B,H,W) preliminary sums -> (B,2,H,W) rates I_s/N and I_m/(level N), clipped to [0, 1]."""
         cfg = self.config
         v_s = torch.nan_to_num(i_s.float() / cfg.n, nan=0.0).clamp(0.0, 1.0)
         v_m = torch.nan_to_num(i_m.float() / (cfg.level * cfg.n), nan=0.0).clamp(0.0, 1.0)
-        return mu_law(torch.stack([v_s, v_m], dim=1), cfg.input_mu)
+        return torch.stack([v_s, v_m], dim=1)
+
+    def compress_inputs(self, i_s: torch.Tensor, i_m: torch.Tensor) -> torch.Tensor:
+        """(B,H,W) preliminary sums -> (B,2,H,W) normalised, clipped, mu-law compressed inputs."""
+        return mu_law(self.normalise_inputs(i_s, i_m), self.config.input_mu)
 
     def encode(self, i_s: torch.Tensor, i_m: torch.Tensor, indices: Sequence[int]) -> list[EncodedFrame]:
         """Encode a batch of frames (F,H,W) each belonging to a batch of size B = 1 per index.
@@ -108,10 +126,11 @@ class RmbNet(nn.Module):
         """
         count = len(indices)
         size = (int(i_s.shape[-2]), int(i_s.shape[-1]))
-        x = self.compress_inputs(i_s, i_m)
+        rates = self.normalise_inputs(i_s, i_m)
         pad_h, pad_w = (-size[0]) % PAD_MULTIPLE, (-size[1]) % PAD_MULTIPLE
         if pad_h or pad_w:
-            x = F.pad(x, (0, pad_w, 0, pad_h), mode="replicate")
+            rates = F.pad(rates, (0, pad_w, 0, pad_h), mode="replicate")
+        x = mu_law(rates, self.config.input_mu)
         f_s_all = self.encoder_s(x[:, :1])
         f_m_all = self.encoder_m(x[:, 1:])
         if self.config.use_xba:
@@ -127,11 +146,12 @@ class RmbNet(nn.Module):
 
         per = {name: [split(t) for t in ts] for name, ts in
                (("f_s", f_s_all), ("f_m", f_m_all), ("q", q_all), ("k", k_all), ("ms", ms_all))}
-        inputs = split(x)
+        inputs, rates_split = split(x), split(rates)
         return [
             EncodedFrame(
                 index=int(index),
                 size=size,
+                rates=rates_split[j],
                 inputs=inputs[j],
                 f_s=[t[j] for t in per["f_s"]],
                 f_m=[t[j] for t in per["f_m"]],
@@ -161,33 +181,51 @@ class RmbNet(nn.Module):
         return torch.stack([torch.stack([cache[(scale, q.index, k.index)] for k in keys]) for q in queries])
 
     def _bit_fused(
-        self, scale: int, queries: Sequence[EncodedFrame], window: Sequence[EncodedFrame], cache: PairCache
+        self, scale: int, queries: Sequence[EncodedFrame], window: Sequence[EncodedFrame], cache: PairCache,
+        valid: torch.Tensor | None = None,
     ) -> torch.Tensor:
-        """F_ms(q) at ``scale`` for each query over the window, (Q,B,C,h,w)."""
+        """F_ms(q) at ``scale`` for each query over the window's valid keys, (Q,B,C,h,w)."""
         if not self.config.use_xba:
             return torch.stack([q.f_ms[scale] for q in queries])
         logits = self._xba_logits(scale, queries, window, cache)
         f_s = torch.stack([q.f_s[scale] for q in queries])
         f_m = torch.stack([k.f_m[scale] for k in window])
-        return self.xba[scale].fuse(f_s, f_m, logits)
+        return self.xba[scale].fuse(f_s, f_m, logits, valid)
+
+    def _head_inputs(self, window: Sequence[EncodedFrame], valid: Sequence[bool]) -> torch.Tensor:
+        """The reference's compressed inputs plus its mean rates over each pooled window (valid
+        frames only), mu-law compressed: (B, 2 + 2 len(pooled_windows), Hp, Wp)."""
+        w = self.config.w
+        parts = [window[w].inputs]
+        for size in self.config.pooled_windows:
+            half = size // 2
+            chosen = [window[j].rates for j in range(w - half, w + half + 1) if valid[j]]
+            parts.append(mu_law(torch.stack(chosen).mean(dim=0), self.config.input_mu))
+        return torch.cat(parts, dim=1) if len(parts) > 1 else parts[0]
 
     def step(
-        self, window: Sequence[EncodedFrame], state: DecoderState | None, cache: PairCache | None = None
+        self, window: Sequence[EncodedFrame], state: DecoderState | None, cache: PairCache | None = None,
+        valid: Sequence[bool] | None = None,
     ) -> tuple[torch.Tensor, DecoderState]:
         """One output step for the window of 2w+1 encoded frames centred on the reference.
 
         Returns t = T(G) in the mu-law domain, (B,1,H,W) at the unpadded size, and the new state.
         ``cache`` holds XBA pair logits reused across overlapping windows (the caller evicts).
+        ``valid`` marks the positions that hold real frames (default: all; see ``window_valid``).
         """
         if len(window) != self.config.window:
             raise ValueError(f"window has {len(window)} frames, the model needs {self.config.window}")
+        valid = [True] * len(window) if valid is None else list(valid)
+        if not valid[self.config.w]:
+            raise ValueError("the reference frame of a window must be valid")
         cache = {} if cache is None else cache
         ref = window[self.config.w]
-        reference = [self._bit_fused(s, [ref], window, cache)[0] for s in range(2)]
-        f_ms_coarse = self._bit_fused(2, window, window, cache)
+        mask = None if all(valid) else torch.tensor(valid, device=ref.inputs.device)
+        reference = [self._bit_fused(s, [ref], window, cache, mask)[0] for s in range(2)]
+        f_ms_coarse = self._bit_fused(2, window, window, cache, mask)
         reference.append(f_ms_coarse[self.config.w])
-        fused = self.time_fusion(f_ms_coarse)
-        z, state = self.decoder(fused, reference, ref.inputs, state)
+        fused = self.time_fusion(f_ms_coarse, mask)
+        z, state = self.decoder(fused, reference, self._head_inputs(window, valid), state)
         t = F.softplus(z.float()).clamp(max=self.config.output_max)
         h, w = ref.size
         return t[..., :h, :w], state
@@ -214,7 +252,7 @@ class RmbNet(nn.Module):
         outputs = []
         for i in range(count):
             window = [frames[j] for j in window_indices(i, self.config.w, count)]
-            t, state = self.step(window, state)
+            t, state = self.step(window, state, valid=window_valid(i, self.config.w, count))
             outputs.append(t[:, 0])
         out = torch.stack(outputs, dim=1)
         return (self.to_linear(out) if linear else out), state

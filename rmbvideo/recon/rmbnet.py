@@ -5,7 +5,7 @@ pair logits (which depend on a pair of frames only) are cached while both frames
 buffer; the ConvLSTM state is carried from frame to frame, so the output is the same however the
 input is chunked, and equal to ``RmbNet.forward_sequence`` over the whole capture. Output frame i
 needs frames up to i+w, so output lags input by w frames until ``flush``. At the edges of the
-capture the window repeats the first/last frame (``window_indices``).
+capture the window's positions past the edge are left out (``window_valid``).
 
 With ``align`` other than "none", the window's frames are warped to the reference frame's time
 with optical flow before encoding (paper Fig. 6); encodings then depend on the reference, so each
@@ -28,7 +28,7 @@ from torch.nn.utils.fusion import fuse_conv_bn_eval
 
 from rmbvideo.chunks import Frame, RmbChunk
 from rmbvideo.errors import InputError
-from rmbvideo.net.model import EncodedFrame, PairCache, RmbNet, window_indices
+from rmbvideo.net.model import EncodedFrame, PairCache, RmbNet, window_indices, window_valid
 from rmbvideo.recon.prelim import MultiUpsampler, PreliminaryFrames
 
 log = logging.getLogger(__name__)
@@ -144,7 +144,7 @@ class RmbNetReconstructor:
         return self._consume(frames, final=False)
 
     def flush(self) -> list[Frame]:
-        """End of capture: emit the last w frames (windows repeat the last frame)."""
+        """End of capture: emit the last w frames (their windows end at the last frame)."""
         frames = self._preliminary().flush() if self._prelim is not None else []
         return self._consume(frames, final=True)
 
@@ -221,7 +221,7 @@ class RmbNetReconstructor:
 
     def _emit(self, i: int, count: int | None) -> Frame:
         cache = self._pair_cache if self.align == "none" else None
-        t, state = self._net.step(self._window(i, count), self._state, cache)
+        t, state = self._net.step(self._window(i, count), self._state, cache, valid=window_valid(i, self._w, count))
         if not bool(torch.isfinite(t).all()):
             self.nonfinite_frames += 1
             log.warning("RMB-Net produced NaN/Inf in frame %d; replaced by 0 and reset the recurrent state", i)

@@ -157,6 +157,22 @@ class SpikeEmitter:
         return out
 
 
+class RateIntegrateFire:
+    """The rate convention of other simulators (e.g. spikezoo's REDS streams): each plane adds the
+    pixel's firing rate (< 1 per plane) to an accumulator that starts at a uniform random phase; a
+    spike fires when it reaches 1, and 1 is subtracted. No noise: the long-run rate is exact."""
+
+    def __init__(self, shape: tuple[int, int], seed: int) -> None:
+        self.accumulator = np.random.default_rng([seed, 0x5A7E]).random(shape)
+
+    def emit_one(self, rate: np.ndarray) -> np.ndarray:
+        """One plane: ``rate`` (H, W) in spikes per plane -> (H, W) uint8 0/1."""
+        self.accumulator += rate
+        fired = self.accumulator >= 1.0
+        self.accumulator -= fired
+        return fired.astype(np.uint8)
+
+
 class CaptureSimulator:
     """Simulates a capture of a scene: radiance integrated over each interval -> spikes, in chunks.
 

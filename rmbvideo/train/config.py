@@ -29,7 +29,9 @@ class DataConfig:
     """Training data: input ``mode`` (binned/native), ``readout`` design, ``count`` training
     scenes (seeds 0..count-1), square ``crop`` (output px), ``steps`` K supervised steps per sample,
     ``exposure`` range (electrons per raw readout at median radiance), ``val_count`` held-out
-    scenes (seeds from 1,000,000)."""
+    scenes (seeds from 1,000,000). ``scenes``: "panorama" (pans over the bundled panoramas, ``count``
+    cached scenes) or "video" (dead-leaves video scenes, simulated afresh for every step, a fraction
+    ``spikezoo_fraction`` in spikezoo's rate convention; ``count`` and ``exposure`` do not apply)."""
 
     mode: str = "binned"
     readout: str = "rmb"
@@ -40,6 +42,8 @@ class DataConfig:
     warmup_frames: int = 3
     exposure: tuple[float, float] = (2.0, 60.0)
     val_count: int = 6
+    scenes: str = "panorama"
+    spikezoo_fraction: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -56,11 +60,13 @@ class OptimConfig:
     threads: int = 0  # torch intra-op threads; 0 leaves torch's default
     val_every: int = 250
     checkpoint_every: int = 50
+    edges: bool = False  # also supervise the first/last w outputs of a sample as a clip's edges
 
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """A whole recipe; ``recipe_text`` is the file as written (recorded in the model card)."""
+    """A whole recipe; ``recipe_text`` is the file as written (recorded in the model card).
+    ``init``: a model file (or the name of a shipped model) whose matching weights start the run."""
 
     name: str
     seed: int = 0
@@ -72,13 +78,15 @@ class TrainConfig:
     loss: LossConfig = field(default_factory=LossConfig)
     recipe_text: str = ""
     source: str = ""
+    init: str = ""
 
     def sample_spec(self) -> SampleSpec:
         """Samples of 2w + K preliminary frames in this recipe's mode and readout."""
         d = self.data
         return SampleSpec(mode=d.mode, readout=d.readout, crop=d.crop, frames=2 * self.model.w + d.steps,
                           n=d.n, warmup_frames=d.warmup_frames, level=self.model.level,
-                          ranges=SceneRanges(exposure=d.exposure))
+                          ranges=SceneRanges(exposure=d.exposure), scenes=d.scenes,
+                          spikezoo_fraction=d.spikezoo_fraction)
 
     def with_minutes(self, minutes: float) -> "TrainConfig":
         """The same recipe with another wall-time budget."""
@@ -101,7 +109,7 @@ def _typed(cls: type, table: dict[str, Any], where: str, path: Path) -> Any:
             if ok and isinstance(default, int) and not isinstance(value, int):
                 ok = False
         elif isinstance(default, tuple):
-            ok = isinstance(value, list) and (len(value) == len(default) or name == "base_channels")
+            ok = isinstance(value, list) and (len(value) == len(default) or name in ("base_channels", "pooled_windows"))
             value = tuple(value) if ok else value
         else:
             ok = isinstance(value, type(default))
@@ -124,7 +132,7 @@ def load_recipe(path: str | Path) -> TrainConfig:
         raise InputError(f"{path}: cannot read recipe ({exc})") from None
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{path}: not valid TOML ({exc})") from None
-    top = {"name", "seed", "minutes", "description", "data", "model", "optim", "loss"}
+    top = {"name", "seed", "minutes", "description", "init", "data", "model", "optim", "loss"}
     unknown = sorted(set(data) - top)
     if unknown:
         raise InputError(f"{path}: unknown top-level keys: {', '.join(unknown)}")
@@ -152,7 +160,8 @@ def load_recipe(path: str | Path) -> TrainConfig:
         loss = LossConfig(**_typed(LossConfig, tables["loss"], "loss", path))
         config = TrainConfig(name=name, seed=seed, minutes=float(minutes),
                              description=str(data.get("description", "")), data=data_config, model=model,
-                             optim=optim, loss=loss, recipe_text=text, source=str(path))
+                             optim=optim, loss=loss, recipe_text=text, source=str(path),
+                             init=str(data.get("init", "")))
         config.sample_spec()  # validates mode/readout/crop
     except ValueError as exc:
         raise InputError(f"{path}: {exc}") from None

@@ -21,18 +21,24 @@ import json
 import logging
 import zipfile
 from dataclasses import asdict, dataclass, field
+import multiprocessing
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from rmbvideo.chunks import RmbChunk, SpikeChunk
 from rmbvideo.io.atomic import atomic_path, atomic_write_text
 from rmbvideo.recon.prelim import PrelimFrame, PreliminaryFrames
-from rmbvideo.scenes.render import SceneRenderer, ground_truth
+from rmbvideo.scenes.render import SceneRenderer, bin_image, ground_truth
 from rmbvideo.sensor.binning import StreamBinner
-from rmbvideo.sensor.emission import CaptureSimulator, ReadoutSpec
+from rmbvideo.sensor.emission import CaptureSimulator, RateIntegrateFire, ReadoutSpec, SpikeEmitter
+from rmbvideo.sensor.params import SensorParams
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
-from rmbvideo.train.random_scenes import SceneRanges, random_scene
+from rmbvideo.train.random_scenes import REALISTIC_EFFECTS, SceneRanges, random_scene
+from rmbvideo.train.video_scenes import VideoScene
 
 log = logging.getLogger(__name__)
 
@@ -40,6 +46,9 @@ SAMPLE_FORMAT_VERSION = 1
 DATA_MODES = ("binned", "native")
 NATIVE_READOUTS = ("rmb", "pure-m")
 RAW_RATE_HZ = 20000.0
+#: ``panorama``: pans over the bundled panoramas (``random_scenes``); ``video``: dead-leaves video
+#: scenes with independent motion (``video_scenes``).
+SCENE_KINDS = ("panorama", "video")
 
 
 @dataclass(frozen=True)
@@ -60,8 +69,16 @@ class SampleSpec:
     band: int = 4
     shift: int = 2
     ranges: SceneRanges = field(default_factory=SceneRanges)
+    scenes: str = "panorama"
+    spikezoo_fraction: float = 0.0
 
     def __post_init__(self) -> None:
+        if self.scenes not in SCENE_KINDS:
+            raise ValueError(f"scenes must be one of {SCENE_KINDS}, got {self.scenes!r}")
+        if self.scenes == "video" and self.mode != "binned":
+            raise ValueError("video scenes are simulated as 1-bit captures: use mode = \"binned\"")
+        if not 0.0 <= self.spikezoo_fraction <= 1.0:
+            raise ValueError(f"spikezoo_fraction must be in [0, 1], got {self.spikezoo_fraction}")
         if self.mode not in DATA_MODES:
             raise ValueError(f"data mode must be one of {DATA_MODES}, got {self.mode!r}")
         ReadoutMode(self.readout)  # raises ValueError naming the valid modes
@@ -118,8 +135,38 @@ def _scene_for(spec: SampleSpec, seed: int):
     return random_scene(seed, size, size, duration, RAW_RATE_HZ, readout, spec.ranges)
 
 
+def _video_planes(spec: SampleSpec, seed: int) -> tuple[Iterator[SpikeChunk], VideoScene]:
+    """Raw 1-bit planes of the video scene of ``seed`` at twice the crop, in chunks, and the scene.
+
+    A fraction ``spikezoo_fraction`` of the seeds uses the rate convention of spikezoo's streams
+    (8-bit intensity, rate 0.6 x intensity, no noise); the rest the physical emission model with the
+    noise of a real camera. Plane k integrates the scene at its midpoint k + 1/2.
+    """
+    rng = np.random.default_rng([seed, 0xC0DE])
+    convention = "spikezoo" if rng.random() < spec.spikezoo_fraction else "physical"
+    planes = (spec.frames + spec.warmup_frames) * spec.n * spec.raw_per_readout
+    size = 2 * spec.crop
+    scene = VideoScene(seed, size, size, planes, convention=convention)
+    params = SensorParams()
+    if convention == "physical":
+        emitter = SpikeEmitter(size, size, params, REALISTIC_EFFECTS, seed)
+        emit = lambda value: emitter.emit_one(value * params.q_r, 1)  # noqa: E731
+    else:
+        rate = RateIntegrateFire((size, size), seed)
+        emit = rate.emit_one
+
+    def chunks() -> Iterator[SpikeChunk]:
+        for start in range(0, planes, 64):
+            block = np.stack([emit(scene.render(k + 0.5)) for k in range(start, min(start + 64, planes))])
+            yield SpikeChunk(planes=block, start=start, rate_hz=RAW_RATE_HZ)
+
+    return chunks(), scene
+
+
 def simulate_sample(spec: SampleSpec, seed: int) -> Sample:
     """Simulate the sample of ``seed`` from scratch (deterministic in ``seed`` and ``spec``)."""
+    if spec.scenes == "video":
+        return _simulate_video_sample(spec, seed)
     scene = _scene_for(spec, seed)
     prelim = PreliminaryFrames(n=spec.n)
     frames: list[PrelimFrame] = []
@@ -148,6 +195,65 @@ def simulate_sample(spec: SampleSpec, seed: int) -> Sample:
         m_valid=np.stack([f.m_valid for f in kept]),
         times_s=np.array([f.time_s for f in kept], dtype=np.float64),
     )
+
+
+def _simulate_video_sample(spec: SampleSpec, seed: int) -> Sample:
+    chunks, scene = _video_planes(spec, seed)
+    prelim = PreliminaryFrames(n=spec.n)
+    binner = StreamBinner()
+    readout = RmbReadout(ReadoutMode(spec.readout), spec.band, spec.shift)
+    frames: list[PrelimFrame] = []
+    for chunk in chunks:
+        binned = binner.push(chunk)
+        if binned is not None:
+            frames += prelim.push(readout.apply(binned))
+    frames += prelim.flush()
+    kept = [f for f in frames if f.index >= spec.warmup_frames][: spec.frames]
+    if len(kept) != spec.frames:
+        raise RuntimeError(f"seed {seed}: simulated {len(kept)} frames, expected {spec.frames}")
+    gt = np.stack([bin_image(scene.render(f.time_s * RAW_RATE_HZ)) for f in kept])
+    return Sample(
+        i_s=np.stack([f.i_s for f in kept]).astype(np.float32),
+        i_m=np.stack([f.i_m for f in kept]).astype(np.float32),
+        gt=np.nan_to_num(gt, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32),
+        m_valid=np.stack([f.m_valid for f in kept]),
+        times_s=np.array([f.time_s for f in kept], dtype=np.float64),
+    )
+
+
+def _worker_init() -> None:
+    cv2.setNumThreads(1)
+
+
+def simulate_samples(spec: SampleSpec, seeds: list[int]) -> list[Sample]:
+    """The samples of ``seeds`` (one training batch), simulated afresh."""
+    return [simulate_sample(spec, seed) for seed in seeds]
+
+
+class SamplePrefetcher:
+    """Simulates the batches of upcoming steps in one worker process while the network trains, so
+    fresh scenes cost no training time when simulation is no slower than a step.
+
+    ``seeds_of(step)`` names a step's seeds; ``get(step)`` returns that batch (simulated ahead for
+    the next ``depth`` steps). Samples are not stored: every step sees new scenes.
+    """
+
+    def __init__(self, spec: SampleSpec, seeds_of: Callable[[int], list[int]], depth: int = 3) -> None:
+        self.spec, self.seeds_of, self.depth = spec, seeds_of, depth
+        self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
+                                         initializer=_worker_init)
+        self._pending: dict[int, Future] = {}
+
+    def get(self, step: int) -> list[Sample]:
+        for ahead in range(step, step + self.depth + 1):
+            if ahead not in self._pending:
+                self._pending[ahead] = self._pool.submit(simulate_samples, self.spec, self.seeds_of(ahead))
+        for old in [k for k in self._pending if k < step]:
+            self._pending.pop(old).cancel()
+        return self._pending.pop(step).result()
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=False, cancel_futures=True)
 
 
 class SampleCache:

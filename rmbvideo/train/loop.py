@@ -28,11 +28,11 @@ from tqdm import tqdm
 
 from rmbvideo.evaluate.metrics import mu_law_psnr, mu_law_ssim
 from rmbvideo.net.decoder import DecoderState
-from rmbvideo.net.model import RmbNet
-from rmbvideo.net.weights import ModelCard, save_model
+from rmbvideo.net.model import RmbNet, window_indices, window_valid
+from rmbvideo.net.weights import ModelCard, default_model_path, load_model, save_model
 from rmbvideo.train.checkpoint import CheckpointState, checkpoint_paths, load_checkpoint, save_checkpoint
 from rmbvideo.train.config import TrainConfig
-from rmbvideo.train.dataset import Sample, SampleCache
+from rmbvideo.train.dataset import Sample, SampleCache, SamplePrefetcher
 from rmbvideo.train.loss import LossConfig, reconstruction_loss
 from rmbvideo.train.random_scenes import EVAL_SEED_START, HELD_OUT_PANORAMA, REALISTIC_EFFECTS, TRAIN_PANORAMAS
 
@@ -91,18 +91,28 @@ class SegmentLoss:
     state_in: DecoderState | None
 
 
-def segment_losses(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossConfig) -> Iterator[SegmentLoss]:
+def output_range(count: int, w: int, edges: bool) -> range:
+    """Supervised outputs of a sample of ``count`` frames: every frame (the first and last w as a
+    clip's edges, their windows cut at the sample's ends) when ``edges``, else the full windows."""
+    outputs = range(count) if edges else range(w, count - w)
+    if len(outputs) < 1:
+        raise ValueError(f"samples have {count} frames, need at least 2w+1 = {2 * w + 1}")
+    return outputs
+
+
+def segment_losses(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossConfig,
+                   edges: bool = False) -> Iterator[SegmentLoss]:
     """Yield the TBPTT segments of one batch in order; the caller back-propagates each before
-    asking for the next, so only one segment's graph exists at a time."""
+    asking for the next, so only one segment's graph exists at a time. The sample's first frame
+    starts the recurrent state, as a clip's first frame does."""
     w = model.config.w
     count = batch.i_s.shape[1]
-    outputs = count - 2 * w
-    if outputs < 1:
-        raise ValueError(f"samples have {count} frames, need at least 2w+1 = {2 * w + 1}")
+    supervised = output_range(count, w, edges)
+    outputs = len(supervised)
     state: DecoderState | None = None
-    for first in range(w, w + outputs, tbptt):
-        last = min(first + tbptt, w + outputs) - 1
-        lo, hi = first - w, last + w + 1
+    for first in range(supervised.start, supervised.stop, tbptt):
+        last = min(first + tbptt, supervised.stop) - 1
+        lo, hi = max(first - w, 0), min(last + w + 1, count)
         frames = model.encode(batch.i_s[:, lo:hi].transpose(0, 1).flatten(0, 1),
                               batch.i_m[:, lo:hi].transpose(0, 1).flatten(0, 1), range(lo, hi))
         cache: dict = {}
@@ -110,7 +120,8 @@ def segment_losses(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossCon
         segment_loss = torch.zeros((), device=batch.i_s.device)
         parts = {"loss": 0.0, "l2": 0.0, "ssim": 0.0, "edge": 0.0}
         for i in range(first, last + 1):
-            t, state = model.step(frames[i - w - lo: i + w + 1 - lo], state, cache)
+            window = [frames[j - lo] for j in window_indices(i, w, count)]
+            t, state = model.step(window, state, cache, valid=window_valid(i, w, count))
             loss, step_parts = reconstruction_loss(t[:, 0], batch.gt[:, i], loss_config)
             segment_loss = segment_loss + loss
             parts["loss"] += float(loss.detach())
@@ -120,13 +131,14 @@ def segment_losses(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossCon
         state = detach_state(state)
 
 
-def train_batch(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossConfig) -> dict[str, float]:
+def train_batch(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossConfig,
+                edges: bool = False) -> dict[str, float]:
     """Forward and backward one batch with TBPTT (gradients accumulate in ``.grad``; the caller
-    steps the optimizer). Returns the mean loss and its parts over the K outputs."""
+    steps the optimizer). Returns the mean loss and its parts over the supervised outputs."""
     model.train()
-    outputs = batch.i_s.shape[1] - 2 * model.config.w
+    outputs = len(output_range(batch.i_s.shape[1], model.config.w, edges))
     totals = {"loss": 0.0, "l2": 0.0, "ssim": 0.0, "edge": 0.0}
-    for segment in segment_losses(model, batch, tbptt, loss_config):
+    for segment in segment_losses(model, batch, tbptt, loss_config, edges):
         segment.loss.backward()
         for key, value in segment.parts.items():
             totals[key] += value
@@ -137,10 +149,10 @@ def tfw_prediction(sample: Sample, i: int, w: int, n: int, quanta: int | None) -
     """TFW over the window of frame ``i``: pooled spike rate (sum I_s + I_m) / (N (2w+1) (1 + q)),
     with q = ``quanta`` trials per multi-bit value; rows without multi-bit evidence, and all rows
     when ``quanta`` is None (multi-bit values are not rates), use I_s alone."""
-    frames = slice(i - w, i + w + 1)
+    frames = slice(max(i - w, 0), min(i + w + 1, len(sample.i_s)))
     valid = sample.m_valid[frames].all(axis=0)[:, None] & (quanta is not None)
     quanta = quanta or 0
-    readouts = n * (2 * w + 1)
+    readouts = n * (frames.stop - frames.start)
     sum_s = sample.i_s[frames].sum(axis=0, dtype=np.float64)
     sum_m = sample.i_m[frames].sum(axis=0, dtype=np.float64)
     pooled = np.where(valid, (sum_s + sum_m) / (readouts * (1 + quanta)), sum_s / readouts)
@@ -149,9 +161,9 @@ def tfw_prediction(sample: Sample, i: int, w: int, n: int, quanta: int | None) -
 
 @torch.no_grad()
 def validate(model: RmbNet, samples: list[Sample], quanta: int | None, saturation: float,
-             device: torch.device) -> dict[str, float]:
-    """Mean mu-law PSNR/SSIM of the model and mu-law PSNR of TFW over all K outputs of the
-    held-out ``samples``, against ground truth clipped at the sensor's ``saturation``."""
+             device: torch.device, edges: bool = False) -> dict[str, float]:
+    """Mean mu-law PSNR/SSIM of the model and mu-law PSNR of TFW over the supervised outputs of
+    the held-out ``samples`` (``output_range``), against ground truth clipped at ``saturation``."""
     model.eval()
     w, n = model.config.w, model.config.n
     psnr, ssim, tfw = [], [], []
@@ -160,8 +172,9 @@ def validate(model: RmbNet, samples: list[Sample], quanta: int | None, saturatio
         count = batch.i_s.shape[1]
         frames = model.encode(batch.i_s[0], batch.i_m[0], range(count))
         state = None
-        for i in range(w, count - w):
-            t, state = model.step(frames[i - w: i + w + 1], state)
+        for i in output_range(count, w, edges):
+            window = [frames[j] for j in window_indices(i, w, count)]
+            t, state = model.step(window, state, valid=window_valid(i, w, count))
             pred = model.to_linear(t)[0, 0].float().cpu().numpy()
             gt = np.clip(sample.gt[i], 0.0, saturation)
             psnr.append(mu_law_psnr(pred, gt))
@@ -178,6 +191,13 @@ def batch_seeds(seed: int, step: int, batch: int, count: int) -> list[int]:
         epoch, offset = divmod(position, count)
         seeds.append(int(np.random.default_rng([seed, epoch]).permutation(count)[offset]))
     return seeds
+
+
+def video_seeds(config: TrainConfig, step: int) -> list[int]:
+    """Seeds of ``step`` for video scenes: new ones every step (``batch`` per step, from the
+    recipe's seed), never repeating within a run and never reaching the held-out range."""
+    batch = config.optim.batch
+    return [(config.seed * 7919 + step * batch + j) % EVAL_SEED_START for j in range(batch)]
 
 
 def learning_rate(step: int, elapsed_s: float, config: TrainConfig) -> float:
@@ -211,7 +231,42 @@ class Trainer:
         self.progress = progress
         self.device = torch.device(device)
         self.model = RmbNet(config.model).to(self.device)
+        if config.init and not resume:
+            self.warm_start(config.init)
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=config.optim.lr)
+        self._prefetcher = (SamplePrefetcher(config.sample_spec(), lambda step: video_seeds(config, step))
+                            if config.data.scenes == "video" else None)
+
+    def warm_start(self, source: str) -> None:
+        """Start from the weights of model ``source`` (a file or a shipped model's name): tensors
+        of the same shape are copied; a first head conv that gained input channels keeps the old
+        ones and starts the new ones at zero, so the run starts from the old model's function."""
+        path = Path(source)
+        if not path.suffix:
+            path = default_model_path(self.config.model.input_mode).with_name(f"{source}.safetensors")
+        old, _card = load_model(path)
+        new_state = self.model.state_dict()
+        copied, widened = 0, []
+        for name, tensor in old.state_dict().items():
+            target = new_state.get(name)
+            if target is None:
+                continue
+            if target.shape == tensor.shape:
+                target.copy_(tensor)
+                copied += 1
+            elif target.dim() == 4 and target.shape[0] == tensor.shape[0] and target.shape[1] > tensor.shape[1]:
+                target.zero_()
+                target[:, : tensor.shape[1]] = tensor
+                widened.append(name)
+        self.model.load_state_dict(new_state)
+        log.info("warm start from %s: %d tensors copied, widened %s", path, copied, widened or "none")
+
+    def batch_samples(self, step: int) -> list[Sample]:
+        """The training samples of ``step``: fresh video scenes, or cached panorama scenes."""
+        if self._prefetcher is not None:
+            return self._prefetcher.get(step)
+        return [self.cache.get(s) for s in batch_seeds(self.config.seed, step, self.config.optim.batch,
+                                                       self.config.data.count)]
 
     def validation_samples(self) -> list[Sample]:
         """The held-out samples (seeds from ``EVAL_SEED_START``)."""
@@ -241,14 +296,14 @@ class Trainer:
                 if time.monotonic() - started >= budget_s:
                     stopped_by = "time budget"
                     break
-                seeds = batch_seeds(cfg.seed, step, cfg.optim.batch, cfg.data.count)
-                flips = [bool(np.random.default_rng([cfg.seed, step, j, 1]).integers(2)) for j in range(len(seeds))]
-                batch = Batch.from_samples([self.cache.get(s) for s in seeds], self.device, flips)
+                samples = self.batch_samples(step)
+                flips = [bool(np.random.default_rng([cfg.seed, step, j, 1]).integers(2)) for j in range(len(samples))]
+                batch = Batch.from_samples(samples, self.device, flips)
                 lr = learning_rate(step, time.monotonic() - started, cfg)
                 for group in self.optimizer.param_groups:
                     group["lr"] = lr
                 self.optimizer.zero_grad(set_to_none=True)
-                losses = train_batch(self.model, batch, cfg.optim.tbptt, cfg.loss)
+                losses = train_batch(self.model, batch, cfg.optim.tbptt, cfg.loss, cfg.optim.edges)
                 if not all(math.isfinite(v) for v in losses.values()):
                     raise FloatingPointError(f"step {step}: non-finite loss {losses} (seeds {seeds})")
                 torch.nn.utils.clip_grad_norm_(self.model.parameters(), cfg.optim.grad_clip)
@@ -259,7 +314,7 @@ class Trainer:
                 if step % cfg.optim.val_every == 0:
                     val_samples = val_samples or self.validation_samples()
                     row.update(validate(self.model, val_samples, self.cache.spec.quanta, cfg.loss.saturation,
-                                        self.device))
+                                        self.device, cfg.optim.edges))
                     log.info("step %d (%.1f min): loss %.4f, val mu-PSNR %.2f dB (TFW %.2f dB)", step,
                              elapsed / 60, losses["loss"], row["val_mu_psnr"], row["val_tfw_mu_psnr"])
                 log_writer.write(row)
@@ -270,10 +325,12 @@ class Trainer:
         finally:
             bar.close()
             log_writer.close()
+            if self._prefetcher is not None:
+                self._prefetcher.close()
         elapsed = time.monotonic() - started
         save_checkpoint(self.out_dir, self.model, self.optimizer, CheckpointState(step, elapsed))
         metrics = validate(self.model, val_samples or self.validation_samples(), self.cache.spec.quanta,
-                           cfg.loss.saturation, self.device)
+                           cfg.loss.saturation, self.device, cfg.optim.edges)
         metrics["val_samples"] = float(cfg.data.val_count)
         weights = save_model(self.out_dir / f"{cfg.name}.safetensors", self.model,
                              self.card(step, elapsed, stopped_by, metrics))
@@ -309,6 +366,15 @@ class Trainer:
                 "input_mode": spec.mode,
                 "readout": f"{spec.readout}, band {spec.band}, shift {spec.shift}, level {spec.level}",
                 "description": (
+                    "dead-leaves video scenes (rmbvideo.train.video_scenes): texture at every scale, a camera "
+                    "moving up to 1.2 raw px/plane with shake and zoom, 0-6 independent objects (own translation "
+                    "up to 1.5 raw px/plane, rotation, scaling; occlusion; some lights 5-300x brighter), soft "
+                    "shadows, median rate 2e-3..0.5 per raw plane; 1-bit simulation at 2x size and rate, binned "
+                    f"2x2x2 as real captures; {1 - cfg.data.spikezoo_fraction:.0%} physical emission with effects "
+                    f"{', '.join(REALISTIC_EFFECTS)}, {cfg.data.spikezoo_fraction:.0%} spikezoo's convention "
+                    "(8-bit intensity, rate 0.6 x intensity, accumulate-and-subtract, no noise); new scenes "
+                    "every step" + (f"; initialised from {cfg.init}" if cfg.init else "")
+                ) if cfg.data.scenes == "video" else (
                     "random HDR scenes: CC0 Poly Haven panoramas with random pan/zoom, 0-3 moving textured "
                     "objects (some light sources 10-1e4x brighter), random dark regions, exposure "
                     f"{cfg.data.exposure[0]:g}-{cfg.data.exposure[1]:g} e-/readout at median radiance; "
@@ -317,7 +383,8 @@ class Trainer:
                     + f"; effects: {', '.join(REALISTIC_EFFECTS)}"),
                 "sample": f"{spec.crop}x{spec.crop} px, {spec.frames} preliminary frames (2w+K, w={w}, "
                           f"K={cfg.data.steps}) of N={spec.n} readouts, {spec.warmup_frames} warm-up frames dropped",
-                "train_seeds": f"0..{cfg.data.count - 1}",
+                "train_seeds": (f"0..{cfg.data.count - 1}" if cfg.data.scenes == "panorama"
+                                else "fresh every step (rmbvideo.train.loop.video_seeds)"),
                 "train_panoramas": list(TRAIN_PANORAMAS),
                 "eval_seeds": f"{EVAL_SEED_START}..{EVAL_SEED_START + cfg.data.val_count - 1}",
                 "held_out_panorama": HELD_OUT_PANORAMA,
