@@ -14,10 +14,12 @@ import torch
 from rmbvideo.chunks import Frame
 from rmbvideo.evaluate.harness import (
     MethodSpec,
+    BEST_RAW,
     evaluate_rows,
     run_method,
     score_frames,
     table2_specs,
+    with_best_raw,
 )
 from rmbvideo.evaluate.heldout import HeldoutConfig, load_heldout_config
 from rmbvideo.evaluate.metrics import PSNR_CAP_DB
@@ -56,7 +58,7 @@ def models_dir(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def rows(sequence, models_dir):
     torch.set_num_threads(1)
-    return evaluate_rows(table2_specs(models_dir, device="cpu"), [sequence])
+    return with_best_raw(evaluate_rows(table2_specs(models_dir, device="cpu"), [sequence]))
 
 
 def test_heldout_sequence_is_cached_and_consistent(sequence, cache):
@@ -80,13 +82,18 @@ def test_heldout_sequence_is_cached_and_consistent(sequence, cache):
 
 def test_table2_rows_scores_and_not_trained(rows):
     names = [r.name for r in rows]
-    assert names == ["TFW-S", "TFW-L", "TFI", "GC20", "MG20", "RMB-Net",
+    raw = ["TFP-20 (raw)", "TFP-41 (raw)", "TFP-80 (raw)", "TFP-140 (raw)", "TFI (raw)", BEST_RAW]
+    assert names == ["TFW-S", "TFW-L", "TFI", "GC20", "MG20", "RMB-Net", *raw,
                      "RMB-Net (ablation budget)", "w = 0", "Pure-S", "Pure-M", "Full-M", "w/o XBA", "w/o XTA"]
     status = {r.name: r.status for r in rows}
     assert all(status[n] == "not trained" for n in ("RMB-Net (ablation budget)", "w = 0", "Pure-S", "Pure-M", "Full-M", "w/o XTA"))
     ok = [r for r in rows if r.status == "ok"]
-    assert [r.name for r in ok] == ["TFW-S", "TFW-L", "TFI", "GC20", "MG20", "RMB-Net", "w/o XBA"]
+    assert [r.name for r in ok] == ["TFW-S", "TFW-L", "TFI", "GC20", "MG20", "RMB-Net", *raw, "w/o XBA"]
     for row in ok:
+        assert row.per_sequence.keys() == row.middle_frames.keys() == {"random-1000000"}
+        if row.name == BEST_RAW:  # per sequence the best raw row, with that row's frames
+            assert row.per_sequence["random-1000000"] == max(r.psnr for r in ok if r.name in raw[:-1])
+            continue
         values = (row.psnr, row.ssim, row.pu21, row.fps)
         assert all(math.isfinite(v) for v in values), row
         assert 0 < row.psnr < PSNR_CAP_DB and -1 <= row.ssim < 1 and row.fps > 0
@@ -97,6 +104,8 @@ def test_table2_rows_scores_and_not_trained(rows):
     # the longer window averages more evidence: TFW-L beats TFW-S on a noisy binned stream
     by_name = {r.name: r for r in ok}
     assert by_name["TFW-L"].psnr > by_name["TFW-S"].psnr
+    # the raw full-resolution capture holds 8x the samples of the RMB stream's 1-bit plane
+    assert by_name["TFI (raw)"].psnr > by_name["TFI"].psnr
 
 
 def test_outputs_written(rows, sequence, tmp_path):

@@ -20,6 +20,25 @@ from rmbvideo.cli import progress_enabled
 log = logging.getLogger(__name__)
 
 
+def _real_video(folder: Path, model: Path, device: str, out_dir: Path) -> list[Path]:
+    """Score the real-video streams in ``folder``; write ``real_video.md`` and ``real_video.png``."""
+    from rmbvideo.evaluate.real_video import (BEST_RAW, binned_reference, comparison_image, evaluate_streams,
+                                              find_streams, markdown_table, real_video_rows)
+    from rmbvideo.evaluate.table import write_png
+    from rmbvideo.io.atomic import atomic_write_text
+
+    streams = find_streams(folder)
+    results = evaluate_streams(streams, real_video_rows(model, device))
+    md = out_dir / "real_video.md"
+    atomic_write_text(md, "# Real-video streams (reference frame, least-squares gain, binned resolution)\n\n"
+                      + markdown_table(results) + "\nCells: linear PSNR (dB) / SSIM at the reference plane; raw "
+                      "rows are 2x2 area-averaged; the best raw row is chosen per stream.\n")
+    references = {s.name: binned_reference(s) for s in streams}
+    png = write_png(out_dir / "real_video.png",
+                    comparison_image(results, references, ["TFW-L", "GC20", "MG20", "RMB-Net", BEST_RAW]))
+    return [md, png]
+
+
 def _notes(sequences: list, quick: bool, device: str, figure: tuple[str, int]) -> str:
     """The Markdown notes under the table: what was measured, on what, how."""
     import torch
@@ -29,20 +48,24 @@ def _notes(sequences: list, quick: bool, device: str, figure: tuple[str, int]) -
     seq = sequences[0]
     height, width = seq.shape
     scored = sum(len(s.scored_frames) for s in sequences)
-    names = ", ".join(f"{s.name} ({json.loads(s.description)['panorama']})" for s in sequences)
+    names = ", ".join(f"{s.name} ({json.loads(s.description).get('panorama') or json.loads(s.description)['convention']})"
+                      for s in sequences)
     return "\n".join([
         "## Notes",
         "",
         f"- Set: {'quick' if quick else 'full'}, {len(sequences)} held-out sequences ({names}); evaluation seeds "
-        f"of `rmbvideo.train.random_scenes`, never used in training. Each: {seq.readouts} binned readouts at "
+        "of `rmbvideo.train.random_scenes` (panorama pans) and of `rmbvideo.train.video_scenes` (fast, dark, "
+        "fast-dark and spikezoo-convention video scenes), never used in training. Each: "
+        f"{seq.readouts} binned readouts at "
         f"{width}x{height}, {seq.rate_hz:g} Hz, simulated as 1-bit at {2 * width}x{2 * height} and "
         f"{2 * seq.rate_hz:g} Hz with realistic noise, then 2x2x2-binned.",
         f"- Frames: one per {FRAME_STEP} binned readouts; ground truth = linear radiance at the frame's centre. "
         f"Scored: the {scored} frames whose +-{seq.edge_readouts}-readout neighbourhood lies inside their sequence "
         "(same frames for every method).",
         "- Input: the binned stream through the RMB readout (band 4, shift 2) for every row, except "
-        "Pure-S/Pure-M/Full-M (their readout design) and TFI, which needs raw 1-bit planes: it runs on the raw "
-        "stream and its frames are 2x2 area-averaged to the ground-truth size (so it sees every raw pixel).",
+        "Pure-S/Pure-M/Full-M (their readout design), TFI (the 1-bit plane of that RMB stream) and the '(raw)' "
+        "rows: TFP and TFI on the raw full-resolution capture, 2x2 area-averaged to the ground-truth size. "
+        "'best classical on the raw capture' takes, per sequence, the best of those raw rows.",
         "- Metrics: PSNR and SSIM of mu-law tone-mapped frames (mu = 5000) after dividing by the ground truth's "
         "99.9th percentile; PU21 PSNR replaces HDR-VDP-3/HDR-VQM (MATLAB only). Per-sequence means, then the "
         "mean over sequences.",
@@ -70,14 +93,19 @@ def _notes(sequences: list, quick: bool, device: str, figure: tuple[str, int]) -
 @click.option("--json", "as_json", is_flag=True, help="Also print the rows as JSON on stdout.")
 @click.option("--real", "real_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Also write real_comparison.png for this real capture (RMB-Net vs TFP vs TFI).")
+@click.option("--real-video", "real_video", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Also score every method on a folder of real-video spike streams with reference frames "
+                   "(NAME.dat + NAME.png, spikezoo's format): real_video.md and real_video.png.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
 def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Path | None, device: str,
-             as_json: bool, real_path: Path | None, quiet: bool) -> None:
-    """Score TFW-S/L, TFI, GC20, MG20, RMB-Net and its ablations on the held-out synthetic set."""
+             as_json: bool, real_path: Path | None, real_video: Path | None, quiet: bool) -> None:
+    """Score TFW-S/L, TFI, GC20, MG20, RMB-Net, its ablations and the classical methods on the raw
+    capture (2x2-averaged) on the held-out synthetic set, and optionally on real-video streams."""
     from rmbvideo.errors import OutputError
-    from rmbvideo.evaluate.harness import evaluate_rows, table2_specs
-    from rmbvideo.evaluate.heldout import load_heldout
-    from rmbvideo.evaluate.table import real_capture_comparison, write_comparison_png, write_tables
+    from rmbvideo.evaluate.harness import evaluate_rows, middle_frame, table2_specs, with_best_raw
+    from rmbvideo.evaluate.heldout import load_heldout, load_video_heldout
+    from rmbvideo.evaluate.table import (real_capture_comparison, write_comparison_png, write_sequence_png,
+                                         write_tables)
     from rmbvideo.net.weights import MODELS_DIR
     from rmbvideo.recon.rmbnet import resolve_device
 
@@ -87,13 +115,21 @@ def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Pat
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError(f"{out_dir}: cannot create the output folder ({exc.strerror or exc})") from None
-    sequences = load_heldout(quick, cache_dir)
-    rows = evaluate_rows(table2_specs(models_dir, resolved), sequences, progress=progress_enabled(quiet))
+    sequences = load_heldout(quick, cache_dir) + load_video_heldout(quick, cache_dir)
+    rows = with_best_raw(evaluate_rows(table2_specs(models_dir, resolved), sequences,
+                                       progress=progress_enabled(quiet)))
     figure_seq = sequences[0]
     figure_frame = figure_seq.scored_frames[len(figure_seq.scored_frames) // 2]
     md, table = write_tables(rows, out_dir, _notes(sequences, quick, resolved, (figure_seq.name, figure_frame)))
     png = write_comparison_png(rows, figure_seq.gt[figure_frame], figure_frame, out_dir / "evaluation.png")
     written = [md, table, png]
+    for seq in sequences:
+        kind = json.loads(seq.description).get("kind")
+        if kind in ("fast", "dark"):
+            written.append(write_sequence_png(rows, seq.name, seq.gt[middle_frame(seq)],
+                                              out_dir / f"evaluation-{kind}.png"))
+    if real_video is not None:
+        written += _real_video(real_video, models_dir / "rmbnet-binned.safetensors", resolved, out_dir)
     if real_path is not None:
         model = models_dir / "rmbnet-binned.safetensors"
         written.append(real_capture_comparison(real_path, out_dir / "real_comparison.png", model, resolved))

@@ -37,6 +37,7 @@ from rmbvideo.chunks import RmbChunk, SpikeChunk
 from rmbvideo.errors import InputError, OutputError
 from rmbvideo.io.atomic import atomic_path
 from rmbvideo.sensor.binning import MULTI_LEVEL, bin_2x2x2
+from rmbvideo.train.video_scenes import VideoSceneRanges
 
 log = logging.getLogger(__name__)
 
@@ -44,6 +45,7 @@ CACHE_FORMAT = 1
 FRAME_STEP = 10  # binned readouts per output frame (N of the paper)
 RAW_RATE_HZ = 20000.0
 _SIMULATE_CHUNK = 64  # raw planes simulated at once
+VIDEO_SEED_START = 1_500_000  # held-out video sequences (evaluation range, apart from the panorama scenes)
 
 
 @dataclass(frozen=True)
@@ -177,6 +179,77 @@ def simulate_sequence(seed: int, config: HeldoutConfig) -> Sequence:
     return Sequence(name=scene.name, seed=seed, rate_hz=RAW_RATE_HZ / 2, single=np.concatenate(single),
                     multi=np.concatenate(multi), raw_packed=np.concatenate(packed),
                     gt=gt.astype(np.float32), edge_readouts=config.edge_readouts, description=description)
+
+
+@dataclass(frozen=True)
+class VideoHeldout:
+    """A held-out video-like sequence kind: ``name`` and the ranges its scenes are drawn from
+    (``rmbvideo.train.video_scenes``), in the physical convention or spikezoo's."""
+
+    name: str
+    ranges: VideoSceneRanges
+    convention: str = "physical"
+
+
+#: Video-like held-out kinds: fast motion (camera ~1 raw px/plane and fast objects), dark (median
+#: 1e-3..5e-3 spikes per raw plane), both, and spikezoo's convention with fast motion.
+VIDEO_KINDS = (
+    VideoHeldout("fast", VideoSceneRanges(camera_speed=(0.8, 1.2), static_probability=0.0,
+                                          object_speed=(0.5, 1.5), median_rate=(0.02, 0.3))),
+    VideoHeldout("dark", VideoSceneRanges(median_rate=(1e-3, 5e-3), light_probability=0.5)),
+    VideoHeldout("fast-dark", VideoSceneRanges(camera_speed=(0.8, 1.2), static_probability=0.0,
+                                               object_speed=(0.5, 1.5), median_rate=(2e-3, 1e-2))),
+    VideoHeldout("spikezoo-fast", VideoSceneRanges(camera_speed=(0.5, 1.2), static_probability=0.0,
+                                                   object_speed=(0.3, 1.5)), convention="spikezoo"),
+)
+
+
+def simulate_video_sequence(seed: int, kind: VideoHeldout, config: HeldoutConfig) -> Sequence:
+    """The held-out video sequence of ``seed`` (an evaluation seed) of ``kind`` at ``config``'s size."""
+    from rmbvideo.scenes.render import bin_image
+    from rmbvideo.train.random_scenes import is_eval_seed
+    from rmbvideo.train.video_scenes import VideoScene, capture_planes
+
+    if not is_eval_seed(seed):
+        raise ValueError(f"seed {seed} is a training seed; held-out sequences use evaluation seeds only")
+    raw_planes = 2 * config.readouts
+    scene = VideoScene(seed, 2 * config.width, 2 * config.height, raw_planes, kind.ranges, kind.convention)
+    single, multi, packed = [], [], []
+    for chunk in capture_planes(scene, raw_planes, RAW_RATE_HZ, _SIMULATE_CHUNK):
+        s, m = bin_2x2x2(chunk.planes)
+        single.append(s)
+        multi.append(m)
+        packed.append(np.packbits(chunk.planes, axis=-1, bitorder="little"))
+    frames = config.readouts // FRAME_STEP
+    gt = np.stack([bin_image(scene.render(20 * i + 10)) for i in range(frames)])
+    description = json.dumps({"scene": f"{kind.name}-{seed}", "kind": kind.name, "convention": kind.convention,
+                              "objects": len(scene.layers) - 1})
+    return Sequence(name=f"{kind.name}-{seed - VIDEO_SEED_START}", seed=seed, rate_hz=RAW_RATE_HZ / 2,
+                    single=np.concatenate(single), multi=np.concatenate(multi), raw_packed=np.concatenate(packed),
+                    gt=gt.astype(np.float32), edge_readouts=config.edge_readouts, description=description)
+
+
+def load_video_heldout(quick: bool, cache: Path | None = None, per_kind: int = 1) -> list[Sequence]:
+    """``per_kind`` held-out video sequences of every ``VIDEO_KINDS`` entry (``QUICK``/``FULL`` size),
+    simulated once and then read from ``cache``."""
+    config = QUICK if quick else FULL
+    cache = Path(cache) if cache is not None else default_cache_dir()
+    sequences = []
+    for k, kind in enumerate(VIDEO_KINDS):
+        for j in range(per_kind):
+            seed = VIDEO_SEED_START + 100 * k + j
+            path = cache / f"video-v{CACHE_FORMAT}-{kind.name}-seed{seed}-{config.width}x{config.height}-{config.readouts}.npz"
+            if path.is_file():
+                sequences.append(load_sequence(path, config.edge_readouts))
+                continue
+            log.info("simulating held-out %s sequence seed %d into %s", kind.name, seed, path)
+            sequence = simulate_video_sequence(seed, kind, config)
+            try:
+                save_sequence(sequence, path)
+            except (OSError, OutputError) as exc:
+                log.warning("%s: cannot cache the held-out sequence (%s); continuing without cache", path, exc)
+            sequences.append(sequence)
+    return sequences
 
 
 def save_sequence(sequence: Sequence, path: Path) -> None:

@@ -70,9 +70,23 @@ def write_tables(rows: Seq[RowResult], out_dir: Path, notes: str = "") -> tuple[
     """Write ``evaluation.md`` (table plus ``notes``) and ``evaluation.csv`` into ``out_dir``."""
     out_dir = Path(out_dir)
     md, table = out_dir / "evaluation.md", out_dir / "evaluation.csv"
-    atomic_write_text(md, markdown_table(rows, "# Evaluation on the held-out synthetic set") + "\n" + notes)
+    atomic_write_text(md, markdown_table(rows, "# Evaluation on the held-out synthetic set") + "\n"
+                      + per_sequence_table(rows, "## μ-PSNR (dB) per sequence") + "\n" + notes)
     atomic_write_text(table, csv_table(rows))
     return md, table
+
+
+def per_sequence_table(rows: Seq[RowResult], title: str = "") -> str:
+    """mu-law PSNR (dB) of every row with numbers on every sequence, as a Markdown table."""
+    ok = [row for row in rows if row.per_sequence]
+    if not ok:
+        return ""
+    names = list(ok[0].per_sequence)
+    lines = [f"{title}\n" if title else "", "| Method | " + " | ".join(names) + " |",
+             "|---|" + "---:|" * len(names)]
+    for row in ok:
+        lines.append(f"| {row.name} | " + " | ".join(_format(row.per_sequence[n], 2) for n in names) + " |")
+    return "\n".join(line for line in lines if line) + "\n"
 
 
 def to_display(image: np.ndarray, scale: float, mu: float = MU) -> np.ndarray:
@@ -249,3 +263,12 @@ def main(argv: list[str] | None = None) -> None:
 
 if __name__ == "__main__":
     main()
+
+
+def write_sequence_png(rows: Seq[RowResult], name: str, gt: np.ndarray, path: Path) -> Path:
+    """The figure of sequence ``name``'s middle scored frame (``RowResult.middle_frames``): its ground
+    truth ``gt`` and every row that has the frame; regions picked from the GT."""
+    dark, bright = pick_regions(gt)
+    images = {"GT": gt}
+    images.update({row.name: row.middle_frames[name] for row in rows if name in row.middle_frames})
+    return write_png(path, side_by_side(images, gt, (dark, bright)))

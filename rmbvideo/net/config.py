@@ -69,10 +69,12 @@ class RmbNetConfig:
         return tuple(max(1, round(c * self.width)) for c in self.base_channels)  # type: ignore[return-value]
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dictionary (tuples become lists)."""
+        """JSON-ready dictionary (tuples become lists; no ``pooled_windows`` key when there are none)."""
         out = asdict(self)
         out["base_channels"] = list(self.base_channels)
         out["pooled_windows"] = list(self.pooled_windows)
+        if not self.pooled_windows:  # cards written before pooled inputs existed stay as they are
+            del out["pooled_windows"]
         return out
 
     @classmethod

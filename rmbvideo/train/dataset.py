@@ -34,11 +34,10 @@ from rmbvideo.io.atomic import atomic_path, atomic_write_text
 from rmbvideo.recon.prelim import PrelimFrame, PreliminaryFrames
 from rmbvideo.scenes.render import SceneRenderer, bin_image, ground_truth
 from rmbvideo.sensor.binning import StreamBinner
-from rmbvideo.sensor.emission import CaptureSimulator, RateIntegrateFire, ReadoutSpec, SpikeEmitter
-from rmbvideo.sensor.params import SensorParams
+from rmbvideo.sensor.emission import CaptureSimulator, ReadoutSpec
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
-from rmbvideo.train.random_scenes import REALISTIC_EFFECTS, SceneRanges, random_scene
-from rmbvideo.train.video_scenes import VideoScene
+from rmbvideo.train.random_scenes import SceneRanges, random_scene
+from rmbvideo.train.video_scenes import VideoScene, capture_planes
 
 log = logging.getLogger(__name__)
 
@@ -137,30 +136,13 @@ def _scene_for(spec: SampleSpec, seed: int):
 
 def _video_planes(spec: SampleSpec, seed: int) -> tuple[Iterator[SpikeChunk], VideoScene]:
     """Raw 1-bit planes of the video scene of ``seed`` at twice the crop, in chunks, and the scene.
-
-    A fraction ``spikezoo_fraction`` of the seeds uses the rate convention of spikezoo's streams
-    (8-bit intensity, rate 0.6 x intensity, no noise); the rest the physical emission model with the
-    noise of a real camera. Plane k integrates the scene at its midpoint k + 1/2.
-    """
+    A fraction ``spikezoo_fraction`` of the seeds uses spikezoo's rate convention, the rest the
+    physical emission model with a real camera's noise."""
     rng = np.random.default_rng([seed, 0xC0DE])
     convention = "spikezoo" if rng.random() < spec.spikezoo_fraction else "physical"
     planes = (spec.frames + spec.warmup_frames) * spec.n * spec.raw_per_readout
-    size = 2 * spec.crop
-    scene = VideoScene(seed, size, size, planes, convention=convention)
-    params = SensorParams()
-    if convention == "physical":
-        emitter = SpikeEmitter(size, size, params, REALISTIC_EFFECTS, seed)
-        emit = lambda value: emitter.emit_one(value * params.q_r, 1)  # noqa: E731
-    else:
-        rate = RateIntegrateFire((size, size), seed)
-        emit = rate.emit_one
-
-    def chunks() -> Iterator[SpikeChunk]:
-        for start in range(0, planes, 64):
-            block = np.stack([emit(scene.render(k + 0.5)) for k in range(start, min(start + 64, planes))])
-            yield SpikeChunk(planes=block, start=start, rate_hz=RAW_RATE_HZ)
-
-    return chunks(), scene
+    scene = VideoScene(seed, 2 * spec.crop, 2 * spec.crop, planes, convention=convention)
+    return capture_planes(scene, planes, RAW_RATE_HZ), scene
 
 
 def simulate_sample(spec: SampleSpec, seed: int) -> Sample:

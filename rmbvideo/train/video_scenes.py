@@ -24,10 +24,16 @@ Every scene is a pure function of its seed; training draws seeds below
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+from rmbvideo.chunks import SpikeChunk
+from rmbvideo.sensor.emission import RateIntegrateFire, SpikeEmitter
+from rmbvideo.sensor.params import SensorParams
+from rmbvideo.train.random_scenes import REALISTIC_EFFECTS
 
 #: Sensor conventions a sample can be simulated with.
 CONVENTIONS = ("physical", "spikezoo")
@@ -44,12 +50,12 @@ class VideoSceneRanges:
     floor of the emission model is ~5e-4, saturation is 1)."""
 
     median_rate: tuple[float, float] = (2e-3, 0.5)
-    camera_speed: float = 1.2
+    camera_speed: tuple[float, float] = (0.0, 1.2)
     static_probability: float = 0.15
     shake_px: float = 0.6
     zoom_rate: float = 2e-3          # per raw plane, either sign
     max_objects: int = 6
-    object_speed: float = 1.5
+    object_speed: tuple[float, float] = (0.01, 1.5)  # log-uniform
     object_spin: float = 0.01        # rad per raw plane
     object_zoom_rate: float = 3e-3   # per raw plane, either sign
     light_probability: float = 0.3
@@ -173,7 +179,7 @@ class VideoScene:
         rng = np.random.default_rng([seed, 0x71DE0])
         self.layers: list[_Layer] = []
         # the background canvas wraps around, so a camera of any speed stays on it
-        speed = 0.0 if rng.random() < ranges.static_probability else rng.uniform(0, ranges.camera_speed)
+        speed = 0.0 if rng.random() < ranges.static_probability else rng.uniform(*ranges.camera_speed)
         direction = rng.uniform(0, 2 * math.pi)
         velocity = speed * np.array([math.cos(direction), math.sin(direction)])
         canvas_w, canvas_h = 2 * width, 2 * height
@@ -203,8 +209,8 @@ class VideoScene:
         median = float(np.median(self._render_raw(planes / 2)))
         level = _log_uniform(rng, *ranges.median_rate)
         if convention == "spikezoo":
-            # an 8-bit video: intensity in [0, 1] (median 0.1-0.6), firing rate 0.6 x intensity
-            self.scale = rng.uniform(0.1, 0.6) / max(median, 1e-6)
+            # an 8-bit video: intensity in [0, 1] (median 0.1-0.8), firing rate 0.6 x intensity
+            self.scale = rng.uniform(0.1, 0.8) / max(median, 1e-6)
             self.clip = 1.0
             self.gain = SPIKEZOO_RATE
         else:
@@ -222,7 +228,7 @@ class VideoScene:
                 value *= _leaf_texture(rng, h, w, ranges) / ranges.reflectance[1]
         else:
             value = dead_leaves(rng, h, w, rng.uniform(1.0, 4.0), 1.0, 0.5 * max(h, w), ranges)
-        speed = _log_uniform(rng, 0.01, ranges.object_speed)
+        speed = _log_uniform(rng, *ranges.object_speed)
         direction = rng.uniform(0, 2 * math.pi)
         velocity = speed * np.array([math.cos(direction), math.sin(direction)])
         # place it so it crosses the view around the middle of the sample
@@ -252,3 +258,19 @@ class VideoScene:
         """Linear value (H, W) float32 at raw-plane time ``k``: charge per raw plane / threshold."""
         image = np.minimum(self._render_raw(k) * np.float32(self.scale), np.float32(self.clip))
         return np.maximum(image * np.float32(self.gain), 0.0)
+
+
+def capture_planes(scene: VideoScene, planes: int, rate_hz: float, chunk: int = 64) -> Iterator[SpikeChunk]:
+    """The raw 1-bit capture of ``scene`` (``planes`` planes from time 0) in chunks: the physical
+    emission model with a real camera's noise, or spikezoo's accumulate-and-subtract rate convention
+    (``scene.convention``). Plane k integrates the scene at its midpoint k + 1/2."""
+    height, width = scene.height, scene.width
+    if scene.convention == "physical":
+        params = SensorParams()
+        emitter = SpikeEmitter(height, width, params, REALISTIC_EFFECTS, scene.seed)
+        emit = lambda value: emitter.emit_one(value * params.q_r, 1)  # noqa: E731
+    else:
+        emit = RateIntegrateFire((height, width), scene.seed).emit_one
+    for start in range(0, planes, chunk):
+        block = np.stack([emit(scene.render(k + 0.5)) for k in range(start, min(start + chunk, planes))])
+        yield SpikeChunk(planes=block, start=start, rate_hz=rate_hz)

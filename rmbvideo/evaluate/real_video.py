@@ -1,0 +1,225 @@
+"""Real-video evaluation: spike streams that come with an 8-bit reference image of one plane.
+
+This is the format of spikezoo's REDS streams (``NAME.dat`` + ``NAME.png``; ``key_id151`` in the name
+counts the reference plane from 1, otherwise the middle plane is the reference). The reference is in
+unknown units, so every reconstruction is scaled by least squares onto it (``scaled_psnr``) and scored
+by linear PSNR (peak 1) and SSIM.
+
+Every row is scored at the binned resolution (half the camera's): the methods on the RMB stream
+(TFW, GC20, MG20, RMB-Net: the 2x2x2-binned stream through the RMB readout) give it directly; the
+methods on the raw 1-bit capture (TFP at windows 20/41/80/140, TFI) are 2x2 area-averaged, and the
+reference is area-averaged to the same size. "best classical on the raw capture" is, per stream,
+the best of those raw rows (an oracle choice of window: the strongest bar there is).
+
+The frame scored is the output frame whose interval holds the reference plane (one frame per 20 raw
+planes, frame i centred at raw plane 20 i + 10).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import re
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from rmbvideo.chunks import Frame
+from rmbvideo.errors import InputError
+from rmbvideo.evaluate.metrics import ssim
+from rmbvideo.io.dat import DatGeometry, DatReader
+from rmbvideo.recon.pipeline import make_reconstructor, reconstruct_stream
+from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
+
+log = logging.getLogger(__name__)
+
+RAW_STEP = 20  # raw planes per output frame (N = 10 binned readouts)
+TFP_WINDOWS = (20, 41, 80, 140)
+BEST_RAW = "best classical on the raw capture"
+_KEY = re.compile(r"key_id(\d+)")
+
+
+@dataclass(frozen=True)
+class RealStream:
+    """A spike stream and its reference image: ``plane`` is the 0-based raw plane the PNG shows."""
+
+    name: str
+    capture: Path
+    reference: Path
+    plane: int
+    geometry: DatGeometry = DatGeometry(400, 250)
+
+    @property
+    def frame(self) -> int:
+        """Index of the output frame whose interval holds the reference plane."""
+        return self.plane // RAW_STEP
+
+
+@dataclass(frozen=True)
+class RealRow:
+    """A table row: ``method`` with ``options``; ``raw`` rows run on the raw capture (then 2x2-averaged),
+    the others on the binned stream through the RMB readout."""
+
+    name: str
+    method: str
+    options: dict[str, Any] = field(default_factory=dict)
+    raw: bool = False
+
+
+@dataclass
+class RealScore:
+    """One row on one stream: the gain-scaled frame at the binned size, its PSNR and SSIM."""
+
+    image: np.ndarray
+    psnr: float
+    ssim: float
+
+
+def reference_plane(path: Path, planes: int) -> int:
+    """The plane a reference PNG shows: ``key_idK`` in its name (K counts from 1), else the middle."""
+    match = _KEY.search(path.stem)
+    plane = int(match.group(1)) - 1 if match else (planes - 1) // 2
+    if not 0 <= plane < planes:
+        raise InputError(f"{path}: reference plane {plane} is outside the capture's {planes} planes")
+    return plane
+
+
+def find_streams(folder: Path, geometry: DatGeometry = DatGeometry(400, 250)) -> list[RealStream]:
+    """Every ``NAME.dat`` in ``folder`` with a ``NAME.png`` beside it, sorted by name."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(f"{folder}: not a folder of .dat + .png pairs")
+    streams = []
+    for capture in sorted(folder.glob("*.dat")):
+        reference = capture.with_suffix(".png")
+        if reference.is_file():
+            planes = DatReader(capture, geometry).n_planes
+            streams.append(RealStream(capture.stem, capture, reference, reference_plane(reference, planes), geometry))
+    if not streams:
+        raise InputError(f"{folder}: no .dat file with a .png reference beside it")
+    return streams
+
+
+def binned_reference(stream: RealStream) -> np.ndarray:
+    """The reference image in [0, 1], area-averaged to the binned size (H/2, W/2)."""
+    image = cv2.imread(str(stream.reference), cv2.IMREAD_GRAYSCALE)
+    height, width = stream.geometry.height, stream.geometry.image_width
+    if image is None or image.shape != (height, width):
+        found = "unreadable" if image is None else f"{image.shape[1]}x{image.shape[0]}"
+        raise InputError(f"{stream.reference}: expected an 8-bit {width}x{height} image, found {found}")
+    return cv2.resize(image.astype(np.float32) / 255.0, (width // 2, height // 2), interpolation=cv2.INTER_AREA)
+
+
+def least_squares_gain(prediction: np.ndarray, reference: np.ndarray) -> float:
+    """The gain g minimising |g prediction - reference|^2 (0 for an all-zero prediction)."""
+    pred = prediction.astype(np.float64)
+    return float((pred * reference).sum() / max(float((pred * pred).sum()), 1e-12))
+
+
+def scaled_psnr(prediction: np.ndarray, reference: np.ndarray) -> float:
+    """PSNR (peak 1) of ``prediction`` scaled by least squares onto ``reference`` (both linear)."""
+    mse = float(((least_squares_gain(prediction, reference) * prediction - reference) ** 2).mean())
+    return 10.0 * math.log10(1.0 / max(mse, 1e-12))
+
+
+class _FrameAt:
+    """A sink that keeps one frame's image."""
+
+    def __init__(self, index: int) -> None:
+        self.index, self.image = index, None
+
+    def write(self, frame: Frame) -> None:
+        if frame.index == self.index:
+            self.image = frame.image
+
+
+def reconstruct_frame(stream: RealStream, row: RealRow) -> np.ndarray:
+    """The row's frame at the reference plane, at the binned size (raw rows 2x2 area-averaged)."""
+    reader = DatReader(stream.capture, stream.geometry)
+    recon = make_reconstructor(row.method, **row.options)
+    sink = _FrameAt(stream.frame)
+    readout = None if row.raw else RmbReadout(mode=ReadoutMode.RMB)
+    reconstruct_stream(reader, recon, sink, readout=readout)
+    if sink.image is None:
+        raise InputError(f"{stream.capture}: {row.name} produced no frame {stream.frame}")
+    image = np.nan_to_num(sink.image.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+    height, width = stream.geometry.height // 2, stream.geometry.image_width // 2
+    if image.shape != (height, width):
+        image = cv2.resize(image[: 2 * height, : 2 * width], (width, height), interpolation=cv2.INTER_AREA)
+    return image
+
+
+def score_stream(stream: RealStream, rows: Iterable[RealRow]) -> dict[str, RealScore]:
+    """Every row on ``stream``, plus the per-stream best of the raw rows (``BEST_RAW``)."""
+    reference = binned_reference(stream)
+    scores: dict[str, RealScore] = {}
+    raw_names = []
+    for row in rows:
+        image = reconstruct_frame(stream, row)
+        scaled = (least_squares_gain(image, reference) * image).astype(np.float32)
+        scores[row.name] = RealScore(scaled, scaled_psnr(image, reference),
+                                     ssim(np.clip(scaled, 0, 1), reference))
+        if row.raw:
+            raw_names.append(row.name)
+        log.info("%s: %s %.2f dB", stream.name, row.name, scores[row.name].psnr)
+    if raw_names:
+        best = max(raw_names, key=lambda name: scores[name].psnr)
+        scores[BEST_RAW] = scores[best]
+    return scores
+
+
+def real_video_rows(model: Path | None = None, device: str = "cpu", threads: int | None = 1) -> list[RealRow]:
+    """The real-video table: RMB-input baselines, RMB-Net, and the raw-capture classical methods."""
+    return [
+        RealRow("TFW-S", "tfw", {"window": 10, "step": 10}),
+        RealRow("TFW-L", "tfw", {"window": 70, "step": 10}),
+        RealRow("GC20", "gc20", {}),
+        RealRow("MG20", "mg20", {}),
+        RealRow("RMB-Net", "rmbnet", {"model": model, "device": device, "input_mode": "binned",
+                                       "threads": threads}),
+        *(RealRow(f"TFP-{window} (raw, 2x2-avg)", "tfp", {"window": window, "step": RAW_STEP}, raw=True)
+          for window in TFP_WINDOWS),
+        RealRow("TFI (raw, 2x2-avg)", "tfi", {"step": RAW_STEP}, raw=True),
+    ]
+
+
+def evaluate_streams(streams: Sequence[RealStream], rows: Sequence[RealRow]) -> dict[str, dict[str, RealScore]]:
+    """Scores per stream name, then per row name (``score_stream``)."""
+    return {stream.name: score_stream(stream, rows) for stream in streams}
+
+
+def markdown_table(results: dict[str, dict[str, RealScore]]) -> str:
+    """Rows = methods, columns = streams (PSNR dB / SSIM), plus the mean PSNR."""
+    streams = list(results)
+    names = list(next(iter(results.values())))
+    lines = ["| method | " + " | ".join(streams) + " | mean PSNR |",
+             "|---|" + "---|" * (len(streams) + 1)]
+    for name in names:
+        cells = [f"{results[s][name].psnr:.2f} / {results[s][name].ssim:.3f}" for s in streams]
+        mean = float(np.mean([results[s][name].psnr for s in streams]))
+        label = f"**{name}**" if name in ("RMB-Net", BEST_RAW) else name
+        lines.append(f"| {label} | " + " | ".join(cells) + f" | {mean:.2f} |")
+    return "\n".join(lines) + "\n"
+
+
+def comparison_image(results: dict[str, dict[str, RealScore]], references: dict[str, np.ndarray],
+                     names: Sequence[str]) -> np.ndarray:
+    """One row per stream: the reference and each named method's gain-scaled frame (8-bit, labelled)."""
+    rows = []
+    for stream, scores in results.items():
+        panels = [("reference", references[stream])] + [(name, scores[name].image) for name in names]
+        tiles = []
+        for label, image in panels:
+            tile = (np.clip(image, 0, 1) * 255).astype(np.uint8)
+            tile = cv2.resize(tile, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)
+            tile = cv2.cvtColor(tile, cv2.COLOR_GRAY2BGR)
+            text = label if label == "reference" else f"{label} {scores[label].psnr:.1f} dB"
+            cv2.putText(tile, text, (4, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 3, cv2.LINE_AA)
+            cv2.putText(tile, text, (4, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
+            tiles.append(np.pad(tile, ((2, 2), (2, 2), (0, 0)), constant_values=255))
+        rows.append(np.hstack(tiles))
+    return np.vstack(rows)
