@@ -7,7 +7,7 @@ import pytest
 
 from rmbvideo.net.attention import PairProjection
 from rmbvideo.net.config import RmbNetConfig
-from rmbvideo.net.model import RmbNet, inverse_mu_law, window_indices
+from rmbvideo.net.model import RmbNet, inverse_mu_law, window_indices, window_valid
 from rmbvideo.recon.tonemap import mu_law
 
 
@@ -112,3 +112,42 @@ def test_gradients_reach_every_parameter():
     out.mean().backward()
     missing = [n for n, p in model.named_parameters() if p.grad is None or not torch.isfinite(p.grad).all()]
     assert not missing
+
+
+@pytest.mark.parametrize("kw", [{}, {"use_xba": False, "use_xta": False}, {"pooled_windows": (3,)}])
+def test_clip_edges_use_only_the_frames_that_exist(kw):
+    """At a clip's edges the positions past the edge are placeholders: what they hold cannot change
+    the output (they are neither attended to, nor averaged, nor pooled)."""
+    model = small(**kw)
+    i_s, i_m = random_inputs(k=3, h=16, w=16)
+    with torch.inference_mode():
+        frames = model.encode(i_s[0], i_m[0], range(3))
+        junk = model.encode(torch.full((1, 16, 16), 10.0), torch.full((1, 16, 16), 70.0), [99])[0]
+        valid = [False, True, True]
+        t_edge, _ = model.step([frames[0], frames[0], frames[1]], None, valid=valid)
+        t_junk, _ = model.step([junk, frames[0], frames[1]], None, valid=valid)
+        t_full, _ = model.step([junk, frames[0], frames[1]], None)
+    torch.testing.assert_close(t_edge, t_junk)
+    assert not torch.equal(t_full, t_edge)  # the same junk does change the output where it is marked valid
+    assert window_valid(0, 2, 3) == [False, False, True, True, True]
+    assert window_valid(2, 2, 3) == [True, True, True, False, False]
+    with pytest.raises(ValueError):
+        model.step([frames[0], frames[0], frames[1]], None, valid=[True, False, True])
+
+
+def test_pooled_windows_config_and_head_inputs():
+    cfg = RmbNetConfig(w=3, pooled_windows=(3, 7))
+    assert RmbNetConfig.from_dict(cfg.to_dict()) == cfg
+    assert "pooled_windows" not in RmbNetConfig().to_dict()  # older cards stay as they were written
+    for bad in ((2,), (9,), (1,)):
+        with pytest.raises(ValueError):
+            RmbNetConfig(w=3, pooled_windows=bad)
+    model = small(pooled_windows=(3,))
+    assert model.decoder.head[0][0].in_channels == model.config.channels[0] + 4
+    # a static scene: the pooled mean over 3 frames equals each frame's rate
+    i_s = torch.full((1, 3, 16, 16), 4.0)
+    i_m = torch.full((1, 3, 16, 16), 28.0)
+    with torch.inference_mode():
+        frames = model.encode(i_s[0], i_m[0], range(3))
+        inputs = model._head_inputs(frames, [True, True, True])
+    torch.testing.assert_close(inputs[:, 2:], inputs[:, :2])

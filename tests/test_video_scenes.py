@@ -1,0 +1,160 @@
+"""Video-like training scenes (dead leaves, independent motion, HDR), the rate convention of other
+simulators, training samples made from them, and the real-video evaluation set."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from rmbvideo.errors import InputError
+from rmbvideo.evaluate.real_video import (
+    BEST_RAW,
+    RealRow,
+    RealStream,
+    find_streams,
+    reference_plane,
+    scaled_psnr,
+    score_stream,
+)
+from rmbvideo.io.dat import DatGeometry, write_dat
+from rmbvideo.sensor.emission import RateIntegrateFire
+from rmbvideo.train.dataset import SampleSpec, simulate_sample
+from rmbvideo.train.video_scenes import SPIKEZOO_RATE, VideoScene, VideoSceneRanges, capture_planes
+
+STILL = VideoSceneRanges(camera_speed=(0.0, 0.0), static_probability=1.0, max_objects=0, zoom_rate=0.0,
+                         shake_px=0.0)
+
+
+def test_scenes_are_pure_functions_of_their_seed():
+    a, b, c = (VideoScene(seed, 64, 48, 200) for seed in (3, 3, 4))
+    assert np.array_equal(a.render(17.5), b.render(17.5))
+    assert not np.array_equal(a.render(17.5), c.render(17.5))
+    image = a.render(0.0)
+    assert image.shape == (48, 64) and image.dtype == np.float32 and np.isfinite(image).all() and image.min() >= 0
+
+
+def test_a_still_scene_is_still_and_textured_at_many_scales():
+    scene = VideoScene(5, 128, 128, 300, STILL)
+    first, later = scene.render(0.5), scene.render(250.5)
+    np.testing.assert_array_equal(first, later)
+    log = np.log(first + 1e-6)
+    assert log.std() > 0.3  # real contrast, not a flat field
+    # edges at every scale: the gradient energy of the image and of its 4x-reduced version are both substantial
+    small = cv2.resize(first, (32, 32), interpolation=cv2.INTER_AREA)
+    for image in (first, small):
+        gy, gx = np.gradient(np.log(image + 1e-6))
+        assert np.mean(np.hypot(gx, gy) > 0.1) > 0.02
+
+
+def test_camera_speed_is_raw_pixels_per_plane():
+    ranges = VideoSceneRanges(camera_speed=(1.0, 1.0), static_probability=0.0, max_objects=0, zoom_rate=0.0,
+                              shake_px=0.0)
+    scene = VideoScene(11, 128, 128, 300, ranges)
+    a, b = scene.render(100.0), scene.render(110.0)
+    (dx, dy), _ = cv2.phaseCorrelate(np.log(a + 1e-6).astype(np.float64), np.log(b + 1e-6).astype(np.float64))
+    assert math.hypot(dx, dy) == pytest.approx(10.0, abs=0.75)
+
+
+def test_hdr_range_and_lights():
+    levels = []
+    for seed in range(12):
+        scene = VideoScene(seed, 96, 96, 100)
+        image = scene.render(50.0)
+        levels.append(float(np.median(image)))
+        assert np.isfinite(image).all()
+    assert min(levels) < 0.02 and max(levels) > 0.05  # dark and bright scenes both occur
+    lit = VideoScene(0, 96, 96, 100, VideoSceneRanges(light_probability=1.0, max_objects=6))
+    images = [lit.render(k) for k in (0.0, 50.0, 99.0)]
+    assert max(float(im.max() / max(np.median(im), 1e-9)) for im in images) > 5.0  # HDR within one frame
+
+
+def test_spikezoo_convention_rate_and_exact_firing():
+    scene = VideoScene(2, 64, 64, 400, STILL, convention="spikezoo")
+    value = scene.render(0.5)
+    assert value.max() <= SPIKEZOO_RATE + 1e-6
+    planes = np.concatenate([c.planes for c in capture_planes(scene, 400, 20000.0)])
+    counts = planes.sum(axis=0)
+    # accumulate-and-subtract without noise: the count over 400 planes is 400 x rate to within one spike
+    assert np.abs(counts - 400 * value).max() <= 1.0 + 1e-3
+    emitter = RateIntegrateFire((4, 4), seed=0)
+    fired = sum(emitter.emit_one(np.full((4, 4), 0.25)) for _ in range(1000))
+    assert np.abs(fired - 250).max() <= 1
+
+
+def test_video_training_sample_is_binned_with_exact_ground_truth():
+    spec = SampleSpec(scenes="video", spikezoo_fraction=0.5, crop=32, frames=4)
+    sample = simulate_sample(spec, 7)
+    again = simulate_sample(spec, 7)
+    assert np.array_equal(sample.i_s, again.i_s) and np.array_equal(sample.gt, again.gt)
+    assert sample.i_s.shape == sample.i_m.shape == sample.gt.shape == (4, 32, 32)
+    assert np.isfinite(sample.gt).all() and sample.gt.min() >= 0
+    assert sample.i_s.max() <= spec.n and sample.i_m.max() <= 7 * spec.n
+    with pytest.raises(ValueError):
+        SampleSpec(scenes="video", mode="native", readout="rmb")
+    with pytest.raises(ValueError):
+        SampleSpec(scenes="movies")
+
+
+def test_reference_plane_from_the_name_or_the_middle(tmp_path):
+    assert reference_plane(Path("a_key_id151.png"), 301) == 150
+    assert reference_plane(Path("clip.png"), 301) == 150
+    with pytest.raises(InputError):
+        reference_plane(Path("a_key_id999.png"), 301)
+    with pytest.raises(InputError):
+        find_streams(tmp_path)
+
+
+def _spikezoo_pair(folder: Path, name: str, seed: int) -> RealStream:
+    """A spikezoo-like stream (rate 0.6 x intensity, 400x250, 121 planes) and its reference PNG at plane 60."""
+    scene = VideoScene(seed, 400, 250, 121, VideoSceneRanges(camera_speed=(0.1, 0.1), static_probability=0.0,
+                                                             object_speed=(0.05, 0.2)), convention="spikezoo")
+    planes = np.concatenate([c.planes for c in capture_planes(scene, 121, 20000.0)])
+    write_dat(folder / f"{name}.dat", planes, DatGeometry(400, 250))
+    intensity = np.clip(scene.render(60.5) / SPIKEZOO_RATE, 0, 1)
+    cv2.imwrite(str(folder / f"{name}.png"), np.round(intensity * 255).astype(np.uint8))
+    return find_streams(folder)[0]
+
+
+def test_real_video_scoring_at_equal_resolution(tmp_path):
+    stream = _spikezoo_pair(tmp_path, "scene_key_id61", seed=21)
+    assert stream.plane == 60 and stream.frame == 3
+    rows = [RealRow("TFW-S", "tfw", {"window": 10, "step": 10}),
+            RealRow("TFP-20", "tfp", {"window": 20, "step": 20}, raw=True),
+            RealRow("TFP-80", "tfp", {"window": 80, "step": 20}, raw=True)]
+    scores = score_stream(stream, rows)
+    assert set(scores) == {"TFW-S", "TFP-20", "TFP-80", BEST_RAW}
+    for score in scores.values():
+        assert score.image.shape == (125, 200) and np.isfinite(score.image).all()
+    # the raw capture holds 8x the RMB stream's single-bit samples: TFP beats TFW-S on a slow scene
+    assert scores["TFP-80"].psnr > scores["TFW-S"].psnr + 3
+    assert scores[BEST_RAW].psnr == max(scores["TFP-20"].psnr, scores["TFP-80"].psnr)
+
+
+def test_scaled_psnr_ignores_scale_and_sees_noise():
+    rng = np.random.default_rng(0)
+    reference = rng.random((20, 30))
+    assert scaled_psnr(7.0 * reference, reference) > 100
+    assert scaled_psnr(reference + rng.normal(0, 0.1, reference.shape), reference) < 25
+
+
+def test_spikezoo_streams_orientation(shared_data: Path):
+    """TFP over 20 raw planes of spikezoo's 200_part3, 2x2-averaged, matches its reference frame (a wrong bit
+    order or row flip would fall far below)."""
+    stream = next(s for s in find_streams(shared_data / "spikezoo-base") if s.name.startswith("200_part3"))
+    scores = score_stream(stream, [RealRow("TFP-20", "tfp", {"window": 20, "step": 20}, raw=True)])
+    assert scores["TFP-20"].psnr > 32.0
+
+
+@pytest.mark.parametrize("prefix", ["200_part3", "203_part2", "203_part3"])
+def test_shipped_model_beats_the_rmb_baselines_on_real_video(shared_data: Path, prefix: str):
+    """The default model, through the streaming engine, against TFW-L over the same 70 readouts on
+    spikezoo's REDS streams (an independent simulator the model never trained on)."""
+    stream = next(s for s in find_streams(shared_data / "spikezoo-base") if s.name.startswith(prefix))
+    rows = [RealRow("TFW-L", "tfw", {"window": 70, "step": 10}),
+            RealRow("RMB-Net", "rmbnet", {"device": "cpu", "threads": 1})]
+    scores = score_stream(stream, rows)
+    assert scores["RMB-Net"].psnr > scores["TFW-L"].psnr + 2.0, {k: v.psnr for k, v in scores.items()}
