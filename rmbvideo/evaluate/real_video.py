@@ -62,12 +62,13 @@ class RealStream:
 @dataclass(frozen=True)
 class RealRow:
     """A table row: ``method`` with ``options``; ``raw`` rows run on the raw capture (then 2x2-averaged),
-    the others on the binned stream through the RMB readout."""
+    the others on the binned stream through ``readout`` (the RMB design unless an ablation says otherwise)."""
 
     name: str
     method: str
     options: dict[str, Any] = field(default_factory=dict)
     raw: bool = False
+    readout: str = "rmb"
 
 
 @dataclass
@@ -142,7 +143,7 @@ def reconstruct_frame(stream: RealStream, row: RealRow) -> np.ndarray:
     reader = DatReader(stream.capture, stream.geometry)
     recon = make_reconstructor(row.method, **row.options)
     sink = _FrameAt(stream.frame)
-    readout = None if row.raw else RmbReadout(mode=ReadoutMode.RMB)
+    readout = None if row.raw else RmbReadout(mode=ReadoutMode(row.readout))
     reconstruct_stream(reader, recon, sink, readout=readout)
     if sink.image is None:
         raise InputError(f"{stream.capture}: {row.name} produced no frame {stream.frame}")

@@ -207,17 +207,13 @@ def _worker_init() -> None:
     cv2.setNumThreads(1)
 
 
-def simulate_samples(spec: SampleSpec, seeds: list[int]) -> list[Sample]:
-    """The samples of ``seeds`` (one training batch), simulated afresh."""
-    return [simulate_sample(spec, seed) for seed in seeds]
-
-
 class SamplePrefetcher:
-    """Simulates the batches of upcoming steps in one worker process while the network trains, so
-    fresh scenes cost no training time when simulation is no slower than a step.
+    """Simulates the samples of upcoming steps in one worker process while the network trains, so
+    fresh scenes cost no training time when simulation keeps up with the steps.
 
-    ``seeds_of(step)`` names a step's seeds; ``get(step)`` returns that batch (simulated ahead for
-    the next ``depth`` steps). Samples are not stored: every step sees new scenes.
+    ``seeds_of(step)`` names a step's seeds; ``get(step)`` returns that batch. Seeds of the next
+    ``depth`` steps are simulated ahead; a seed used by several steps is simulated once and dropped
+    when no upcoming step needs it. Nothing is stored on disk: the scenes never repeat across a run.
     """
 
     def __init__(self, spec: SampleSpec, seeds_of: Callable[[int], list[int]], depth: int = 3) -> None:
@@ -227,12 +223,14 @@ class SamplePrefetcher:
         self._pending: dict[int, Future] = {}
 
     def get(self, step: int) -> list[Sample]:
-        for ahead in range(step, step + self.depth + 1):
-            if ahead not in self._pending:
-                self._pending[ahead] = self._pool.submit(simulate_samples, self.spec, self.seeds_of(ahead))
-        for old in [k for k in self._pending if k < step]:
-            self._pending.pop(old).cancel()
-        return self._pending.pop(step).result()
+        upcoming = [seed for ahead in range(step, step + self.depth + 1) for seed in self.seeds_of(ahead)]
+        for seed in upcoming:
+            if seed not in self._pending:
+                self._pending[seed] = self._pool.submit(simulate_sample, self.spec, seed)
+        samples = [self._pending[seed].result() for seed in self.seeds_of(step)]
+        for seed in set(self._pending) - set(upcoming[len(self.seeds_of(step)):]):
+            self._pending.pop(seed).cancel()
+        return samples
 
     def close(self) -> None:
         self._pool.shutdown(wait=False, cancel_futures=True)

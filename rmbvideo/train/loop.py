@@ -194,10 +194,13 @@ def batch_seeds(seed: int, step: int, batch: int, count: int) -> list[int]:
 
 
 def video_seeds(config: TrainConfig, step: int) -> list[int]:
-    """Seeds of ``step`` for video scenes: new ones every step (``batch`` per step, from the
-    recipe's seed), never repeating within a run and never reaching the held-out range."""
-    batch = config.optim.batch
-    return [(config.seed * 7919 + step * batch + j) % EVAL_SEED_START for j in range(batch)]
+    """Seeds of ``step`` for video scenes: ceil(batch / reuse) new scenes every step, each used by
+    ``reuse`` consecutive steps (so simulation keeps up with training), never repeating within a
+    run and never reaching the held-out range."""
+    batch, reuse = config.optim.batch, config.data.reuse
+    fresh = -(-batch // reuse)
+    first = config.seed * 100_003
+    return [(first + max(step - j // fresh, 0) * fresh + j % fresh) % EVAL_SEED_START for j in range(batch)]
 
 
 def learning_rate(step: int, elapsed_s: float, config: TrainConfig) -> float:
@@ -373,7 +376,7 @@ class Trainer:
                     f"2x2x2 as real captures; {1 - cfg.data.spikezoo_fraction:.0%} physical emission with effects "
                     f"{', '.join(REALISTIC_EFFECTS)}, {cfg.data.spikezoo_fraction:.0%} spikezoo's convention "
                     "(8-bit intensity, rate 0.6 x intensity, accumulate-and-subtract, no noise); new scenes "
-                    "every step" + (f"; initialised from {cfg.init}" if cfg.init else "")
+                    f"every step, each used in {cfg.data.reuse} steps" + (f"; initialised from {cfg.init}" if cfg.init else "")
                 ) if cfg.data.scenes == "video" else (
                     "random HDR scenes: CC0 Poly Haven panoramas with random pan/zoom, 0-3 moving textured "
                     "objects (some light sources 10-1e4x brighter), random dark regions, exposure "
