@@ -284,8 +284,8 @@ def run_capture_job(job: CaptureJob) -> CaptureResult:
     Errors of the input or environment (and unexpected errors, logged with their traceback) become
     a ``failed`` result; the previous outputs of this capture, if any, are left as they were.
     """
-    from rmbvideo.cli.options import open_capture
-    from rmbvideo.cli.reconstruct import run_reconstruction
+    from rmbvideo.io.capture import open_capture
+    from rmbvideo.recon.run import run_reconstruction
 
     began = time.perf_counter()
     result = CaptureResult(input=str(job.input_path), output=str(job.output_dir), status="failed")

@@ -15,3 +15,7 @@ class OutputError(RmbvideoError):
 
 class ModelError(RmbvideoError):
     """A model file is corrupt, foreign, unsafe, or does not match the code or the input."""
+
+
+class OptionError(RmbvideoError):
+    """An option has a value the method or command cannot take. The message names the option."""

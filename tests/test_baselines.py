@@ -10,7 +10,7 @@ from scipy.optimize import minimize_scalar
 from scipy.stats import binom
 
 from rmbvideo.chunks import RmbChunk
-from rmbvideo.evaluate.gc20 import (
+from rmbvideo.recon.gc20 import (
     Gc20Config,
     Gc20Reconstructor,
     JotModel,
@@ -19,7 +19,7 @@ from rmbvideo.evaluate.gc20 import (
     solve_exposure,
 )
 from rmbvideo.evaluate.metrics import mu_law_psnr
-from rmbvideo.evaluate.mg20 import Mg20Config, Mg20Reconstructor
+from rmbvideo.recon.mg20 import Mg20Config, Mg20Reconstructor
 
 BAND, SHIFT = 4, 2
 

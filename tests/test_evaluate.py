@@ -27,7 +27,7 @@ from rmbvideo.evaluate.table import csv_table, pick_regions, write_comparison_pn
 from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.model import RmbNet
 from rmbvideo.net.weights import ModelCard, save_model
-from rmbvideo.recon.pipeline import RECONSTRUCTORS, register_reconstructor
+from rmbvideo.recon.methods import METHODS, Method, register_method
 
 TINY = HeldoutConfig(count=1, width=48, height=40, readouts=60, edge_readouts=20)
 
@@ -160,12 +160,12 @@ def test_perfect_method_scores_maximal(sequence):
     scored = {i: sequence.gt[i] for i in sequence.scored_frames}
     psnr, ssim, pu21 = score_frames(scored, sequence)
     assert psnr == PSNR_CAP_DB and pu21 == PSNR_CAP_DB and ssim == pytest.approx(1.0, abs=1e-6)
-    register_reconstructor("test-ground-truth", lambda: _GroundTruthMethod(sequence.gt))
+    register_method(Method("test-ground-truth", lambda: _GroundTruthMethod(sequence.gt), "rmb", "ground truth"))
     try:
         result = run_method(MethodSpec("GT", "test-ground-truth"), sequence)
         tfw = run_method(MethodSpec("TFW-L", "tfw", {"window": 70, "step": 10}), sequence)
     finally:
-        RECONSTRUCTORS.pop("test-ground-truth")
+        METHODS.pop("test-ground-truth")
     assert result.psnr == PSNR_CAP_DB and result.pu21 == PSNR_CAP_DB and result.ssim == pytest.approx(1.0, abs=1e-6)
     assert result.frames_emitted == 6 and sorted(result.frames) == [2, 3]
     assert tfw.psnr < result.psnr and tfw.ssim < result.ssim
@@ -176,12 +176,12 @@ def test_missing_scored_frame_is_an_error(sequence):
         def flush(self) -> list[Frame]:
             return super().flush()[3:]  # no frame 2
 
-    register_reconstructor("test-late", lambda: Late(sequence.gt))
+    register_method(Method("test-late", lambda: Late(sequence.gt), "rmb", "late"))
     try:
         with pytest.raises(ValueError, match="no frame 2"):
             run_method(MethodSpec("late", "test-late"), sequence)
     finally:
-        RECONSTRUCTORS.pop("test-late")
+        METHODS.pop("test-late")
 
 
 def test_ablation_weights_found_flat_or_nested(tmp_path):

@@ -7,8 +7,8 @@ import pytest
 
 from rmbvideo.net.attention import PairProjection
 from rmbvideo.net.config import RmbNetConfig
-from rmbvideo.net.model import RmbNet, inverse_mu_law, window_indices, window_valid
-from rmbvideo.recon.tonemap import mu_law
+from rmbvideo.net.model import RmbNet, window_indices, window_valid
+from rmbvideo.mulaw import inverse_mu_law, mu_law
 
 
 def small(**kw) -> RmbNet:

@@ -18,7 +18,7 @@ from rmbvideo.errors import InputError, OutputError
 from rmbvideo.io.atomic import atomic_path, atomic_write_text
 from rmbvideo.io.exr import HALF_MAX, read_exr, read_exr_rgb, write_exr
 from rmbvideo.io.sinks import make_sink
-from rmbvideo.recon.tonemap import ToneMapConfig, ToneMapper
+from rmbvideo.io.tonemap import ToneMapConfig, ToneMapper
 
 RATE_HZ = 20000.0
 

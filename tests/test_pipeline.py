@@ -8,7 +8,9 @@ import pytest
 from rmbvideo.chunks import Frame, SpikeChunk
 from rmbvideo.io.dat import DatGeometry, DatReader, write_dat
 from rmbvideo.recon.classical import Tfw
-from rmbvideo.recon.pipeline import RECONSTRUCTORS, make_reconstructor, reconstruct_stream, register_reconstructor
+from rmbvideo.errors import OptionError
+from rmbvideo.recon.methods import METHODS, Method, make_reconstructor, register_method
+from rmbvideo.recon.pipeline import reconstruct_stream
 from rmbvideo.sensor.readout import RmbReadout
 
 GEOMETRY = DatGeometry(width=32, height=16)
@@ -67,12 +69,12 @@ def test_nonfinite_pixels_never_reach_the_sink(reader):
         def flush(self) -> list[Frame]:
             return []
 
-    register_reconstructor("broken-test", Broken)
+    register_method(Method("broken-test", Broken, "spikes", "emits NaN and Inf"))
     try:
         sink = _Collect()
         summary = reconstruct_stream(reader, make_reconstructor("broken-test"), sink, chunk_planes=50)
     finally:
-        del RECONSTRUCTORS["broken-test"]
+        del METHODS["broken-test"]
     assert summary.frames == 3 and summary.nonfinite_pixels == 6
     for frame in sink.frames:
         assert np.isfinite(frame.image).all() and (frame.image >= 0).all()
@@ -80,9 +82,9 @@ def test_nonfinite_pixels_never_reach_the_sink(reader):
 
 
 def test_bad_requests(reader):
-    with pytest.raises(ValueError, match="unknown method"):
+    with pytest.raises(OptionError, match="unknown method"):
         make_reconstructor("nope")
-    with pytest.raises(ValueError, match="bad options"):
+    with pytest.raises(OptionError, match="method tfp: .*widow"):
         make_reconstructor("tfp", widow=3)
     with pytest.raises(ValueError, match="readout"):
         reconstruct_stream(reader, make_reconstructor("tfp"), _Collect(), readout=RmbReadout())

@@ -11,7 +11,7 @@ import pytest
 from rmbvideo.errors import InputError
 from rmbvideo.scenes.render import SceneRenderer, ground_truth, ground_truth_flow
 from rmbvideo.scenes.scene import bundled_scenes, load_scene, resolve_scene
-from rmbvideo.sensor.emission import CaptureSimulator
+from rmbvideo.simulate.capture import CaptureSimulator
 
 TINY = """
 description = "tiny test scene"

@@ -14,7 +14,7 @@ from rmbvideo.io.dat import DatGeometry, DatReader
 from rmbvideo.io.exr import read_exr
 from rmbvideo.io.rmbfile import RmbFileReader
 from rmbvideo.scenes.scene import load_scene
-from rmbvideo.sensor.emission import CaptureSimulator
+from rmbvideo.simulate.capture import CaptureSimulator
 
 SCENE = """
 description = "cli test"
@@ -64,7 +64,7 @@ def test_one_bit_capture_reads_back_with_default_reader_and_sidecar(tmp_path: Pa
     sidecar = json.loads((tmp_path / "cap.capture.json").read_text())
     assert sidecar == {"width": 64, "height": 48, "rate_hz": 20000.0, "flip": True, "header_cols": 0,
                        "readout": "1bit", "scene": "1bit"}
-    from rmbvideo.cli.options import open_capture
+    from rmbvideo.io.capture import open_capture
 
     planes = open_capture(out, None, None, None, None, None).read()  # defaults + sidecar
     expected = np.concatenate([c.planes for c in CaptureSimulator(load_scene(scene_path)).chunks(50)])

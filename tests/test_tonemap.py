@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from rmbvideo.recon.tonemap import TONE_METHODS, ToneMapConfig, ToneMapper, mu_law
+from rmbvideo.io.tonemap import TONE_METHODS, ToneMapConfig, ToneMapper
+from rmbvideo.mulaw import mu_law
 
 
 def _texture(shape: tuple[int, int] = (24, 32), seed: int = 0) -> np.ndarray:

@@ -20,7 +20,7 @@ from rmbvideo.train.config import RECIPES_DIR, load_recipe
 from rmbvideo.train.dataset import SampleCache, SampleSpec, simulate_sample
 from rmbvideo.train.loop import Batch, Trainer, segment_losses, tfw_prediction, train_batch
 from rmbvideo.train.loss import LossConfig
-from rmbvideo.train.random_scenes import (EVAL_SEED_START, HELD_OUT_PANORAMA, TRAIN_PANORAMAS,
+from rmbvideo.scenes.random_scenes import (EVAL_SEED_START, HELD_OUT_PANORAMA, TRAIN_PANORAMAS,
                                           random_scene)
 
 MODELS_DIR = Path(__file__).resolve().parents[1] / "models"

@@ -23,7 +23,8 @@ from rmbvideo.evaluate.real_video import (
 from rmbvideo.io.dat import DatGeometry, write_dat
 from rmbvideo.sensor.emission import RateIntegrateFire
 from rmbvideo.train.dataset import SampleSpec, simulate_sample
-from rmbvideo.train.video_scenes import SPIKEZOO_RATE, VideoScene, VideoSceneRanges, capture_planes
+from rmbvideo.scenes.video import SPIKEZOO_RATE, VideoScene, VideoSceneRanges
+from rmbvideo.simulate.capture import capture_planes
 
 STILL = VideoSceneRanges(camera_speed=(0.0, 0.0), static_probability=1.0, max_objects=0, zoom_rate=0.0,
                          shake_px=0.0)

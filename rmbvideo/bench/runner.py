@@ -27,7 +27,8 @@ from rmbvideo.chunks import Frame
 from rmbvideo.evaluate.heldout import Sequence
 from rmbvideo.evaluate.harness import downsample_2x, score_frames
 from rmbvideo.io.dat import DatGeometry, DatReader, DatWriter
-from rmbvideo.recon.pipeline import make_reconstructor, reconstruct_stream
+from rmbvideo.recon.methods import make_reconstructor
+from rmbvideo.recon.pipeline import reconstruct_stream
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
 
 log = logging.getLogger(__name__)

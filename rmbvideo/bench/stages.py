@@ -53,7 +53,7 @@ def stage_breakdown(network, planes: int = 2000, width: int = 400, height: int =
     from rmbvideo.io.sinks import make_sink
     from rmbvideo.recon.prelim import PreliminaryFrames
     from rmbvideo.recon.rmbnet import RmbNetReconstructor
-    from rmbvideo.recon.tonemap import ToneMapper
+    from rmbvideo.io.tonemap import ToneMapper
 
     result: dict[str, float] = {}
     with tempfile.TemporaryDirectory(prefix="rmbvideo-stages-") as folder:

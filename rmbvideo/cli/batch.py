@@ -2,8 +2,8 @@
 
 It takes every option of ``reconstruct`` (copied from that command, so options added there are
 accepted here too) and passes them to ``run_reconstruction``: its own keywords by name, the
-geometry options as ``capture``, the RMB-Net options through ``rmbnet_extra_options`` (as
-``reconstruct`` does), and any other option that is set as ``extra_options``.
+geometry options as ``capture``, and every other option that is set as ``extra_options`` (the
+method takes those it declares, as in ``reconstruct``).
 """
 
 from __future__ import annotations
@@ -17,24 +17,23 @@ import click
 
 from rmbvideo.batch import REPORT_NAME, plan_jobs, run_batch, summary_table
 from rmbvideo.cli import progress_enabled
-from rmbvideo.cli.reconstruct import method_options, reconstruct, rmbnet_extra_options, run_reconstruction
-from rmbvideo.recon.pipeline import make_reconstructor
+from rmbvideo.cli.reconstruct import reconstruct
+from rmbvideo.recon.methods import get_method
+from rmbvideo.recon.run import run_reconstruction
 
 CAPTURE_KEYS = ("width", "height", "flip", "header_cols", "rate_hz")
 # parameters of reconstruct that batch replaces with its own
 _OWN_PARAMS = {"input_path", "outdir", "quiet"}
 _RECON_KEYWORDS = set(inspect.signature(run_reconstruction).parameters) - {"input_path", "outdir", "capture",
                                                                            "extra_options", "progress"}
-_RMBNET_KEYWORDS = set(inspect.signature(rmbnet_extra_options).parameters)
 
 
 def reconstruction_options(params: dict[str, Any]) -> dict[str, Any]:
     """Map reconstruct's command-line values onto ``run_reconstruction`` keywords (None extras dropped)."""
     options: dict[str, Any] = {k: v for k, v in params.items() if k in _RECON_KEYWORDS}
     options["capture"] = {k: params.get(k) for k in CAPTURE_KEYS}
-    extra = rmbnet_extra_options(**{k: params.get(k) for k in _RMBNET_KEYWORDS})
-    extra.update({k: v for k, v in params.items() if v is not None and k not in _RECON_KEYWORDS
-                  and k not in CAPTURE_KEYS and k not in _RMBNET_KEYWORDS})
+    extra = {k: v for k, v in params.items() if v is not None and k not in _RECON_KEYWORDS
+             and k not in CAPTURE_KEYS}
     if extra:
         options["extra_options"] = extra
     return options
@@ -42,12 +41,10 @@ def reconstruction_options(params: dict[str, Any]) -> dict[str, Any]:
 
 def check_method(options: dict[str, Any]) -> None:
     """Build the reconstructor once, so bad method options (or a bad model) stop the batch before it starts."""
-    keywords = method_options(options["method"], options.get("window"), options.get("step") or 20)
-    keywords.update(options.get("extra_options") or {})
-    try:
-        make_reconstructor(options["method"], **keywords)
-    except ValueError as exc:
-        raise click.UsageError(str(exc)) from None
+    method = get_method(options["method"])
+    keywords = method.options(options.get("window"), options.get("step") or 20)
+    keywords.update(method.select_extra(options.get("extra_options") or {}))
+    method.build(**keywords)
 
 
 @click.command()

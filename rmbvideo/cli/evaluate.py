@@ -54,7 +54,7 @@ def _notes(sequences: list, quick: bool, device: str, figure: tuple[str, int]) -
         "## Notes",
         "",
         f"- Set: {'quick' if quick else 'full'}, {len(sequences)} held-out sequences ({names}); evaluation seeds "
-        "of `rmbvideo.train.random_scenes` (panorama pans) and of `rmbvideo.train.video_scenes` (fast, dark, "
+        "of `rmbvideo.scenes.random_scenes` (panorama pans) and of `rmbvideo.scenes.video` (fast, dark, "
         "fast-dark and spikezoo-convention video scenes), never used in training. Each: "
         f"{seq.readouts} binned readouts at "
         f"{width}x{height}, {seq.rate_hz:g} Hz, simulated as 1-bit at {2 * width}x{2 * height} and "

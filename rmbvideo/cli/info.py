@@ -7,7 +7,8 @@ from pathlib import Path
 
 import click
 
-from rmbvideo.cli.options import capture_options, open_capture
+from rmbvideo.cli.options import capture_options
+from rmbvideo.io.capture import open_capture
 
 
 @click.command()

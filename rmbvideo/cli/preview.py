@@ -8,10 +8,11 @@ import click
 import cv2
 import numpy as np
 
-from rmbvideo.cli.options import capture_options, open_capture
+from rmbvideo.cli.options import capture_options
+from rmbvideo.io.capture import open_capture
 from rmbvideo.errors import OutputError
 from rmbvideo.io.atomic import atomic_path
-from rmbvideo.recon.tonemap import mu_law
+from rmbvideo.mulaw import mu_law
 
 
 def contact_sheet(reader, count: int = 6, window: int = 41, columns: int = 3) -> np.ndarray:

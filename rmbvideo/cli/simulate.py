@@ -57,7 +57,7 @@ def simulate(scene_name: str | None, output: Path | None, gt_dir: Path | None, g
     from tqdm import tqdm
 
     from rmbvideo.io.sidecar import CaptureInfo, write_sidecar
-    from rmbvideo.sensor.emission import CaptureSimulator
+    from rmbvideo.simulate.capture import CaptureSimulator
 
     scene = resolve_scene(scene_name)
     simulator = CaptureSimulator(scene, duration_s)

@@ -34,7 +34,8 @@ import numpy as np
 from rmbvideo.chunks import Frame, SpikeChunk
 from rmbvideo.evaluate.heldout import Sequence
 from rmbvideo.evaluate.metrics import mu_law_psnr, mu_law_ssim, pu21_psnr
-from rmbvideo.recon.pipeline import finite_frame, make_reconstructor
+from rmbvideo.recon.methods import make_reconstructor
+from rmbvideo.recon.pipeline import finite_frame
 from rmbvideo.sensor.readout import RmbReadout
 
 log = logging.getLogger(__name__)
@@ -46,7 +47,7 @@ SATURATION = 1.0
 
 @dataclass(frozen=True)
 class MethodSpec:
-    """A table row: display ``name``, registered ``method`` (``recon.pipeline.RECONSTRUCTORS``), its
+    """A table row: display ``name``, registered ``method`` (``recon.methods.METHODS``), its
     keyword ``options``, and the readout design applied to RMB input (ignored for raw-input methods).
     ``raw`` rows get the raw 1-bit capture at full resolution instead of any RMB input."""
 

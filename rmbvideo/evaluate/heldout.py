@@ -1,6 +1,6 @@
 """The held-out synthetic evaluation set (the analog of the paper's Table 2 test data), cached on disk.
 
-Each sequence is a random HDR scene from ``rmbvideo.train.random_scenes`` with a seed from the
+Each sequence is a random HDR scene from ``rmbvideo.scenes.random_scenes`` with a seed from the
 evaluation range (``>= EVAL_SEED_START``; those seeds may also draw the held-out panorama), so no
 sequence was ever seen in training. It is simulated exactly as real captures are processed: 1-bit
 spikes at twice the output size and rate with the generator's realistic noise effects, then 2x2x2
@@ -37,7 +37,7 @@ from rmbvideo.chunks import RmbChunk, SpikeChunk
 from rmbvideo.errors import InputError, OutputError
 from rmbvideo.io.atomic import atomic_path
 from rmbvideo.sensor.binning import MULTI_LEVEL, bin_2x2x2
-from rmbvideo.train.video_scenes import VideoSceneRanges
+from rmbvideo.scenes.video import VideoSceneRanges
 
 log = logging.getLogger(__name__)
 
@@ -152,8 +152,8 @@ def _cache_name(config: HeldoutConfig, seed: int) -> str:
 def simulate_sequence(seed: int, config: HeldoutConfig) -> Sequence:
     """Simulate the held-out sequence of ``seed`` (an evaluation seed) at ``config``'s size and length."""
     from rmbvideo.scenes.render import ground_truth
-    from rmbvideo.sensor.emission import CaptureSimulator
-    from rmbvideo.train.random_scenes import is_eval_seed, random_scene
+    from rmbvideo.simulate.capture import CaptureSimulator
+    from rmbvideo.scenes.random_scenes import is_eval_seed, random_scene
 
     if not is_eval_seed(seed):
         raise ValueError(f"seed {seed} is a training seed; held-out sequences use evaluation seeds only")
@@ -184,7 +184,7 @@ def simulate_sequence(seed: int, config: HeldoutConfig) -> Sequence:
 @dataclass(frozen=True)
 class VideoHeldout:
     """A held-out video-like sequence kind: ``name`` and the ranges its scenes are drawn from
-    (``rmbvideo.train.video_scenes``), in the physical convention or spikezoo's."""
+    (``rmbvideo.scenes.video``), in the physical convention or spikezoo's."""
 
     name: str
     ranges: VideoSceneRanges
@@ -207,8 +207,9 @@ VIDEO_KINDS = (
 def simulate_video_sequence(seed: int, kind: VideoHeldout, config: HeldoutConfig) -> Sequence:
     """The held-out video sequence of ``seed`` (an evaluation seed) of ``kind`` at ``config``'s size."""
     from rmbvideo.scenes.render import bin_image
-    from rmbvideo.train.random_scenes import is_eval_seed
-    from rmbvideo.train.video_scenes import VideoScene, capture_planes
+    from rmbvideo.scenes.random_scenes import is_eval_seed
+    from rmbvideo.scenes.video import VideoScene
+    from rmbvideo.simulate.capture import capture_planes
 
     if not is_eval_seed(seed):
         raise ValueError(f"seed {seed} is a training seed; held-out sequences use evaluation seeds only")
@@ -281,7 +282,7 @@ def load_sequence(path: Path, edge_readouts: int) -> Sequence:
 
 def heldout_seeds(config: HeldoutConfig) -> list[int]:
     """The evaluation seeds of ``config``'s sequences."""
-    from rmbvideo.train.random_scenes import EVAL_SEED_START
+    from rmbvideo.scenes.random_scenes import EVAL_SEED_START
 
     return [EVAL_SEED_START + config.first_seed_offset + k for k in range(config.count)]
 

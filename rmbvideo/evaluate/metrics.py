@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from rmbvideo.recon.tonemap import mu_law
+from rmbvideo.mulaw import mu_law
 
 if TYPE_CHECKING:
     import torch

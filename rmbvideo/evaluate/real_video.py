@@ -32,7 +32,8 @@ from rmbvideo.chunks import Frame
 from rmbvideo.errors import InputError
 from rmbvideo.evaluate.metrics import ssim
 from rmbvideo.io.dat import DatGeometry, DatReader
-from rmbvideo.recon.pipeline import make_reconstructor, reconstruct_stream
+from rmbvideo.recon.methods import make_reconstructor
+from rmbvideo.recon.pipeline import reconstruct_stream
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
 
 log = logging.getLogger(__name__)

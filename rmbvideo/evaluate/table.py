@@ -27,7 +27,7 @@ from rmbvideo.errors import InputError
 from rmbvideo.evaluate.harness import RowResult, downsample_2x
 from rmbvideo.evaluate.metrics import robust_scale
 from rmbvideo.io.atomic import atomic_path, atomic_write_text
-from rmbvideo.recon.tonemap import mu_law
+from rmbvideo.mulaw import mu_law
 
 log = logging.getLogger(__name__)
 
@@ -219,8 +219,9 @@ def real_capture_comparison(path: Path, out_png: Path, model: Path | None = None
     produce. Regions are picked on the TFP frame; each column is tone-mapped to its own robust maximum
     (there is no ground truth, and the methods' linear units agree only roughly).
     """
-    from rmbvideo.cli.options import open_capture
-    from rmbvideo.recon.pipeline import make_reconstructor, reconstruct_stream
+    from rmbvideo.io.capture import open_capture
+    from rmbvideo.recon.methods import make_reconstructor
+    from rmbvideo.recon.pipeline import reconstruct_stream
     from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
 
     reader = open_capture(Path(path), width=None, height=None, flip=None, header_cols=None, rate_hz=None)

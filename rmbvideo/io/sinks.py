@@ -39,7 +39,7 @@ from rmbvideo.io.atomic import (
     temp_path_for,
 )
 from rmbvideo.io.exr import ExrDtype, write_exr
-from rmbvideo.recon.tonemap import ToneMapConfig, ToneMapper
+from rmbvideo.io.tonemap import ToneMapConfig, ToneMapper
 
 log = logging.getLogger(__name__)
 

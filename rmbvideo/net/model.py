@@ -37,7 +37,7 @@ from rmbvideo.net.attention import CrossBitAttention, CrossTimeAttention, PlainB
 from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.decoder import Decoder, DecoderState
 from rmbvideo.net.encoder import Encoder
-from rmbvideo.recon.tonemap import mu_law
+from rmbvideo.mulaw import inverse_mu_law, mu_law
 
 PAD_MULTIPLE = 8
 # (scale, query frame index, key frame index) -> XBA mask logits of that pair, (B, C, h, w)
@@ -77,11 +77,6 @@ def window_valid(i: int, w: int, count: int | None) -> list[bool]:
     """Which positions of the window around ``i`` hold a real frame (inside 0..count-1)."""
     last = math.inf if count is None else count - 1
     return [0 <= j <= last for j in range(i - w, i + w + 1)]
-
-
-def inverse_mu_law(t: torch.Tensor, mu: float) -> torch.Tensor:
-    """Inverse of ``mu_law``: (exp(t log(1 + mu)) - 1) / mu."""
-    return torch.expm1(t * math.log1p(mu)) / mu
 
 
 class RmbNet(nn.Module):

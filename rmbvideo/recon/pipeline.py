@@ -1,8 +1,7 @@
 """The streaming reconstruction loop: reader chunks -> reconstructor -> frames -> sink.
 
-Reconstructors are looked up by name in :data:`RECONSTRUCTORS` (name -> factory taking keyword
-options); other packages add theirs with :func:`register_reconstructor` (e.g. ``rmbnet``). This
-module is the one place that guards the sink against non-finite pixels.
+Reconstructors are built by name from ``rmbvideo.recon.methods``. This module is the one place that
+guards the sink against non-finite pixels.
 """
 
 from __future__ import annotations
@@ -10,56 +9,17 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
-from typing import Callable, Iterator, Protocol
+from typing import Iterator, Protocol
 
 import numpy as np
 from tqdm import tqdm
 
 from rmbvideo.chunks import Frame, RmbChunk, SpikeChunk
-from rmbvideo.evaluate.gc20 import Gc20Config, Gc20Reconstructor
-from rmbvideo.evaluate.mg20 import Mg20Config, Mg20Reconstructor
 from rmbvideo.io.dat import PackedChunk
-from rmbvideo.recon.classical import Reconstructor, Tfi, Tfp, Tfw
+from rmbvideo.recon.classical import Reconstructor
 from rmbvideo.sensor.readout import RmbReadout
 
 log = logging.getLogger(__name__)
-
-ReconstructorFactory = Callable[..., Reconstructor]
-
-RECONSTRUCTORS: dict[str, ReconstructorFactory] = {
-    "tfp": Tfp,
-    "tfi": Tfi,
-    "tfw": Tfw,
-    "gc20": lambda **options: Gc20Reconstructor(Gc20Config(**options)),
-    "mg20": lambda **options: Mg20Reconstructor(Mg20Config(**options)),
-}
-
-
-def _rmbnet(**options: object) -> Reconstructor:
-    """RMB-Net, imported on first use so the classical methods start without torch."""
-    from rmbvideo.recon.rmbnet import make_rmbnet
-
-    return make_rmbnet(**options)
-
-
-RECONSTRUCTORS["rmbnet"] = _rmbnet
-
-
-def register_reconstructor(name: str, factory: ReconstructorFactory) -> None:
-    """Make ``factory(**options)`` available as method ``name`` (replacing any previous one)."""
-    RECONSTRUCTORS[name] = factory
-
-
-def make_reconstructor(method: str, **options: object) -> Reconstructor:
-    """Build the reconstructor registered as ``method`` with keyword ``options``."""
-    factory = RECONSTRUCTORS.get(method)
-    if factory is None:
-        raise ValueError(f"unknown method {method!r} (known: {', '.join(sorted(RECONSTRUCTORS))})")
-    try:
-        return factory(**options)
-    except TypeError as exc:
-        raise ValueError(f"method {method!r}: bad options {sorted(options)}: {exc}") from exc
-
 
 class SpikeSource(Protocol):
     """What the loop reads from (``rmbvideo.io.dat.DatReader`` or anything shaped like it)."""

@@ -160,3 +160,7 @@ EFFECTS: dict[str, str] = {
     "readout_rounding": "threshold rounded to whole electrons",
     "rolling_readout": "rows read at staggered times within each interval",
 }
+#: Noise effects of a real 1-bit camera (rolling readout is left out: real captures are global).
+REALISTIC_EFFECTS = ("shot_noise", "dark_current", "threshold_mismatch", "reset_noise", "thermal_noise",
+                     "readout_rounding")
+

@@ -26,7 +26,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Sequence
+from typing import Sequence
 
 import numpy as np
 
@@ -44,9 +44,6 @@ from rmbvideo.sensor.effects import (
 )
 from rmbvideo.sensor.params import SensorParams
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
-
-if TYPE_CHECKING:
-    from rmbvideo.scenes.scene import Scene
 
 log = logging.getLogger(__name__)
 
@@ -171,70 +168,3 @@ class RateIntegrateFire:
         fired = self.accumulator >= 1.0
         self.accumulator -= fired
         return fired.astype(np.uint8)
-
-
-class CaptureSimulator:
-    """Simulates a capture of a scene: radiance integrated over each interval -> spikes, in chunks.
-
-    The expected photo-charge of interval ``k`` is ``exposure`` times the mean radiance over
-    ``[k, k+1) / rate`` (``[k + r/H, k + 1 + r/H) / rate`` for row ``r`` with ``rolling_readout``),
-    integrated with the trapezoid rule on ``scene.subsamples`` segments; the render at an interval's
-    end is reused as the next one's start, so one segment costs one render per readout.
-    """
-
-    def __init__(self, scene: Scene, duration_s: float | None = None) -> None:
-        from rmbvideo.scenes.render import SceneRenderer
-
-        self.scene = scene
-        self.renderer = SceneRenderer(scene)
-        self.row_delay: np.ndarray | float = (RollingReadout.row_delay(scene.height)
-                                              if "rolling_readout" in scene.effects else 0.0)
-        total = scene.total_readouts
-        if duration_s is not None:
-            total = min(total, int(np.floor(duration_s * scene.rate_hz + 1e-9)))
-            total -= total % 2 if scene.readout.kind == "binned" else 0
-        self.total_readouts = total
-        self._boundary: tuple[float, np.ndarray] | None = None
-
-    def _render_boundary(self, boundary: float) -> np.ndarray:
-        if self._boundary is not None and self._boundary[0] == boundary:
-            return self._boundary[1]
-        image = self.renderer.render((boundary + self.row_delay) / self.scene.rate_hz)
-        self._boundary = (boundary, image)
-        return image
-
-    def expected_photo(self, k: int) -> np.ndarray:
-        """Expected photo-electrons (H, W) float64 of readout interval ``k``."""
-        n = self.scene.subsamples
-        total = 0.5 * self._render_boundary(float(k)).astype(np.float64)
-        for j in range(1, n):
-            total += self.renderer.render((k + j / n + self.row_delay) / self.scene.rate_hz)
-        total += 0.5 * self._render_boundary(float(k + 1))
-        return total * (self.scene.exposure / n)
-
-    def new_emitter(self) -> SpikeEmitter:
-        """A pixel array in its initial state (empty charge), with the scene's effects."""
-        scene = self.scene
-        return SpikeEmitter(scene.height, scene.width, scene.sensor, scene.effects, scene.seed,
-                            scene.dark_correlation_px)
-
-    def chunks(self, chunk_readouts: int = 64) -> Iterator[SpikeChunk | RmbChunk]:
-        """The whole capture from its start, as consecutive chunks: ``SpikeChunk`` for 1bit/binned
-        (raw planes), ``RmbChunk`` for Lbit/rmb. Each call simulates afresh (same seed, same result)."""
-        emitter = self.new_emitter()
-        readout = self.scene.readout
-        height = self.scene.height
-        for start in range(0, self.total_readouts, chunk_readouts):
-            count = min(chunk_readouts, self.total_readouts - start)
-            multi_rows = readout.multi_rows(start, count, height)
-            levels = np.where(multi_rows, readout.level, 1)
-            values = np.empty((count, height, self.scene.width), dtype=np.uint8)
-            for t in range(count):
-                values[t] = emitter.emit_one(self.expected_photo(start + t), levels[t][:, None])
-            if not readout.is_multibit:
-                yield SpikeChunk(planes=values, start=start, rate_hz=self.scene.rate_hz)
-                continue
-            single = np.where(multi_rows[:, :, None], values == readout.level, values).astype(np.uint8)
-            multi = np.where(multi_rows[:, :, None], values, np.uint8(0)).astype(np.uint8)
-            yield RmbChunk(single=single, multi=multi, multi_rows=multi_rows, start=start,
-                           rate_hz=self.scene.rate_hz, level=readout.level, raw_per_readout=1)

@@ -19,7 +19,7 @@ from rmbvideo.errors import InputError
 from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.train.dataset import SampleSpec
 from rmbvideo.train.loss import LossConfig
-from rmbvideo.train.random_scenes import SceneRanges
+from rmbvideo.scenes.random_scenes import SceneRanges
 
 RECIPES_DIR = Path(__file__).resolve().parent / "recipes"
 

@@ -34,10 +34,11 @@ from rmbvideo.io.atomic import atomic_path, atomic_write_text
 from rmbvideo.recon.prelim import PrelimFrame, PreliminaryFrames
 from rmbvideo.scenes.render import SceneRenderer, bin_image, ground_truth
 from rmbvideo.sensor.binning import StreamBinner
-from rmbvideo.sensor.emission import CaptureSimulator, ReadoutSpec
+from rmbvideo.sensor.emission import ReadoutSpec
+from rmbvideo.simulate.capture import CaptureSimulator, capture_planes
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
-from rmbvideo.train.random_scenes import SceneRanges, random_scene
-from rmbvideo.train.video_scenes import VideoScene, capture_planes
+from rmbvideo.scenes.random_scenes import SceneRanges, random_scene
+from rmbvideo.scenes.video import VideoScene
 
 log = logging.getLogger(__name__)
 

@@ -34,7 +34,8 @@ from rmbvideo.train.checkpoint import CheckpointState, checkpoint_paths, load_ch
 from rmbvideo.train.config import TrainConfig
 from rmbvideo.train.dataset import Sample, SampleCache, SamplePrefetcher
 from rmbvideo.train.loss import LossConfig, reconstruction_loss
-from rmbvideo.train.random_scenes import EVAL_SEED_START, HELD_OUT_PANORAMA, REALISTIC_EFFECTS, TRAIN_PANORAMAS
+from rmbvideo.scenes.random_scenes import EVAL_SEED_START, HELD_OUT_PANORAMA, TRAIN_PANORAMAS
+from rmbvideo.sensor.effects import REALISTIC_EFFECTS
 
 log = logging.getLogger(__name__)
 
@@ -369,7 +370,7 @@ class Trainer:
                 "input_mode": spec.mode,
                 "readout": f"{spec.readout}, band {spec.band}, shift {spec.shift}, level {spec.level}",
                 "description": (
-                    "dead-leaves video scenes (rmbvideo.train.video_scenes): texture at every scale, a camera "
+                    "dead-leaves video scenes (rmbvideo.scenes.video): texture at every scale, a camera "
                     "moving up to 1.2 raw px/plane with shake and zoom, 0-6 independent objects (own translation "
                     "up to 1.5 raw px/plane, rotation, scaling; occlusion; some lights 5-300x brighter), soft "
                     "shadows, median rate 2e-3..0.5 per raw plane; 1-bit simulation at 2x size and rate, binned "

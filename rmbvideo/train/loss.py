@@ -16,7 +16,7 @@ import torch
 import torch.nn.functional as F
 
 from rmbvideo.evaluate.metrics import ssim_torch
-from rmbvideo.recon.tonemap import mu_law
+from rmbvideo.mulaw import mu_law
 
 
 @dataclass(frozen=True)

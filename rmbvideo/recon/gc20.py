@@ -284,3 +284,8 @@ class Gc20Reconstructor(BlockWindowReconstructor):
         for stats in blocks:
             total.add(stats)
         return solve_exposure(total, model)
+
+
+def make_gc20(**options: object) -> Gc20Reconstructor:
+    """Method "gc20": keyword options are ``Gc20Config`` fields."""
+    return Gc20Reconstructor(Gc20Config(**options))  # type: ignore[arg-type]

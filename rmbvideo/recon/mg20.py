@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from rmbvideo.evaluate.gc20 import BlockWindowReconstructor, JotModel, ReadingStats, Response, solve_exposure
+from rmbvideo.recon.gc20 import BlockWindowReconstructor, JotModel, ReadingStats, Response, solve_exposure
 
 
 @dataclass(frozen=True)
@@ -107,3 +107,8 @@ def _alignment_scale(fires: np.ndarray, jots: np.ndarray) -> float:
 def _arcsine_sqrt(fires: np.ndarray, jots: np.ndarray) -> np.ndarray:
     """Variance-stabilised binomial proportion: 2 asin(sqrt(f / n)) has variance ~ 1 / n."""
     return 2.0 * np.arcsin(np.sqrt(np.clip(fires / np.maximum(jots, 1.0), 0.0, 1.0)))
+
+
+def make_mg20(**options: object) -> Mg20Reconstructor:
+    """Method "mg20": keyword options are ``Mg20Config`` fields."""
+    return Mg20Reconstructor(Mg20Config(**options))  # type: ignore[arg-type]

@@ -18,22 +18,18 @@ Every layer is a static texture under an affine map of time, so ``render(t)`` is
 ``rate`` scales them to the project's unit (expected charge per raw plane relative to the threshold).
 
 Every scene is a pure function of its seed; training draws seeds below
-``rmbvideo.train.random_scenes.EVAL_SEED_START`` and validation seeds at or above it.
+``rmbvideo.scenes.random_scenes.EVAL_SEED_START`` and validation seeds at or above it.
+``rmbvideo.simulate.capture.capture_planes`` turns a scene into a 1-bit capture.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-from rmbvideo.chunks import SpikeChunk
-from rmbvideo.sensor.emission import RateIntegrateFire, SpikeEmitter
-from rmbvideo.sensor.params import SensorParams
-from rmbvideo.train.random_scenes import REALISTIC_EFFECTS
 
 #: Sensor conventions a sample can be simulated with.
 CONVENTIONS = ("physical", "spikezoo")
@@ -258,19 +254,3 @@ class VideoScene:
         """Linear value (H, W) float32 at raw-plane time ``k``: charge per raw plane / threshold."""
         image = np.minimum(self._render_raw(k) * np.float32(self.scale), np.float32(self.clip))
         return np.maximum(image * np.float32(self.gain), 0.0)
-
-
-def capture_planes(scene: VideoScene, planes: int, rate_hz: float, chunk: int = 64) -> Iterator[SpikeChunk]:
-    """The raw 1-bit capture of ``scene`` (``planes`` planes from time 0) in chunks: the physical
-    emission model with a real camera's noise, or spikezoo's accumulate-and-subtract rate convention
-    (``scene.convention``). Plane k integrates the scene at its midpoint k + 1/2."""
-    height, width = scene.height, scene.width
-    if scene.convention == "physical":
-        params = SensorParams()
-        emitter = SpikeEmitter(height, width, params, REALISTIC_EFFECTS, scene.seed)
-        emit = lambda value: emitter.emit_one(value * params.q_r, 1)  # noqa: E731
-    else:
-        emit = RateIntegrateFire((height, width), scene.seed).emit_one
-    for start in range(0, planes, chunk):
-        block = np.stack([emit(scene.render(k + 0.5)) for k in range(start, min(start + chunk, planes))])
-        yield SpikeChunk(planes=block, start=start, rate_hz=rate_hz)

@@ -1,6 +1,6 @@
 """Tone mapping linear HDR frames to 8-bit display video.
 
-``mu_law`` is the paper's tone curve (also used for metrics and losses). ``ToneMapper`` applies it
+``ToneMapper`` applies the paper's tone curve (``rmbvideo.mulaw``)
 to a stream of frames with a robust, temporally smoothed exposure so the video does not flicker:
 each frame's high percentile sets a white point, and that white point is smoothed with an
 exponential moving average in log space. OpenCV's Reinhard, Drago and Mantiuk operators are
@@ -16,6 +16,8 @@ from typing import Any, Literal
 
 import numpy as np
 
+from rmbvideo.mulaw import mu_law
+
 log = logging.getLogger(__name__)
 
 ToneMethod = Literal["mulaw", "reinhard", "drago", "mantiuk"]
@@ -23,33 +25,6 @@ TONE_METHODS: tuple[str, ...] = ("mulaw", "reinhard", "drago", "mantiuk")
 
 # Frames larger than this are subsampled (with a fixed stride) to estimate the white point.
 _MAX_PERCENTILE_SAMPLES = 1 << 18
-
-
-def mu_law(x: Any, mu: float = 5000.0) -> Any:
-    """The paper's mu-law curve ``log(1 + mu*x) / log(1 + mu)`` for NumPy arrays or torch tensors.
-
-    Negative values are clipped to 0 and huge values are clipped before the multiply so the result
-    is always finite (NaN inputs stay NaN). Torch tensors stay tensors, so it can serve as a loss.
-    """
-    if mu <= 0:
-        raise ValueError(f"mu must be positive, got {mu}")
-    denominator = math.log1p(mu)
-    if hasattr(x, "clamp") and not isinstance(x, np.ndarray):  # a torch tensor, kept differentiable
-        upper = _float_max(str(x.dtype)) / (2.0 * mu)
-        return (x.clamp(min=0.0, max=upper) * mu).log1p() / denominator
-    array = np.asarray(x)
-    if not np.issubdtype(array.dtype, np.floating):
-        array = array.astype(np.float64)
-    upper = np.finfo(array.dtype).max / (2.0 * mu)  # headroom so the multiply cannot overflow
-    return (np.log1p(np.clip(array, 0.0, upper) * array.dtype.type(mu)) / denominator).astype(
-        array.dtype, copy=False
-    )
-
-
-def _float_max(torch_dtype_name: str) -> float:
-    """Largest finite value of a torch float dtype, by name (avoids importing torch here)."""
-    name = torch_dtype_name.rsplit(".", 1)[-1]
-    return {"float16": 65504.0, "bfloat16": 3.3895e38, "float32": 3.4028e38}.get(name, 1.7976e308)
 
 
 @dataclass(frozen=True)

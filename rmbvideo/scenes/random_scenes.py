@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rmbvideo.scenes.scene import Background, DarkRegion, Scene, SceneObject
+from rmbvideo.sensor.effects import REALISTIC_EFFECTS
 from rmbvideo.sensor.emission import ReadoutSpec
 from rmbvideo.sensor.params import SensorParams
 
@@ -23,9 +24,6 @@ HELD_OUT_PANORAMA = "sunrise"
 TRAIN_PANORAMAS = ("city", "courtyard", "forest", "interior", "studio")
 EVAL_PANORAMAS = TRAIN_PANORAMAS + (HELD_OUT_PANORAMA,)
 PANORAMA_SIZE = (1024, 512)  # bundled panoramas, width x height
-#: Noise effects of a real 1-bit camera (rolling readout is left out: real captures are global).
-REALISTIC_EFFECTS = ("shot_noise", "dark_current", "threshold_mismatch", "reset_noise", "thermal_noise",
-                     "readout_rounding")
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,32 @@
+"""Open a capture file with the geometry its options, its sidecar or the defaults give it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from rmbvideo.io.dat import DatGeometry, DatReader
+from rmbvideo.io.rmbfile import RmbFileReader, mbit_path
+from rmbvideo.io.sidecar import read_sidecar
+
+DEFAULT_WIDTH, DEFAULT_HEIGHT, DEFAULT_RATE_HZ = 400, 250, 20000.0
+
+
+def open_capture(path: Path, width: int | None = None, height: int | None = None, flip: bool | None = None,
+                 header_cols: int | None = None, rate_hz: float | None = None) -> DatReader | RmbFileReader:
+    """Open ``path`` as a ``DatReader``: options override the sidecar, which overrides defaults.
+
+    A capture with a ``.mbit`` multi-bit sidecar (a native multi-bit/RMB sensor, see
+    ``rmbvideo.io.rmbfile``) opens as an ``RmbFileReader``, whose header fixes its geometry.
+    """
+    if Path(path).is_file() and mbit_path(Path(path)).is_file():
+        return RmbFileReader(Path(path))
+
+    info = read_sidecar(Path(path)).override(width=width, height=height, flip=flip,
+                                             header_cols=header_cols, rate_hz=rate_hz)
+    geometry = DatGeometry(
+        width=info.width if info.width is not None else DEFAULT_WIDTH,
+        height=info.height if info.height is not None else DEFAULT_HEIGHT,
+        header_cols=info.header_cols if info.header_cols is not None else 0,
+        flip=info.flip if info.flip is not None else True,
+    )
+    return DatReader(Path(path), geometry, rate_hz=info.rate_hz or DEFAULT_RATE_HZ)

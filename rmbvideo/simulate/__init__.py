@@ -1,0 +1,1 @@
+"""Capture simulation and ground truth: scenes through the sensor model into camera data."""
