@@ -23,6 +23,7 @@ renamed when complete.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import os
@@ -239,7 +240,9 @@ def load_video_heldout(quick: bool, cache: Path | None = None, per_kind: int = 1
     for k, kind in enumerate(VIDEO_KINDS):
         for j in range(per_kind):
             seed = VIDEO_SEED_START + 100 * k + j
-            path = cache / f"video-v{CACHE_FORMAT}-{kind.name}-seed{seed}-{config.width}x{config.height}-{config.readouts}.npz"
+            digest = hashlib.sha256(repr(kind).encode()).hexdigest()[:8]  # any change of the kind is a new file
+            path = cache / (f"video-v{CACHE_FORMAT}-{kind.name}-{digest}-seed{seed}-{config.width}x{config.height}"
+                            f"-{config.readouts}.npz")
             if path.is_file():
                 sequences.append(load_sequence(path, config.edge_readouts))
                 continue

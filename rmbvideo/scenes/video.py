@@ -46,7 +46,7 @@ class VideoSceneRanges:
     floor of the emission model is ~5e-4, saturation is 1)."""
 
     median_rate: tuple[float, float] = (2e-3, 0.5)
-    camera_speed: tuple[float, float] = (0.0, 1.2)
+    camera_speed: tuple[float, float] = (0.005, 1.2)  # log-uniform: most video moves slowly, some fast
     static_probability: float = 0.15
     shake_px: float = 0.6
     zoom_rate: float = 2e-3          # per raw plane, either sign
@@ -175,7 +175,7 @@ class VideoScene:
         rng = np.random.default_rng([seed, 0x71DE0])
         self.layers: list[_Layer] = []
         # the background canvas wraps around, so a camera of any speed stays on it
-        speed = 0.0 if rng.random() < ranges.static_probability else rng.uniform(*ranges.camera_speed)
+        speed = 0.0 if rng.random() < ranges.static_probability else _log_uniform(rng, *ranges.camera_speed)
         direction = rng.uniform(0, 2 * math.pi)
         velocity = speed * np.array([math.cos(direction), math.sin(direction)])
         canvas_w, canvas_h = 2 * width, 2 * height

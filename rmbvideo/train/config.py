@@ -62,7 +62,7 @@ class OptimConfig:
     threads: int = 0  # torch intra-op threads; 0 leaves torch's default
     val_every: int = 250
     checkpoint_every: int = 50
-    edges: bool = False  # also supervise the first/last w outputs of a sample as a clip's edges
+    edges: float = 0.0  # fraction of steps that also supervise a sample's first/last w outputs as a clip's edges
 
 
 @dataclass(frozen=True)
@@ -180,6 +180,8 @@ def _check_ranges(config: TrainConfig, path: Path) -> None:
         problems.append("data.exposure must be [low, high] with 0 < low <= high")
     if o.lr <= 0 or o.lr_final <= 0 or o.steps < 1 or o.batch < 1 or o.tbptt < 1:
         problems.append("optim.lr, lr_final, steps, batch and tbptt must be positive")
+    if not 0.0 <= o.edges <= 1.0:
+        problems.append("optim.edges must be a fraction of steps in [0, 1]")
     if o.val_every < 1 or o.checkpoint_every < 1 or o.threads < 0:
         problems.append("optim.val_every and checkpoint_every must be >= 1, threads >= 0")
     if problems:

@@ -307,7 +307,8 @@ class Trainer:
                 for group in self.optimizer.param_groups:
                     group["lr"] = lr
                 self.optimizer.zero_grad(set_to_none=True)
-                losses = train_batch(self.model, batch, cfg.optim.tbptt, cfg.loss, cfg.optim.edges)
+                edges = bool(np.random.default_rng([cfg.seed, step, 2]).random() < cfg.optim.edges)
+                losses = train_batch(self.model, batch, cfg.optim.tbptt, cfg.loss, edges)
                 if not all(math.isfinite(v) for v in losses.values()):
                     raise FloatingPointError(f"step {step}: non-finite loss {losses} (seeds {seeds})")
                 torch.nn.utils.clip_grad_norm_(self.model.parameters(), cfg.optim.grad_clip)
@@ -318,7 +319,7 @@ class Trainer:
                 if step % cfg.optim.val_every == 0:
                     val_samples = val_samples or self.validation_samples()
                     row.update(validate(self.model, val_samples, self.cache.spec.quanta, cfg.loss.saturation,
-                                        self.device, cfg.optim.edges))
+                                        self.device, cfg.optim.edges > 0))
                     log.info("step %d (%.1f min): loss %.4f, val mu-PSNR %.2f dB (TFW %.2f dB)", step,
                              elapsed / 60, losses["loss"], row["val_mu_psnr"], row["val_tfw_mu_psnr"])
                 log_writer.write(row)
@@ -334,7 +335,7 @@ class Trainer:
         elapsed = time.monotonic() - started
         save_checkpoint(self.out_dir, self.model, self.optimizer, CheckpointState(step, elapsed))
         metrics = validate(self.model, val_samples or self.validation_samples(), self.cache.spec.quanta,
-                           cfg.loss.saturation, self.device, cfg.optim.edges)
+                           cfg.loss.saturation, self.device, cfg.optim.edges > 0)
         metrics["val_samples"] = float(cfg.data.val_count)
         weights = save_model(self.out_dir / f"{cfg.name}.safetensors", self.model,
                              self.card(step, elapsed, stopped_by, metrics))
