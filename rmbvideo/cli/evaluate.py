@@ -128,6 +128,11 @@ def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Pat
         if kind in ("fast", "dark"):
             written.append(write_sequence_png(rows, seq.name, seq.gt[middle_frame(seq)],
                                               out_dir / f"evaluation-{kind}.png"))
+    from rmbvideo.evaluate.video_checks import write_checks
+
+    video = [seq for seq in sequences if json.loads(seq.description).get("kind")]
+    written += write_checks(out_dir, "rmbnet", {"model": models_dir / "rmbnet-binned.safetensors",
+                                                "device": resolved, "threads": 1}, video, quick)
     if real_video is not None:
         written += _real_video(real_video, models_dir / "rmbnet-binned.safetensors", resolved, out_dir)
     if real_path is not None:
