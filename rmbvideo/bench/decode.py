@@ -14,7 +14,6 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-import click
 import numpy as np
 
 from rmbvideo.io.dat import DatGeometry, DatReader, DatWriter
@@ -135,7 +134,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
     args = parser.parse_args(argv)
     result = bench_decode(args.planes)
-    click.echo(json.dumps(result, indent=2) if args.json else _summary(result))
+    print(json.dumps(result, indent=2) if args.json else _summary(result))
 
 
 if __name__ == "__main__":

@@ -16,17 +16,17 @@ import click
 
 from rmbvideo.errors import RmbvideoError
 
-# name -> "module:attribute" of the click command
-COMMANDS: dict[str, str] = {
-    "reconstruct": "rmbvideo.cli.reconstruct:reconstruct",
-    "info": "rmbvideo.cli.info:info",
-    "preview": "rmbvideo.cli.preview:preview",
-    "simulate": "rmbvideo.cli.simulate:simulate",
-    "dynamic-range": "rmbvideo.cli.dynamic_range:dynamic_range",
-    "train": "rmbvideo.cli.train:train",
-    "evaluate": "rmbvideo.cli.evaluate:evaluate",
-    "bench": "rmbvideo.cli.bench:bench",
-    "batch": "rmbvideo.cli.batch:batch",
+# name -> ("module:attribute" of the click command, one line for ``rmbvideo --help``)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "reconstruct": ("rmbvideo.cli.reconstruct:reconstruct", "Reconstruct a capture into a video or HDR frames."),
+    "info": ("rmbvideo.cli.info:info", "Planes, duration, geometry and firing rate of a capture."),
+    "preview": ("rmbvideo.cli.preview:preview", "Contact sheet of a few time points of a capture."),
+    "simulate": ("rmbvideo.cli.simulate:simulate", "Simulate a spiking-camera capture of a scene."),
+    "dynamic-range": ("rmbvideo.cli.dynamic_range:dynamic_range", "Theoretical dynamic range of a readout design."),
+    "train": ("rmbvideo.cli.train:train", "Train RMB-Net from a recipe."),
+    "evaluate": ("rmbvideo.cli.evaluate:evaluate", "Score every method on held-out and real-video data."),
+    "bench": ("rmbvideo.cli.bench:bench", "What accuracy costs in time, for every method."),
+    "batch": ("rmbvideo.cli.batch:batch", "Convert many captures, unattended and resumable."),
 }
 
 
@@ -34,14 +34,32 @@ class LazyGroup(click.Group):
     """A group whose subcommands are imported on first use."""
 
     def list_commands(self, ctx: click.Context) -> list[str]:
-        return sorted(name for name in COMMANDS if _spec_exists(COMMANDS[name]))
+        return sorted(name for name in COMMANDS if _spec_exists(COMMANDS[name][0]))
 
     def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
-        spec = COMMANDS.get(name)
-        if spec is None or not _spec_exists(spec):
+        entry = COMMANDS.get(name)
+        if entry is None or not _spec_exists(entry[0]):
             return None
-        module, attr = spec.split(":")
+        module, attr = entry[0].split(":")
         return getattr(importlib.import_module(module), attr)
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        """The command list from ``COMMANDS`` without importing any command (``--help`` stays fast)."""
+        rows = [(name, COMMANDS[name][1]) for name in self.list_commands(ctx)]
+        if rows:
+            with formatter.section("Commands"):
+                formatter.write_dl(rows)
+
+    def resolve_command(self, ctx: click.Context, args: list[str]):
+        """Unknown commands get the closest known name as a suggestion."""
+        import difflib
+
+        name = args[0] if args else ""
+        if name and not name.startswith("-") and name not in COMMANDS:
+            close = difflib.get_close_matches(name, list(COMMANDS), n=1)
+            hint = f" Did you mean {close[0]!r}?" if close else ""
+            ctx.fail(f"No such command {name!r}.{hint}")
+        return super().resolve_command(ctx, args)
 
     def invoke(self, ctx: click.Context):
         try:

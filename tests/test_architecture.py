@@ -1,0 +1,69 @@
+"""The layer rule, checked on the code's own imports (lazy ones included): packages form no cycle,
+nothing outside ``cli`` imports the CLI or click, the network imports torch and its siblings only,
+and the cheap commands do not pay for torch, SciPy or OpenCV."""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parents[1] / "rmbvideo"
+#: lower layers first; a package may import only packages at its own position or before it.
+LAYERS = ["errors", "chunks", "mulaw", "sensor", "io", "scenes", "net", "recon", "simulate", "evaluate", "train",
+          "bench", "batch", "cli"]
+
+
+def imports() -> list[tuple[str, str, str]]:
+    """(file, importing package, imported rmbvideo module) for every import in the package."""
+    found = []
+    for path in PACKAGE.rglob("*.py"):
+        rel = path.relative_to(PACKAGE)
+        src = rel.parts[0].removesuffix(".py")
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module] if isinstance(node, ast.ImportFrom) and node.module and node.level == 0 else []
+            found += [(str(rel), src, name) for name in names]
+    return found
+
+
+def test_imports_only_point_down():
+    wrong = []
+    for rel, src, name in imports():
+        if src in ("__init__", "__main__") or not name.startswith("rmbvideo."):
+            continue
+        dst = name.split(".")[1]
+        if dst != src and LAYERS.index(dst) > LAYERS.index(src):
+            wrong.append(f"{rel} imports {name}")
+    assert not wrong, wrong
+
+
+def test_only_the_cli_uses_click():
+    users = [rel for rel, src, name in imports() if name.split(".")[0] == "click" and src != "cli"]
+    assert not users, users
+
+
+def test_the_network_imports_torch_and_its_siblings_only():
+    allowed = ("torch", "rmbvideo.net", "rmbvideo.mulaw", "__future__", "math", "collections", "dataclasses",
+               "typing")
+    parts = [(rel, name) for rel, src, name in imports() if src == "net" and not rel.endswith("weights.py")]
+    assert parts and all(name.startswith(allowed) for _, name in parts), parts
+
+
+def _modules_loaded(*args: str) -> set[str]:
+    code = ("import sys\nfrom rmbvideo.cli import main\ntry:\n    main(%r, standalone_mode=False)\nexcept SystemExit:\n"
+            "    pass\nprint(' '.join(sorted(m.split('.')[0] for m in sys.modules)))" % (list(args),))
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return set(result.stdout.split()[-1000:])
+
+
+def test_help_and_info_import_neither_torch_scipy_nor_opencv(tmp_path):
+    from rmbvideo.io.dat import DatGeometry, write_dat
+    import numpy as np
+
+    capture = tmp_path / "c.dat"
+    write_dat(capture, np.zeros((4, 16, 16), np.uint8), DatGeometry(16, 16))
+    for args in (["--help"], ["info", str(capture), "--width", "16", "--height", "16"]):
+        heavy = _modules_loaded(*args) & {"torch", "scipy", "cv2"}
+        assert not heavy, (args, heavy)
