@@ -7,6 +7,7 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 import threading
 from dataclasses import dataclass
 from pathlib import Path
@@ -131,3 +132,19 @@ def write_random_capture(path: Path, n_planes: int, width: int, height: int, rat
         for s in range(0, n_planes, len(pool)):
             writer.write(pool[: min(len(pool), n_planes - s)])
     return path
+
+
+def memory_scaling(method: str, planes: int, factor: int = 5, width: int = 400, height: int = 250,
+                   extra: tuple[str, ...] = ()) -> dict:
+    """Peak RSS of ``reconstruct --format null`` on a capture of ``planes`` and of ``factor`` x as many."""
+    peaks = []
+    with tempfile.TemporaryDirectory(prefix="rmbvideo-memory-") as folder:
+        for count in (planes, factor * planes):
+            path = write_random_capture(Path(folder) / f"c{count}.dat", count, width, height)
+            peaks.append(reconstruct_peak_rss([str(path), "-o", str(Path(folder) / "out"), "--format", "null",
+                                               "--method", method, "--width", str(width), "--height", str(height),
+                                               "-q", *extra]))
+            path.unlink()
+    return {"method": method, "planes": planes, "factor": factor,
+            "peak_anon_mib": [p.anonymous / 2**20 for p in peaks], "peak_rss_mib": [p.rss / 2**20 for p in peaks],
+            "growth": peaks[1].anonymous / peaks[0].anonymous - 1.0}

@@ -23,24 +23,6 @@ def _devices(choice: str) -> tuple[str, ...]:
     return ("cpu", "cuda") if torch.cuda.is_available() else ("cpu",)
 
 
-def memory_scaling(method: str, planes: int, factor: int = 5, width: int = 400, height: int = 250,
-                   extra: tuple[str, ...] = ()) -> dict:
-    """Peak RSS of ``reconstruct --format null`` on a capture of ``planes`` and of ``factor`` x as many."""
-    from rmbvideo.bench.memory import reconstruct_peak_rss, write_random_capture
-
-    peaks = []
-    with tempfile.TemporaryDirectory(prefix="rmbvideo-memory-") as folder:
-        for count in (planes, factor * planes):
-            path = write_random_capture(Path(folder) / f"c{count}.dat", count, width, height)
-            peaks.append(reconstruct_peak_rss([str(path), "-o", str(Path(folder) / "out"), "--format", "null",
-                                               "--method", method, "--width", str(width), "--height", str(height),
-                                               "-q", *extra]))
-            path.unlink()
-    return {"method": method, "planes": planes, "factor": factor,
-            "peak_anon_mib": [p.anonymous / 2**20 for p in peaks], "peak_rss_mib": [p.rss / 2**20 for p in peaks],
-            "growth": peaks[1].anonymous / peaks[0].anonymous - 1.0}
-
-
 def _stage_table(stages: dict[str, float]) -> str:
     lines = [f"Per-stage time of RMB-Net (w = 3, width {DEFAULT_WIDTH:g}, no alignment, fp32, CPU) at {stages.pop('size')}, "
              f"ms per output frame over {int(stages.pop('frames'))} frames:", "",
@@ -115,6 +97,7 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
                 "accuracy; 'n/a' = untrained (random-init) network, timed only.", "", markdown_table(records)]
     extras: dict = {}
     if not no_extras:
+        from rmbvideo.bench.memory import memory_scaling
         from rmbvideo.bench.realtime import bench_realtime
         from rmbvideo.bench.stages import stage_breakdown
 

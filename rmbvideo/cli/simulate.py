@@ -6,23 +6,15 @@ Output: ``-o NAME.dat`` in the camera's orientation (rows flipped) plus ``NAME.c
 ``.dat`` at the raw size; they differ in the ground truth (``binned``: half size, as the binned
 pipeline outputs).
 
-Ground truth (``--gt DIR``): frame ``i`` is at ``t_i = (i*step + step/2) / rate`` (``step`` raw
-readouts, default 20, centred like reconstruction frames), for every frame whose interval fits in
-the capture. ``gt_NNNNNN.exr`` holds exposure * radiance / Q_r (expected photo-charge per raw
-readout relative to the threshold, float32), ``flow_NNNNNN.npy`` the exact forward flow
-(H, W, 2) float32 (dx, dy) in output pixels from ``t_i`` to ``t_{i+1}``, and ``index.csv`` lists
-``index,time_s,file``.
+Ground truth (``--gt DIR``): see ``rmbvideo.simulate.ground_truth``.
 """
 
 from __future__ import annotations
 
-import csv
-import io
 import logging
 from pathlib import Path
 
 import click
-import numpy as np
 
 from rmbvideo.cli import progress_enabled
 
@@ -57,7 +49,8 @@ def simulate(scene_name: str | None, output: Path | None, gt_dir: Path | None, g
     from tqdm import tqdm
 
     from rmbvideo.io.sidecar import CaptureInfo, write_sidecar
-    from rmbvideo.simulate.capture import CaptureSimulator
+    from rmbvideo.simulate.capture import CaptureSimulator, open_writer
+    from rmbvideo.simulate.ground_truth import write_ground_truth
 
     scene = resolve_scene(scene_name)
     simulator = CaptureSimulator(scene, duration_s)
@@ -68,7 +61,7 @@ def simulate(scene_name: str | None, output: Path | None, gt_dir: Path | None, g
     if simulator.total_readouts == 0:
         raise click.UsageError(f"--duration {duration_s} s is shorter than one readout")
     progress = tqdm(total=simulator.total_readouts, unit="readout", disable=not progress_enabled(quiet))
-    with progress, _open_writer(output, scene) as writer:
+    with progress, open_writer(output, scene) as writer:
         for chunk in simulator.chunks(chunk_readouts):
             writer.write(chunk.planes if not readout.is_multibit else chunk)
             progress.update(len(chunk.planes) if not readout.is_multibit else len(chunk.single))
@@ -83,44 +76,3 @@ def simulate(scene_name: str | None, output: Path | None, gt_dir: Path | None, g
     if gt_dir is not None:
         frames = write_ground_truth(simulator, gt_dir, gt_step)
         log.info("wrote %d ground-truth frames to %s", frames, gt_dir)
-
-
-def _open_writer(output: Path, scene):
-    from rmbvideo.io.dat import DatGeometry, DatWriter
-    from rmbvideo.io.rmbfile import RmbFileWriter
-
-    readout = scene.readout
-    if readout.kind == "Lbit":
-        return RmbFileWriter(output, scene.width, scene.height, readout.level, scene.rate_hz)
-    if readout.kind == "rmb":
-        return RmbFileWriter(output, scene.width, scene.height, readout.level, scene.rate_hz,
-                             band=readout.band, shift=readout.shift)
-    return DatWriter(output, DatGeometry(width=scene.width, height=scene.height, flip=True))
-
-
-def write_ground_truth(simulator, gt_dir: Path, step: int) -> int:
-    """Write GT frames, flows and ``index.csv`` for ``simulator``'s capture; returns the frame count."""
-    from rmbvideo.errors import OutputError
-    from rmbvideo.io.atomic import atomic_path, atomic_write_text
-    from rmbvideo.io.exr import write_exr
-    from rmbvideo.scenes.render import ground_truth, ground_truth_flow
-
-    try:
-        gt_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputError(f"{gt_dir}: cannot create folder: {exc.strerror or exc}") from None
-    rate = simulator.scene.rate_hz
-    count = simulator.total_readouts // step
-    table = io.StringIO()
-    rows = csv.writer(table, lineterminator="\n")
-    rows.writerow(["index", "time_s", "file"])
-    for i in range(count):
-        t = (i * step + step / 2) / rate
-        name = f"gt_{i:06d}.exr"
-        write_exr(gt_dir / name, ground_truth(simulator.renderer, t), time_s=t, dtype="float")
-        with atomic_path(gt_dir / f"flow_{i:06d}.npy") as temp:
-            with open(temp, "wb") as handle:
-                np.save(handle, ground_truth_flow(simulator.renderer, t, t + step / rate))
-        rows.writerow([i, repr(t), name])
-    atomic_write_text(gt_dir / "index.csv", table.getvalue())
-    return count

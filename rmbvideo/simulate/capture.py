@@ -6,10 +6,13 @@ pixel responds): ``CaptureSimulator`` for TOML scenes, ``capture_planes`` for vi
 from __future__ import annotations
 
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 
 from rmbvideo.chunks import RmbChunk, SpikeChunk
+from rmbvideo.io.dat import DatGeometry, DatWriter
+from rmbvideo.io.rmbfile import RmbFileWriter
 from rmbvideo.scenes.render import SceneRenderer
 from rmbvideo.scenes.scene import Scene
 from rmbvideo.scenes.video import VideoScene
@@ -97,3 +100,14 @@ def capture_planes(scene: VideoScene, planes: int, rate_hz: float, chunk: int = 
     for start in range(0, planes, chunk):
         block = np.stack([emit(scene.render(k + 0.5)) for k in range(start, min(start + chunk, planes))])
         yield SpikeChunk(planes=block, start=start, rate_hz=rate_hz)
+
+
+def open_writer(output: Path, scene: Scene) -> DatWriter | RmbFileWriter:
+    """The writer for ``scene``'s capture: a 1-bit ``.dat``, or ``.dat`` + ``.mbit`` for Lbit/rmb readouts."""
+    readout = scene.readout
+    if readout.kind == "Lbit":
+        return RmbFileWriter(output, scene.width, scene.height, readout.level, scene.rate_hz)
+    if readout.kind == "rmb":
+        return RmbFileWriter(output, scene.width, scene.height, readout.level, scene.rate_hz,
+                             band=readout.band, shift=readout.shift)
+    return DatWriter(output, DatGeometry(width=scene.width, height=scene.height, flip=True))
