@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rmbvideo.chunks import RmbChunk, SpikeChunk
-from rmbvideo.evaluate.heldout import FRAME_STEP, RAW_RATE_HZ, Sequence, VIDEO_KINDS
+from rmbvideo.evaluate.heldout import FRAME_STEP, RAW_RATE_HZ, VIDEO_KINDS, Sequence
 from rmbvideo.evaluate.metrics import mu_law_psnr
 from rmbvideo.recon.methods import make_reconstructor
 from rmbvideo.scenes.render import bin_image
@@ -86,7 +86,11 @@ def edge_report(seq: Sequence, method: str = "rmbnet", options: dict | None = No
 
 def slow_sequence(width: int, height: int, frames: int, seed: int = 1_600_000) -> Sequence:
     """A long held-out video sequence with slow motion, for the rolling-band oscillation check."""
-    from rmbvideo.evaluate.heldout import HeldoutConfig, VideoHeldout, simulate_video_sequence
+    from rmbvideo.evaluate.heldout import (
+        HeldoutConfig,
+        VideoHeldout,
+        simulate_video_sequence,
+    )
     from rmbvideo.scenes.video import VideoSceneRanges
 
     kind = VideoHeldout("slow", VideoSceneRanges(camera_speed=(0.02, 0.05), static_probability=0.0,

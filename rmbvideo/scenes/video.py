@@ -30,7 +30,6 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-
 #: Sensor conventions a sample can be simulated with.
 CONVENTIONS = ("physical", "spikezoo")
 #: spikezoo's REDS streams fire at about this fraction of the 8-bit intensity per plane.

@@ -1,0 +1,205 @@
+"""Run many captures: worker processes or a Dask cluster, one batch per folder at a time."""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+from collections import Counter, deque
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from contextlib import contextmanager
+from datetime import datetime, timezone
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+from rmbvideo.batch.jobs import (
+    LOCK_NAME,
+    THREAD_ENV,
+    CaptureJob,
+    CaptureResult,
+    SchedulerError,
+)
+from rmbvideo.batch.report import write_report
+from rmbvideo.batch.runner import make_dir, run_capture_job
+from rmbvideo.errors import OutputError
+
+log = logging.getLogger(__name__)
+
+def default_workers() -> int:
+    """One worker process per core available to this process."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:
+        return max(1, os.cpu_count() or 1)
+
+
+def limit_threads(threads: int) -> None:
+    """Cap the math libraries' threads in this process (torch, OpenCV, OpenMP/BLAS) at ``threads``."""
+    for name in THREAD_ENV:
+        os.environ[name] = str(threads)
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(threads)
+    import cv2
+
+    cv2.setNumThreads(threads)
+
+
+@contextmanager
+def batch_lock(batch_dir: Path) -> Iterator[None]:
+    """Hold an exclusive lock on ``batch_dir`` (released when the process ends, even by kill -9)."""
+    import fcntl
+
+    path = batch_dir / LOCK_NAME
+    try:
+        handle = open(path, "a+")
+    except OSError as exc:
+        raise OutputError(f"{batch_dir}: cannot write: {exc.strerror or exc}") from exc
+    with handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            raise OutputError(f"{batch_dir}: another batch is running into this folder") from None
+        yield
+
+
+def run_batch(jobs: Sequence[CaptureJob], batch_dir: Path, *, workers: int | None = None,
+              scheduler: str | None = None, progress: bool = False) -> list[CaptureResult]:
+    """Run ``jobs`` (one process per worker, or on the Dask scheduler at ``scheduler``) and write the report.
+
+    Returns the results in job order. One capture failing does not stop the others. On Ctrl-C the
+    report is still written, with the unfinished captures as failed, and ``KeyboardInterrupt`` is
+    re-raised.
+    """
+    from tqdm import tqdm
+
+    batch_dir = Path(batch_dir)
+    make_dir(batch_dir)
+    results: list[CaptureResult | None] = [None] * len(jobs)
+    workers = min(workers or default_workers(), max(1, len(jobs)))
+    started = datetime.now(timezone.utc)
+    with batch_lock(batch_dir), tqdm(total=len(jobs), unit="capture", disable=not progress,
+                                     dynamic_ncols=True) as bar:
+        def record(i: int, result: CaptureResult) -> None:
+            results[i] = result
+            bar.update(1)
+            bar.set_postfix_str(f"{Path(result.input).name}: {result.status}", refresh=False)
+
+        try:
+            if scheduler is not None:
+                _run_on_dask(jobs, scheduler, record)
+            elif workers == 1:
+                for i, job in enumerate(jobs):
+                    record(i, run_capture_job(job))
+            else:
+                _run_in_processes(jobs, workers, record)
+        except KeyboardInterrupt:
+            _fill_unfinished(jobs, results, "interrupted before it finished")
+            write_report(batch_dir, results, started)
+            raise
+    write_report(batch_dir, results, started)
+    return results  # type: ignore[return-value]
+
+
+def _fill_unfinished(jobs: Sequence[CaptureJob], results: list[CaptureResult | None], reason: str) -> None:
+    for i, job in enumerate(jobs):
+        if results[i] is None:
+            results[i] = CaptureResult(str(job.input_path), str(job.output_dir), "failed",
+                                       error=f"{job.input_path}: {reason}")
+
+
+def _run_in_processes(jobs: Sequence[CaptureJob], workers: int,
+                      record: Callable[[int, CaptureResult], None]) -> None:
+    """Run jobs on ``workers`` spawned processes, each limited to its share of the cores.
+
+    At most ``workers`` jobs are in flight. When a worker dies (killed, out of memory, crash), the
+    jobs it took down are retried once, alone, so a capture that kills its worker fails by itself.
+    """
+    threads = max(1, default_workers() // workers)
+    pending = deque(range(len(jobs)))
+    crashes: Counter[int] = Counter()
+
+    def worker_died(i: int) -> None:
+        crashes[i] += 1
+        if crashes[i] > 1:
+            record(i, CaptureResult(str(jobs[i].input_path), str(jobs[i].output_dir), "failed",
+                                    error=f"{jobs[i].input_path}: worker process died "
+                                          "(killed, out of memory or crashed)"))
+        else:
+            log.warning("%s: a worker process died while this capture ran; retrying it alone",
+                        jobs[i].input_path)
+            pending.appendleft(i)
+
+    while pending:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn"),
+                                 initializer=limit_threads, initargs=(threads,)) as pool:
+            running: dict[Future[CaptureResult], int] = {}
+            broken = False
+            while (pending or running) and not broken:
+                while pending and len(running) < workers and not any(crashes[i] for i in running.values()):
+                    if crashes[pending[0]] and running:
+                        break
+                    i = pending.popleft()
+                    running[pool.submit(run_capture_job, jobs[i])] = i
+                done, _ = wait(running, return_when=FIRST_COMPLETED)
+                for future in done:
+                    i = running.pop(future)
+                    try:
+                        record(i, future.result())
+                    except BrokenProcessPool:
+                        broken = True
+                        worker_died(i)
+            for i in running.values():  # every job still in a broken pool went down with it
+                worker_died(i)
+
+
+def _run_on_dask(jobs: Sequence[CaptureJob], address: str, record: Callable[[int, CaptureResult], None]) -> None:
+    """Run jobs on the Dask distributed cluster whose scheduler is at ``address`` (``rmbvideo[cluster]``).
+
+    Input and output paths must be visible to the workers at the same names (a shared file system).
+    Each task limits its math threads to its worker's share of that machine's cores.
+    """
+    try:
+        from distributed import Client, as_completed
+    except ImportError:
+        raise SchedulerError("--scheduler needs Dask: pip install 'rmbvideo[cluster]'") from None
+    try:
+        client = Client(address, timeout="20s")
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise SchedulerError(f"{address}: cannot reach the Dask scheduler ({exc})") from None
+    with client:
+        shares = _dask_thread_shares(client)
+        futures = {client.submit(run_capture_job_on_dask, job, shares, pure=False): i
+                   for i, job in enumerate(jobs)}
+        try:
+            for future in as_completed(futures):
+                i = futures[future]
+                try:
+                    record(i, future.result())
+                except Exception as exc:  # the worker died or the task was lost
+                    record(i, CaptureResult(str(jobs[i].input_path), str(jobs[i].output_dir), "failed",
+                                            error=f"{jobs[i].input_path}: Dask task failed: {exc}"))
+        except KeyboardInterrupt:
+            client.cancel(list(futures))
+            raise
+
+
+def _dask_thread_shares(client: Any) -> dict[str, int]:
+    """Threads per task for each worker: that machine's cores over the task slots of all its workers."""
+    workers = client.scheduler_info().get("workers", {})
+    cores = client.run(os.cpu_count)
+    slots: Counter[str] = Counter()
+    for info in workers.values():
+        slots[info.get("host", "")] += max(1, int(info.get("nthreads", 1)))
+    return {address: max(1, (cores.get(address) or 1) // max(1, slots[info.get("host", "")]))
+            for address, info in workers.items()}
+
+
+def run_capture_job_on_dask(job: CaptureJob, shares: dict[str, int]) -> CaptureResult:
+    """``run_capture_job`` inside a Dask worker, with the math threads limited to the worker's share."""
+    from distributed import get_worker
+
+    limit_threads(shares.get(get_worker().address, 1))
+    return run_capture_job(job)

@@ -1,0 +1,98 @@
+"""Convert one capture in isolation: into a partial folder, marker last, renamed into place."""
+
+from __future__ import annotations
+
+import glob
+import logging
+import os
+import secrets
+import shutil
+import time
+from pathlib import Path
+
+from rmbvideo.batch.jobs import CaptureJob, CaptureResult
+from rmbvideo.batch.markers import (
+    fingerprint_digest,
+    output_fingerprint,
+    read_marker,
+    write_marker,
+)
+from rmbvideo.errors import OutputError, RmbvideoError
+
+log = logging.getLogger(__name__)
+
+def run_capture_job(job: CaptureJob) -> CaptureResult:
+    """Convert one capture, or skip it when its output is already complete; never raises for bad input.
+
+    Errors of the input or environment (and unexpected errors, logged with their traceback) become
+    a ``failed`` result; the previous outputs of this capture, if any, are left as they were.
+    """
+    from rmbvideo.io.capture import open_capture
+    from rmbvideo.recon.run import run_reconstruction
+
+    began = time.perf_counter()
+    result = CaptureResult(input=str(job.input_path), output=str(job.output_dir), status="failed")
+    try:
+        capture = dict(job.options.get("capture") or {})
+        reader = open_capture(job.input_path, **{k: capture.get(k) for k in
+                                                 ("width", "height", "flip", "header_cols", "rate_hz")})
+        fingerprint = output_fingerprint(job, reader)
+        _remove_leftovers(job)
+        marker = read_marker(job.output_dir, fingerprint_digest(fingerprint))
+        if marker is not None:
+            log.info("%s: complete in %s, skipped", job.input_path, job.output_dir)
+            result.status, result.frames = "skipped", marker.get("frames")
+            return result
+        work = job.batch_dir / f".{job.name}.partial-{os.getpid()}-{secrets.token_hex(4)}"
+        try:
+            summary = run_reconstruction(job.input_path, work, **{**job.options, "progress": False})
+            make_dir(work)
+            write_marker(work, job, fingerprint, summary.frames, summary.planes, summary.seconds)
+            _install(work, job.output_dir)
+        finally:
+            shutil.rmtree(work, ignore_errors=True)
+        result.status, result.frames = "ok", summary.frames
+    except RmbvideoError as exc:
+        result.error = str(exc)
+    except OSError as exc:
+        result.error = f"{exc.filename or job.input_path}: {exc.strerror or exc}"
+    except Exception as exc:  # a bug in one capture must not stop the batch; keep its traceback in the log
+        log.exception("%s: unexpected error", job.input_path)
+        result.error = f"{job.input_path}: unexpected error: {type(exc).__name__}: {exc}"
+    finally:
+        result.seconds = time.perf_counter() - began
+    if result.status == "failed":
+        log.warning("%s", result.error)
+    return result
+
+
+def _remove_leftovers(job: CaptureJob) -> None:
+    """Remove partial or replaced folders of ``job`` left by an interrupted run (the batch lock is held)."""
+    for leftover in job.batch_dir.glob(f".{glob.escape(job.name)}.*-*"):
+        if leftover.name.startswith((f".{job.name}.partial-", f".{job.name}.old-")):
+            log.info("removing %s left by an interrupted run", leftover)
+            shutil.rmtree(leftover, ignore_errors=True)
+
+
+def make_dir(path: Path) -> None:
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot create folder: {exc.strerror or exc}") from exc
+
+
+def _install(work: Path, final: Path) -> None:
+    """Rename the finished ``work`` folder onto ``final``, moving an older ``final`` aside first."""
+    try:
+        if final.exists() or final.is_symlink():
+            old = final.with_name(f".{final.name}.old-{os.getpid()}-{secrets.token_hex(4)}")
+            os.replace(final, old)
+            os.replace(work, final)
+            if old.is_dir() and not old.is_symlink():
+                shutil.rmtree(old, ignore_errors=True)
+            else:
+                old.unlink(missing_ok=True)
+        else:
+            os.replace(work, final)
+    except OSError as exc:
+        raise OutputError(f"{final}: cannot move the finished output into place: {exc.strerror or exc}") from exc
