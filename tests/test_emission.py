@@ -7,7 +7,6 @@ import dataclasses
 import numpy as np
 import pytest
 
-from rmbvideo.sensor import emission
 from rmbvideo.sensor.emission import ReadoutSpec, SpikeEmitter
 from rmbvideo.sensor.params import SensorParams
 

@@ -24,13 +24,11 @@ multi-bit (the charge reached the threshold), and the single-bit value elsewhere
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
-from rmbvideo.chunks import RmbChunk, SpikeChunk
 
 from rmbvideo.sensor.effects import (
     EFFECTS,
@@ -39,7 +37,6 @@ from rmbvideo.sensor.effects import (
     ResetNoise,
     ShotNoise,
     ThermalNoise,
-    RollingReadout,
     ThresholdMismatch,
 )
 from rmbvideo.sensor.params import SensorParams

@@ -238,7 +238,7 @@ class Trainer:
         if config.init and not resume:
             self.warm_start(config.init)
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=config.optim.lr)
-        self._prefetcher = (SamplePrefetcher(config.sample_spec(), lambda step: video_seeds(config, step))
+        self._prefetcher = (SamplePrefetcher(config.sample_spec(), self.step_seeds)
                             if config.data.scenes == "video" else None)
 
     def warm_start(self, source: str) -> None:
@@ -265,12 +265,17 @@ class Trainer:
         self.model.load_state_dict(new_state)
         log.info("warm start from %s: %d tensors copied, widened %s", path, copied, widened or "none")
 
+    def step_seeds(self, step: int) -> list[int]:
+        """The scene seeds of ``step``: video scenes (``video_seeds``) or cached panorama scenes."""
+        if self.config.data.scenes == "video":
+            return video_seeds(self.config, step)
+        return batch_seeds(self.config.seed, step, self.config.optim.batch, self.config.data.count)
+
     def batch_samples(self, step: int) -> list[Sample]:
-        """The training samples of ``step``: fresh video scenes, or cached panorama scenes."""
+        """The training samples of ``step``: simulated ahead (video scenes) or from the cache."""
         if self._prefetcher is not None:
             return self._prefetcher.get(step)
-        return [self.cache.get(s) for s in batch_seeds(self.config.seed, step, self.config.optim.batch,
-                                                       self.config.data.count)]
+        return [self.cache.get(s) for s in self.step_seeds(step)]
 
     def validation_samples(self) -> list[Sample]:
         """The held-out samples (seeds from ``EVAL_SEED_START``)."""
@@ -310,7 +315,7 @@ class Trainer:
                 edges = bool(np.random.default_rng([cfg.seed, step, 2]).random() < cfg.optim.edges)
                 losses = train_batch(self.model, batch, cfg.optim.tbptt, cfg.loss, edges)
                 if not all(math.isfinite(v) for v in losses.values()):
-                    raise FloatingPointError(f"step {step}: non-finite loss {losses} (seeds {seeds})")
+                    raise FloatingPointError(f"step {step}: non-finite loss {losses} (seeds {self.step_seeds(step)})")
                 torch.nn.utils.clip_grad_norm_(self.model.parameters(), cfg.optim.grad_clip)
                 self.optimizer.step()
                 step += 1
