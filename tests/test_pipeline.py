@@ -88,3 +88,18 @@ def test_bad_requests(reader):
         make_reconstructor("tfp", widow=3)
     with pytest.raises(ValueError, match="readout"):
         reconstruct_stream(reader, make_reconstructor("tfp"), _Collect(), readout=RmbReadout())
+
+
+def test_every_run_is_timed_by_stage(reader):
+    """One wiring for reconstruct, evaluate and bench: the run reports seconds per stage, and the
+    RMB-Net engine adds its own parts, which lie within the method's time."""
+    from rmbvideo.recon.pipeline import STAGES
+
+    summary = reconstruct_stream(reader, make_reconstructor("tfp", window=21, step=20), _Collect())
+    assert set(summary.stages) == set(STAGES)
+    assert all(v >= 0 for v in summary.stages.values()) and sum(summary.stages.values()) <= summary.seconds
+    rmbnet = make_reconstructor("rmbnet", device="cpu", threads=1)
+    summary = reconstruct_stream(reader, rmbnet, _Collect(), readout=RmbReadout())
+    assert summary.frames > 0
+    inner = summary.stages["preliminary frames"] + summary.stages["network"]
+    assert 0 < summary.stages["network"] and inner <= summary.stages["method"] + 1e-6

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import logging
 import math
-import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -114,21 +113,6 @@ def _make(config: BenchConfig, network, threads: int):
                                precision=config.precision or "fp32", threads=threads)
 
 
-def _network_seconds(config: BenchConfig, network, sequence: Sequence, threads: int) -> tuple[int, float]:
-    """Frames and wall seconds of the RMB-Net engine alone on precomputed preliminary frames."""
-    from rmbvideo.recon.prelim import PreliminaryFrames
-
-    prelim = PreliminaryFrames(n=network.config.n)
-    readout = RmbReadout(mode=ReadoutMode("rmb"))
-    frames = [f for c in sequence.rmb_chunks() for f in prelim.push(readout.apply(c))] + prelim.flush()
-    engine = _make(config, network, threads)
-    _sync(config.device)
-    began = time.perf_counter()
-    out = engine.push(frames) + engine.flush()
-    _sync(config.device)
-    return len(out), time.perf_counter() - began
-
-
 def _sync(device: str) -> None:
     if device.startswith("cuda"):
         import torch
@@ -175,10 +159,9 @@ def run_config(config: BenchConfig, sequences: list[Sequence], workdir: Path, mo
             psnrs.append(psnr)
             ssims.append(ssim)
             scored_frames += len(kept)
-        if config.is_rmbnet:
-            n, s = _network_seconds(config, network, sequence, threads)
-            net_frames += n
-            net_seconds += s
+        if config.is_rmbnet:  # the network's share of the same run (RmbNetReconstructor.stage_seconds)
+            net_frames += summary.frames
+            net_seconds += summary.stages["network"]
     fps = frames / seconds if seconds > 0 else 0.0
     return BenchRecord(
         name=config.name, method=config.method, w=config.w, align=config.align, width=config.width,

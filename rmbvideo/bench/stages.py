@@ -45,54 +45,61 @@ def _instrument(network, clock: _StageClock) -> None:
     network.decoder.forward = clock.wrap("decoder/ConvLSTM", network.decoder.forward)
 
 
+class _Keep:
+    """A sink that keeps the frames (for timing tone mapping and encoding on them afterwards)."""
+
+    def __init__(self) -> None:
+        self.frames: list = []
+
+    def write(self, frame) -> None:
+        self.frames.append(frame)
+
+
 def stage_breakdown(network, planes: int = 2000, width: int = 400, height: int = 250,
                     threads: int = 1, precision: str = "fp32", device: str = "cpu") -> dict[str, float]:
     """Milliseconds per output frame of each stage for ``network`` on a random ``width`` x ``height``
-    capture of ``planes`` raw planes (output at half the size). Keys in pipeline order, plus "total"
-    and "frames"."""
+    capture of ``planes`` raw planes (output at half the size): the stages of one streaming run
+    (``RunSummary.stages``, the network split by instrumenting its parts), then tone mapping and the
+    MP4 sink timed on its frames. Keys in pipeline order, plus "total" and "frames"."""
     from rmbvideo.io.sinks import make_sink
-    from rmbvideo.recon.prelim import PreliminaryFrames
-    from rmbvideo.recon.rmbnet import RmbNetReconstructor
     from rmbvideo.io.tonemap import ToneMapper
+    from rmbvideo.recon.pipeline import reconstruct_stream
+    from rmbvideo.recon.rmbnet import RmbNetReconstructor
+    from rmbvideo.sensor.readout import RmbReadout
 
     result: dict[str, float] = {}
     with tempfile.TemporaryDirectory(prefix="rmbvideo-stages-") as folder:
-        geometry = DatGeometry(width=width, height=height)
         path = write_random_capture(Path(folder) / "capture.dat", planes, width, height)
-        reader = DatReader(path, geometry)
-        began = time.perf_counter()
-        chunks = list(reader.binned_chunks(CHUNK_PLANES, 0, planes))
-        result["decode + binning"] = time.perf_counter() - began
-        del reader
-        prelim = PreliminaryFrames(n=network.config.n)
-        began = time.perf_counter()
-        frames = [f for c in chunks for f in prelim.push(c)] + prelim.flush()
-        result["preliminary frames (upsampling)"] = time.perf_counter() - began
+        reader = DatReader(path, DatGeometry(width=width, height=height))
+        warm = RmbNetReconstructor(network, device=device, precision=precision, threads=threads)
+        reconstruct_stream(reader, warm, _Keep(), stop=40 * network.config.window, readout=RmbReadout())
         engine = RmbNetReconstructor(network, device=device, precision=precision, threads=threads)
         clock = _StageClock()
         _instrument(engine.network, clock)
-        engine.push(frames[: network.config.window])  # warm-up: one-off kernel selection
-        engine = RmbNetReconstructor(network, device=device, precision=precision, threads=threads)
-        _instrument(engine.network, clock)
-        clock.seconds.clear()
-        began = time.perf_counter()
-        out = engine.push(frames) + engine.flush()
-        network_s = time.perf_counter() - began
+        keep = _Keep()
+        summary = reconstruct_stream(reader, engine, keep, chunk_planes=CHUNK_PLANES, readout=RmbReadout())
+        del reader
+        stages = summary.stages
+        result["decode + binning"] = stages["read"]
+        result["RMB readout"] = stages["readout"]
+        result["preliminary frames (upsampling)"] = stages["preliminary frames"]
         parts = ("encoders", "attention", "decoder/ConvLSTM")
         for part in parts:
             result[part] = clock.seconds[part]
-        result["network other (stacking, caches, output)"] = max(0.0, network_s - sum(clock.seconds[p] for p in parts))
+        result["network other (stacking, caches, output)"] = max(
+            0.0, stages["network"] - sum(clock.seconds[p] for p in parts))
+        result["sink null (finite check)"] = stages["sink"]
+        out = keep.frames
         tone = ToneMapper()
         began = time.perf_counter()
         for frame in out:
             tone(frame.image)
         result["tone map"] = time.perf_counter() - began
-        for fmt in ("null", "mp4"):
-            began = time.perf_counter()
-            with make_sink(fmt, Path(folder) / fmt, frame_rate_hz=1000.0) as sink:
-                for frame in out:
-                    sink.write(frame)
-            result[f"sink {fmt}" + (" (tone map + H.264)" if fmt == "mp4" else "")] = time.perf_counter() - began
+        began = time.perf_counter()
+        with make_sink("mp4", Path(folder) / "mp4", frame_rate_hz=1000.0) as sink:
+            for frame in out:
+                sink.write(frame)
+        result["sink mp4 (tone map + H.264)"] = time.perf_counter() - began
     count = max(len(out), 1)
     breakdown = {stage: 1e3 * seconds / count for stage, seconds in result.items()}
     breakdown["total (null sink)"] = sum(v for k, v in breakdown.items() if k not in ("tone map", "sink mp4 (tone map + H.264)"))

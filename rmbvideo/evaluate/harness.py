@@ -22,8 +22,7 @@ from __future__ import annotations
 
 import logging
 import math
-import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,7 +34,7 @@ from rmbvideo.chunks import Frame, SpikeChunk
 from rmbvideo.evaluate.heldout import Sequence
 from rmbvideo.evaluate.metrics import mu_law_psnr, mu_law_ssim, pu21_psnr
 from rmbvideo.recon.methods import make_reconstructor
-from rmbvideo.recon.pipeline import finite_frame
+from rmbvideo.recon.pipeline import reconstruct_stream
 from rmbvideo.sensor.readout import RmbReadout
 
 log = logging.getLogger(__name__)
@@ -96,67 +95,47 @@ def downsample_2x(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return cv2.resize(image[: 2 * h, : 2 * w], (w, h), interpolation=cv2.INTER_AREA)
 
 
-def _rmbnet_upsampler(options: dict[str, Any]) -> Any:
-    from rmbvideo.recon.flow import FlowUpsampler
+class SinglePlaneSource:
+    """A sequence's RMB stream seen as 1-bit planes: the single-bit plane of every readout after the
+    readout design (the input TFI gets in the table: the same RMB data as every other row)."""
 
-    upsampling = options.get("upsampling", "interp")
-    return None if upsampling == "interp" else FlowUpsampler(method=upsampling)
+    def __init__(self, seq: Sequence, readout: RmbReadout) -> None:
+        self.seq, self.readout = seq, readout
+        self.n_planes = seq.readouts
+
+    def chunks(self, chunk_planes: int, start: int = 0, stop: int | None = None) -> Iterator[SpikeChunk]:
+        for chunk in self.seq.rmb_chunks(chunk_planes):
+            yield SpikeChunk(planes=self.readout.apply(chunk).single, start=chunk.start, rate_hz=chunk.rate_hz)
 
 
-def _run_rmbnet(spec: MethodSpec, seq: Sequence, readout: RmbReadout) -> tuple[list[Frame], float, float]:
-    """RMB-Net with its preliminary frames computed here, so the network's share can be timed apart."""
-    from rmbvideo.recon.prelim import PreliminaryFrames
+class _Collect:
+    """A sink that keeps every frame."""
 
-    recon = make_reconstructor(spec.method, **spec.options)
-    prelim = PreliminaryFrames(n=recon.n, upsampler=_rmbnet_upsampler(spec.options))
-    chunks = list(seq.rmb_chunks(CHUNK_READOUTS))
-    frames: list[Frame] = []
-    network = 0.0
-    began = time.perf_counter()
-    for chunk in chunks:
-        pending = prelim.push(readout.apply(chunk))
-        tick = time.perf_counter()
-        frames += recon.push(pending)
-        network += time.perf_counter() - tick
-    pending = prelim.flush()
-    tick = time.perf_counter()
-    frames += recon.push(pending) + recon.flush()
-    network += time.perf_counter() - tick
-    return frames, time.perf_counter() - began, network
+    def __init__(self) -> None:
+        self.frames: list[Frame] = []
+
+    def write(self, frame: Frame) -> None:
+        self.frames.append(frame)
 
 
 def run_frames(spec: MethodSpec, seq: Sequence) -> tuple[list[Frame], float, float | None]:
-    """All frames of ``spec`` on ``seq`` (at GT size, finite), wall-clock seconds, network seconds."""
-    readout = RmbReadout(mode=spec.readout)
-    if spec.method == "rmbnet":
-        frames, seconds, network = _run_rmbnet(spec, seq, readout)
-        return [finite_frame(f)[0] for f in frames], seconds, network
+    """All frames of ``spec`` on ``seq`` (at GT size, finite), wall-clock seconds, network seconds.
+
+    One streaming run (``reconstruct_stream``); its time leaves out reading the cached arrays
+    (the "read" stage), so rows differ only by what their method does."""
     recon = make_reconstructor(spec.method, **spec.options)
-    frames = []
-    if spec.raw:
-        chunks = list(seq.raw_chunks())
-        began = time.perf_counter()
-        for chunk in chunks:
-            frames += recon.push(chunk)
-        frames += recon.flush()
-        seconds = time.perf_counter() - began
-        frames = [Frame(f.index, f.time_s, downsample_2x(f.image, seq.shape)) for f in frames]
-        return [finite_frame(f)[0] for f in frames], seconds, None
-    if recon.input_kind == "rmb":
-        chunks: list[Any] = list(seq.rmb_chunks(CHUNK_READOUTS))
-        began = time.perf_counter()
-        for chunk in chunks:
-            frames += recon.push(readout.apply(chunk))
-        frames += recon.flush()
+    readout = RmbReadout(mode=spec.readout)
+    sink = _Collect()
+    if spec.raw or recon.input_kind == "rmb":
+        summary = reconstruct_stream(seq, recon, sink, chunk_planes=2 * CHUNK_READOUTS,
+                                     readout=None if spec.raw else readout)
     else:
-        chunks = list(seq.rmb_chunks(CHUNK_READOUTS))
-        began = time.perf_counter()
-        for chunk in chunks:
-            single = readout.apply(chunk).single
-            frames += recon.push(SpikeChunk(planes=single, start=chunk.start, rate_hz=chunk.rate_hz))
-        frames += recon.flush()
-    seconds = time.perf_counter() - began
-    return [finite_frame(f)[0] for f in frames], seconds, None
+        summary = reconstruct_stream(SinglePlaneSource(seq, readout), recon, sink, chunk_planes=CHUNK_READOUTS)
+    frames = sink.frames
+    if spec.raw:
+        frames = [Frame(f.index, f.time_s, downsample_2x(f.image, seq.shape)) for f in frames]
+    seconds = summary.seconds - summary.stages["read"]
+    return frames, seconds, summary.stages.get("network")
 
 
 def score_frames(frames: dict[int, np.ndarray], seq: Sequence) -> tuple[float, float, float]:

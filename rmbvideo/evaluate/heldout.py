@@ -130,6 +130,21 @@ class Sequence:
                            multi_rows=np.ones((stop - start, self.shape[0]), dtype=bool), start=start,
                            rate_hz=self.rate_hz, level=MULTI_LEVEL, raw_per_readout=2)
 
+    @property
+    def n_planes(self) -> int:
+        """Raw planes in the sequence (the ``SpikeSource`` view used by ``reconstruct_stream``)."""
+        return len(self.raw_packed)
+
+    def chunks(self, chunk_planes: int = 128, start: int = 0, stop: int | None = None) -> Iterator[SpikeChunk]:
+        """Raw planes from plane 0 (``start``/``stop`` must be 0 and None: sequences are scored whole)."""
+        _whole(start, stop, self.n_planes)
+        return self.raw_chunks(chunk_planes)
+
+    def binned_chunks(self, chunk_planes: int = 128, start: int = 0, stop: int | None = None) -> Iterator[RmbChunk]:
+        """The binned pure-M stream, ``chunk_planes`` raw planes (half as many readouts) per chunk."""
+        _whole(start, stop, self.n_planes)
+        return self.rmb_chunks(max(1, chunk_planes // 2))
+
     def raw_chunks(self, chunk_planes: int = 128) -> Iterator[SpikeChunk]:
         """The raw 1-bit planes as ``SpikeChunk``s at the raw rate."""
         width = self.raw_shape[1]
@@ -137,6 +152,11 @@ class Sequence:
             packed = self.raw_packed[start:start + chunk_planes]
             planes = np.unpackbits(packed, axis=-1, count=width, bitorder="little")
             yield SpikeChunk(planes=planes, start=start, rate_hz=2 * self.rate_hz)
+
+
+def _whole(start: int, stop: int | None, n_planes: int) -> None:
+    if start != 0 or stop not in (None, n_planes):
+        raise ValueError("held-out sequences are read whole (start 0, no stop)")
 
 
 def default_cache_dir() -> Path:

@@ -13,15 +13,17 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from collections.abc import Sequence as Seq
 from dataclasses import dataclass
 
 import numpy as np
 
-from rmbvideo.chunks import RmbChunk, SpikeChunk
+from rmbvideo.chunks import Frame, RmbChunk, SpikeChunk
 from rmbvideo.evaluate.heldout import FRAME_STEP, RAW_RATE_HZ, VIDEO_KINDS, Sequence
 from rmbvideo.evaluate.metrics import mu_law_psnr
 from rmbvideo.recon.methods import make_reconstructor
+from rmbvideo.recon.pipeline import reconstruct_stream
 from rmbvideo.scenes.render import bin_image
 from rmbvideo.scenes.video import VideoScene
 from rmbvideo.sensor.binning import StreamBinner
@@ -46,12 +48,30 @@ class EdgeReport:
     last_offset_ms: float
 
 
-def run_rmb(method: str, options: dict, chunks: Seq[RmbChunk]) -> dict[int, np.ndarray]:
-    """Frames (index -> image) of ``method`` on binned chunks through the RMB readout."""
-    recon = make_reconstructor(method, **options)
-    readout = RmbReadout()
-    frames = [f for chunk in chunks for f in recon.push(readout.apply(chunk))] + recon.flush()
-    return {f.index: np.nan_to_num(f.image) for f in frames}
+class BinnedChunks:
+    """Binned chunks held in memory, as the source ``reconstruct_stream`` reads."""
+
+    def __init__(self, chunks: Seq[RmbChunk]) -> None:
+        self._chunks = list(chunks)
+        self.n_planes = sum(len(c.single) * c.raw_per_readout for c in self._chunks)
+
+    def binned_chunks(self, chunk_planes: int, start: int = 0, stop: int | None = None) -> Iterator[RmbChunk]:
+        return iter(self._chunks)
+
+
+class _Keep:
+    def __init__(self) -> None:
+        self.images: dict[int, np.ndarray] = {}
+
+    def write(self, frame: Frame) -> None:
+        self.images[frame.index] = frame.image
+
+
+def run_rmb(method: str, options: dict, source: Sequence | BinnedChunks) -> dict[int, np.ndarray]:
+    """Frames (index -> image) of a method on the RMB stream of ``source`` (through the RMB readout)."""
+    sink = _Keep()
+    reconstruct_stream(source, make_reconstructor(method, **options), sink, readout=RmbReadout())
+    return sink.images
 
 
 def video_scene_of(seq: Sequence) -> VideoScene:
@@ -73,7 +93,7 @@ def best_time_offset_ms(image: np.ndarray, scene: VideoScene, raw_plane: float) 
 
 def edge_report(seq: Sequence, method: str = "rmbnet", options: dict | None = None) -> EdgeReport:
     """Clip-edge check of ``method`` on held-out video sequence ``seq`` (every frame scored)."""
-    frames = run_rmb(method, options or {}, list(seq.rmb_chunks()))
+    frames = run_rmb(method, options or {}, seq)
     count = len(seq.gt)
     psnr = [mu_law_psnr(frames[i], np.minimum(seq.gt[i], 1.0)) for i in range(count)]
     median = float(np.median(psnr))
@@ -137,7 +157,7 @@ def dark_bias(method: str = "rmbnet", options: dict | None = None, levels: Seq[f
     width, height = size
     out = {}
     for level in levels:
-        images = run_rmb(method, options or {}, flat_field_chunks(level, width, height, frames * FRAME_STEP))
+        images = run_rmb(method, options or {}, BinnedChunks(flat_field_chunks(level, width, height, frames * FRAME_STEP)))
         late = np.stack([images[i] for i in sorted(images)[len(images) // 2:]])
         last = images[max(images)]
         out[level] = (float(late.mean() / level - 1.0), float(last.std() / max(last.mean(), 1e-12)))
@@ -167,7 +187,7 @@ def write_checks(out_dir, method: str, options: dict, sequences: Seq[Sequence], 
                      f"{report.first_offset_ms:+.2f} | {report.last_offset_ms:+.2f} |")
     width, height, frames = (112, 64, 40) if quick else (200, 125, 64)
     slow = slow_sequence(width, height, frames)
-    images = run_rmb(method, options, list(slow.rmb_chunks()))
+    images = run_rmb(method, options, slow)
     psnr = [mu_law_psnr(images[i], np.minimum(slow.gt[i], 1.0)) for i in range(3, len(slow.gt) - 3)]
     period = band_period_frames(height)
     amplitude = band_oscillation_db(psnr, period)

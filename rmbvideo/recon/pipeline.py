@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Iterator, Protocol
 
 import numpy as np
@@ -40,17 +40,24 @@ class FrameConsumer(Protocol):
 
 @dataclass
 class RunSummary:
-    """What a run did: frames written, raw planes read, wall-clock seconds, pixels repaired."""
+    """What a run did: frames written, raw planes read, wall-clock seconds, pixels repaired, and
+    seconds per stage (``STAGES``, plus the method's own parts, e.g. RMB-Net's "network")."""
 
     frames: int
     planes: int
     seconds: float
     nonfinite_pixels: int = 0
+    stages: dict[str, float] = field(default_factory=dict)
 
     @property
     def frames_per_second(self) -> float:
         """Output frames per wall-clock second (0 for an instantaneous run)."""
         return self.frames / self.seconds if self.seconds > 0 else 0.0
+
+
+#: The stages every run is timed by: reading (decoding and binning included), the readout design,
+#: the method (push/flush), and the sink (finite check, tone map, encoding, writing).
+STAGES = ("read", "readout", "method", "sink")
 
 
 def finite_frame(frame: Frame) -> tuple[Frame, int]:
@@ -101,6 +108,7 @@ def reconstruct_stream(
 
     began = time.perf_counter()
     frames = planes = nonfinite = 0
+    stages = dict.fromkeys(STAGES, 0.0)
     bar = tqdm(total=max(stop - start, 0), unit="plane", disable=not progress, dynamic_ncols=True)
 
     def emit(batch: list[Frame]) -> None:
@@ -114,7 +122,14 @@ def reconstruct_stream(
             frames += 1
 
     with bar:
-        for chunk in chunks:
+        iterator = iter(chunks)
+        while True:
+            tick = time.perf_counter()
+            chunk = next(iterator, None)
+            tock = time.perf_counter()
+            stages["read"] += tock - tick
+            if chunk is None:
+                break
             if isinstance(chunk, RmbChunk):
                 advanced = len(chunk.single) * chunk.raw_per_readout
                 if readout is not None:
@@ -123,10 +138,22 @@ def reconstruct_stream(
                 advanced = len(chunk.data)
             else:
                 advanced = len(chunk.planes)
-            emit(method.push(chunk))
+            tick = time.perf_counter()
+            stages["readout"] += tick - tock
+            out = method.push(chunk)
+            tock = time.perf_counter()
+            stages["method"] += tock - tick
+            emit(out)
+            stages["sink"] += time.perf_counter() - tock
             planes += advanced
             bar.update(advanced)
-        emit(method.flush())
+        tick = time.perf_counter()
+        out = method.flush()
+        tock = time.perf_counter()
+        stages["method"] += tock - tick
+        emit(out)
+        stages["sink"] += time.perf_counter() - tock
     seconds = time.perf_counter() - began
+    stages.update(getattr(method, "stage_seconds", {}))
     log.debug("%d frames from %d planes in %.2f s", frames, planes, seconds)
-    return RunSummary(frames=frames, planes=planes, seconds=seconds, nonfinite_pixels=nonfinite)
+    return RunSummary(frames=frames, planes=planes, seconds=seconds, nonfinite_pixels=nonfinite, stages=stages)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import copy
 import logging
+import time
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
@@ -122,6 +123,8 @@ class RmbNetReconstructor:
         self._state = None
         self._size: tuple[int, int] | None = None
         self.nonfinite_frames = 0
+        #: seconds spent making preliminary frames and in the network (with its caches and state)
+        self.stage_seconds = {"preliminary frames": 0.0, "network": 0.0}
 
     @classmethod
     def from_file(
@@ -135,17 +138,21 @@ class RmbNetReconstructor:
 
     def push(self, item: RmbChunk | PrelimLike | Iterable[PrelimLike]) -> list[Frame]:
         """Consume an RMB chunk or preliminary frames; return the frames that became complete."""
+        began = time.perf_counter()
         if isinstance(item, RmbChunk):
             frames = self._preliminary().push(item)
         elif hasattr(item, "i_s"):
             frames = [item]  # type: ignore[list-item]
         else:
             frames = list(item)  # type: ignore[arg-type]
+        self.stage_seconds["preliminary frames"] += time.perf_counter() - began
         return self._consume(frames, final=False)
 
     def flush(self) -> list[Frame]:
         """End of capture: emit the last w frames (their windows end at the last frame)."""
+        began = time.perf_counter()
         frames = self._preliminary().flush() if self._prelim is not None else []
+        self.stage_seconds["preliminary frames"] += time.perf_counter() - began
         return self._consume(frames, final=True)
 
     def _preliminary(self) -> PreliminaryFrames:
@@ -175,6 +182,15 @@ class RmbNetReconstructor:
         return nullcontext()
 
     def _consume(self, frames: list[PrelimLike], final: bool) -> list[Frame]:
+        began = time.perf_counter()
+        try:
+            return self._network(frames, final)
+        finally:
+            if self.device.type == "cuda":
+                torch.cuda.synchronize(self.device)
+            self.stage_seconds["network"] += time.perf_counter() - began
+
+    def _network(self, frames: list[PrelimLike], final: bool) -> list[Frame]:
         with self._thread_limit(), torch.inference_mode(), self._precision():
             self._accept(frames)
             count = self._received if final else None
