@@ -54,7 +54,7 @@ def test_disabled_effect_is_not_built_and_does_not_change_the_others() -> None:
     photo = np.random.RandomState(1).uniform(0, 60, size=(80, 8, 9))
     base = ["shot_noise", "dark_current", "threshold_mismatch", "readout_rounding"]
     without = SpikeEmitter(8, 9, SensorParams(), base, seed=11)
-    assert "thermal_noise" not in without.components and without.thermal is None
+    assert "thermal_noise" not in without.components
     out_without = without.emit(photo)
     # thermal noise built but with zero spread: it draws from its own generator only
     silent = dataclasses.replace(SensorParams(), temp_v_std=0.0)
@@ -76,13 +76,13 @@ def test_seed_changes_noisy_output() -> None:
 
 def test_dark_current_is_spatially_correlated() -> None:
     params = dataclasses.replace(SensorParams(), dark_mean=0.0, dark_std=5.0)
-    dark = SpikeEmitter(64, 64, params, ["dark_current"], seed=0, dark_correlation_px=3.0).dark
-    fields = np.stack([dark.electrons() for _ in range(20)])
+    dark = SpikeEmitter(64, 64, params, ["dark_current"], seed=0, dark_correlation_px=3.0).components["dark_current"]
+    fields = np.stack([dark.dark_electrons() for _ in range(20)])
     neighbour = np.corrcoef(fields[:, :, :-1].ravel(), fields[:, :, 1:].ravel())[0, 1]
     assert neighbour > 0.8
     assert 3.5 < fields[:, 8:-8, 8:-8].std() < 6.5  # renormalised to sigma_d away from the border
-    white = SpikeEmitter(64, 64, params, ["dark_current"], seed=0, dark_correlation_px=0.0).dark
-    w = np.stack([white.electrons() for _ in range(20)])
+    white = SpikeEmitter(64, 64, params, ["dark_current"], seed=0, dark_correlation_px=0.0).components["dark_current"]
+    w = np.stack([white.dark_electrons() for _ in range(20)])
     assert abs(np.corrcoef(w[:, :, :-1].ravel(), w[:, :, 1:].ravel())[0, 1]) < 0.05
 
 
@@ -154,3 +154,21 @@ def test_monte_carlo_matches_theory(level: int) -> None:
             pooled = np.asarray(sums[1])[i] + WINDOW * (WINDOW - 1) * spread[i]
             _check(f"E(S_N^{level}) at {lam} (sum_moments)", n_mean, np.asarray(sums[0])[i], n_se_mean)
             _check(f"Var(S_N^{level}) at {lam}", n_var, pooled, n_se_var)
+
+
+def test_a_new_effect_is_one_class_and_one_registry_line(monkeypatch) -> None:
+    """Effects share one interface: a new one overrides only the steps it changes."""
+    from rmbvideo.sensor import effects
+
+    class DoubleThreshold(effects.Effect):
+        name = "double_threshold"
+        description = "a threshold twice as high (test only)"
+
+        def threshold(self, threshold):
+            return 2 * threshold
+
+    monkeypatch.setitem(effects.EFFECT_TYPES, DoubleThreshold.name, DoubleThreshold)
+    photo = np.full((40, 2, 2), 30.0)
+    base = SpikeEmitter(2, 2, SensorParams(), [], seed=0).emit(photo).sum()
+    doubled = SpikeEmitter(2, 2, SensorParams(), ["double_threshold"], seed=0).emit(photo).sum()
+    assert base == 2 * doubled  # 30 e- per readout: fires every 7 readouts instead of every 4 (Q_r = 105)

@@ -30,15 +30,7 @@ from typing import Sequence
 import numpy as np
 
 
-from rmbvideo.sensor.effects import (
-    EFFECTS,
-    DarkCurrent,
-    ReadoutRounding,
-    ResetNoise,
-    ShotNoise,
-    ThermalNoise,
-    ThresholdMismatch,
-)
+from rmbvideo.sensor.effects import EFFECT_TYPES, Effect, EffectContext
 from rmbvideo.sensor.params import SensorParams
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
 
@@ -90,56 +82,54 @@ class SpikeEmitter:
 
     def __init__(self, height: int, width: int, params: SensorParams, effects: Sequence[str],
                  seed: int, dark_correlation_px: float = 1.5) -> None:
-        unknown = sorted(set(effects) - set(EFFECTS))
+        unknown = sorted(set(effects) - set(EFFECT_TYPES))
         if unknown:
-            raise ValueError(f"unknown effects {unknown}; known: {sorted(EFFECTS)}")
+            raise ValueError(f"unknown effects {unknown}; known: {sorted(EFFECT_TYPES)}")
         shape = (height, width)
         self.shape = shape
         self.params = params
-        self.shot = ShotNoise(seed) if "shot_noise" in effects else None
-        self.dark = (DarkCurrent(seed, shape, params, dark_correlation_px)
-                     if "dark_current" in effects else None)
-        self.mismatch = ThresholdMismatch(seed, shape, params) if "threshold_mismatch" in effects else None
-        self.reset_noise = ResetNoise(seed, shape, params) if "reset_noise" in effects else None
-        self.thermal = ThermalNoise(seed, shape, params) if "thermal_noise" in effects else None
-        self.rounding = ReadoutRounding() if "readout_rounding" in effects else None
+        context = EffectContext(seed, shape, params, dark_correlation_px)
+        self.effects = [cls(context) for name, cls in EFFECT_TYPES.items() if name in effects]
+        self._hooks = {hook: [e for e in self.effects if e.overrides(hook)]
+                       for hook in ("photo_electrons", "dark_electrons", "voltage_offset", "threshold",
+                                    "after_readout")}
         self.charge = np.zeros(shape, dtype=np.float64)
-        self.capacitance = params.capacitance + (self.mismatch.capacitance_offset
-                                                 if self.mismatch is not None else 0.0)
+        self.capacitance: np.ndarray | float = params.capacitance
+        for effect in self.effects:
+            if effect.overrides("capacitance_offset"):
+                self.capacitance = self.capacitance + effect.capacitance_offset()
 
     @property
-    def components(self) -> dict[str, object]:
-        """The effect components that were built (only those the caller listed)."""
-        built = (self.shot, self.dark, self.mismatch, self.reset_noise, self.thermal, self.rounding)
-        return {c.name: c for c in built if c is not None}
+    def components(self) -> dict[str, Effect]:
+        """The effects that were built (only those the caller listed), by name."""
+        return {e.name: e for e in self.effects}
 
     def _threshold(self) -> np.ndarray | float:
         voltage: np.ndarray | float = self.params.voltage
-        if self.reset_noise is not None:
-            voltage = voltage + self.reset_noise.voltage_offset
-        if self.thermal is not None:
-            voltage = voltage + self.thermal.voltage_offset()
+        for effect in self._hooks["voltage_offset"]:
+            voltage = voltage + effect.voltage_offset()
         threshold = self.capacitance * voltage
-        if self.rounding is not None:
-            threshold = self.rounding.apply(threshold)
+        for effect in self._hooks["threshold"]:
+            threshold = effect.threshold(threshold)
         return np.maximum(threshold, MIN_THRESHOLD_E)
 
     def emit_one(self, photo_expected: np.ndarray, row_level: np.ndarray | int) -> np.ndarray:
         """One readout: ``photo_expected`` (H, W) mean photo-electrons, ``row_level`` (H, 1) or
         scalar quantisation level per row. Returns (H, W) uint8 values in 0..level."""
-        photo = (self.shot.electrons(photo_expected) if self.shot is not None
-                 else np.asarray(photo_expected, dtype=np.float64))
-        charge = self.charge + photo
-        if self.dark is not None:
-            charge += self.dark.electrons()
+        photo = photo_expected
+        for effect in self._hooks["photo_electrons"]:
+            photo = effect.photo_electrons(photo)
+        charge = self.charge + np.asarray(photo, dtype=np.float64)
+        for effect in self._hooks["dark_electrons"]:
+            charge += effect.dark_electrons()
         np.maximum(charge, 0.0, out=charge)  # a pixel cannot hold negative charge
         threshold = self._threshold()
         values = np.minimum(np.floor(charge * row_level / threshold), row_level)
         fired = values > 0
         charge[fired] = 0.0
         self.charge = charge
-        if self.reset_noise is not None:
-            self.reset_noise.reset(fired)
+        for effect in self._hooks["after_readout"]:
+            effect.after_readout(fired)
         return values.astype(np.uint8)
 
     def emit(self, photo_expected: np.ndarray, level: int = 1) -> np.ndarray:

@@ -16,7 +16,7 @@ from rmbvideo.io.rmbfile import RmbFileWriter
 from rmbvideo.scenes.render import SceneRenderer
 from rmbvideo.scenes.scene import Scene
 from rmbvideo.scenes.video import VideoScene
-from rmbvideo.sensor.effects import REALISTIC_EFFECTS, RollingReadout
+from rmbvideo.sensor.effects import REALISTIC_EFFECTS, row_delay
 from rmbvideo.sensor.emission import RateIntegrateFire, SpikeEmitter
 from rmbvideo.sensor.params import SensorParams
 
@@ -33,8 +33,7 @@ class CaptureSimulator:
     def __init__(self, scene: Scene, duration_s: float | None = None) -> None:
         self.scene = scene
         self.renderer = SceneRenderer(scene)
-        self.row_delay: np.ndarray | float = (RollingReadout.row_delay(scene.height)
-                                              if "rolling_readout" in scene.effects else 0.0)
+        self.row_delay: np.ndarray | float = row_delay(scene.effects, scene.height)
         total = scene.total_readouts
         if duration_s is not None:
             total = min(total, int(np.floor(duration_s * scene.rate_hz + 1e-9)))
