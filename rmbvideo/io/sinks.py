@@ -22,9 +22,11 @@ from __future__ import annotations
 import logging
 import os
 from abc import ABC, abstractmethod
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -44,7 +46,6 @@ from rmbvideo.io.tonemap import ToneMapConfig, ToneMapper
 log = logging.getLogger(__name__)
 
 SinkFormat = Literal["mp4", "exr", "png", "null"]
-SINK_FORMATS: tuple[str, ...] = ("mp4", "exr", "png", "null")
 Mp4PixelFormat = Literal["auto", "yuv420p", "yuv444p"]
 INDEX_HEADER = "index,time_s,file"
 # x264 constant-rate factor: 18 is visually lossless for 8-bit tone-mapped video.
@@ -377,31 +378,55 @@ class Mp4Sink(FrameSink):
         self._index.discard()
 
 
-def make_sink(
-    fmt: SinkFormat,
-    outdir: Path,
-    *,
-    fps: float = 30.0,
-    tonemap: ToneMapConfig | None = None,
-    exr_dtype: ExrDtype = "half",
-    stem: str = "frames",
-    capture_rate_hz: float | None = None,
-    frame_rate_hz: float | None = None,
-    mp4_pixel_format: Mp4PixelFormat = "auto",
-) -> FrameSink:
-    """Create the sink for output format ``fmt`` in ``outdir`` (created if missing; unused for null).
+@dataclass(frozen=True)
+class SinkOptions:
+    """Everything a sink may be configured with; each format takes what applies to it.
 
     ``capture_rate_hz`` (raw readout rate) and ``frame_rate_hz`` (output frames per second of
-    capture) are recorded in EXR headers and used to report slow-motion playback for MP4.
-    """
-    if fmt not in SINK_FORMATS:
+    capture) are recorded in EXR headers and used to report slow-motion playback for MP4."""
+
+    fps: float = 30.0
+    tonemap: ToneMapConfig = field(default_factory=ToneMapConfig)
+    exr_dtype: ExrDtype = "half"
+    stem: str = "frames"
+    capture_rate_hz: float | None = None
+    frame_rate_hz: float | None = None
+    mp4_pixel_format: Mp4PixelFormat = "auto"
+
+    def exr_attributes(self) -> dict[str, float | int | str]:
+        """The rates as EXR header attributes."""
+        attrs: dict[str, float | int | str] = {}
+        if self.capture_rate_hz is not None:
+            attrs["rmbvideo:capture_rate_hz"] = float(self.capture_rate_hz)
+        if self.frame_rate_hz is not None:
+            attrs["rmbvideo:frame_rate_hz"] = float(self.frame_rate_hz)
+        return attrs
+
+
+#: Output format -> how to build its sink in a folder. A new format is one ``FrameSink`` subclass
+#: plus one line here; ``reconstruct --format`` and ``batch`` offer every key.
+SINKS: dict[str, Callable[[Path, SinkOptions], FrameSink]] = {
+    "mp4": lambda outdir, o: Mp4Sink(outdir, o.stem, fps=o.fps, tonemap=o.tonemap, pixel_format=o.mp4_pixel_format,
+                                     capture_rate_hz=o.capture_rate_hz, frame_rate_hz=o.frame_rate_hz),
+    "exr": lambda outdir, o: ExrSink(outdir, o.stem, o.exr_dtype, o.exr_attributes()),
+    "png": lambda outdir, o: PngSink(outdir, o.stem, o.tonemap),
+    "null": lambda outdir, o: NullSink(),
+}
+SINK_FORMATS: tuple[str, ...] = tuple(SINKS)
+
+
+def make_sink(fmt: SinkFormat, outdir: Path, *, tonemap: ToneMapConfig | None = None, **options: Any) -> FrameSink:
+    """Create the sink for output format ``fmt`` in ``outdir`` (created if missing; unused for null);
+    keyword ``options`` are ``SinkOptions`` fields."""
+    if fmt not in SINKS:
         raise ValueError(f"unknown output format {fmt!r}; use one of {SINK_FORMATS}")
+    settings = SinkOptions(tonemap=tonemap or ToneMapConfig(), **options)
     if fmt == "null":
-        return NullSink()
-    if not fps > 0:
-        raise ValueError(f"fps must be positive, got {fps}")
-    if mp4_pixel_format not in ("auto", "yuv420p", "yuv444p"):
-        raise ValueError(f"MP4 pixel format must be auto, yuv420p or yuv444p, got {mp4_pixel_format!r}")
+        return SINKS[fmt](Path(outdir), settings)
+    if not settings.fps > 0:
+        raise ValueError(f"fps must be positive, got {settings.fps}")
+    if settings.mp4_pixel_format not in ("auto", "yuv420p", "yuv444p"):
+        raise ValueError(f"MP4 pixel format must be auto, yuv420p or yuv444p, got {settings.mp4_pixel_format!r}")
     outdir = Path(outdir)
     try:
         os.makedirs(outdir, exist_ok=True)
@@ -409,15 +434,4 @@ def make_sink(
         if is_environment_error(exc) or isinstance(exc, FileExistsError):
             raise output_error(outdir, exc) from exc
         raise
-    tonemap = tonemap or ToneMapConfig()
-    if fmt == "mp4":
-        return Mp4Sink(outdir, stem, fps=fps, tonemap=tonemap, pixel_format=mp4_pixel_format,
-                       capture_rate_hz=capture_rate_hz, frame_rate_hz=frame_rate_hz)
-    if fmt == "png":
-        return PngSink(outdir, stem, tonemap)
-    attrs: dict[str, float | int | str] = {}
-    if capture_rate_hz is not None:
-        attrs["rmbvideo:capture_rate_hz"] = float(capture_rate_hz)
-    if frame_rate_hz is not None:
-        attrs["rmbvideo:frame_rate_hz"] = float(frame_rate_hz)
-    return ExrSink(outdir, stem, exr_dtype, attrs)
+    return SINKS[fmt](outdir, settings)
