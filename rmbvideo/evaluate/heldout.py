@@ -28,7 +28,7 @@ import json
 import logging
 import os
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,8 +37,8 @@ import numpy as np
 from rmbvideo.chunks import RmbChunk, SpikeChunk
 from rmbvideo.errors import InputError, OutputError
 from rmbvideo.io.atomic import atomic_path
-from rmbvideo.sensor.binning import MULTI_LEVEL, bin_2x2x2
 from rmbvideo.scenes.video import VideoSceneRanges
+from rmbvideo.sensor.binning import MULTI_LEVEL, bin_2x2x2
 
 log = logging.getLogger(__name__)
 
@@ -172,9 +172,9 @@ def _cache_name(config: HeldoutConfig, seed: int) -> str:
 
 def simulate_sequence(seed: int, config: HeldoutConfig) -> Sequence:
     """Simulate the held-out sequence of ``seed`` (an evaluation seed) at ``config``'s size and length."""
+    from rmbvideo.scenes.random_scenes import is_eval_seed, random_scene
     from rmbvideo.scenes.render import ground_truth
     from rmbvideo.simulate.capture import CaptureSimulator
-    from rmbvideo.scenes.random_scenes import is_eval_seed, random_scene
 
     if not is_eval_seed(seed):
         raise ValueError(f"seed {seed} is a training seed; held-out sequences use evaluation seeds only")
@@ -227,8 +227,8 @@ VIDEO_KINDS = (
 
 def simulate_video_sequence(seed: int, kind: VideoHeldout, config: HeldoutConfig) -> Sequence:
     """The held-out video sequence of ``seed`` (an evaluation seed) of ``kind`` at ``config``'s size."""
-    from rmbvideo.scenes.render import bin_image
     from rmbvideo.scenes.random_scenes import is_eval_seed
+    from rmbvideo.scenes.render import bin_image
     from rmbvideo.scenes.video import VideoScene
     from rmbvideo.simulate.capture import capture_planes
 
@@ -263,17 +263,22 @@ def load_video_heldout(quick: bool, cache: Path | None = None, per_kind: int = 1
             digest = hashlib.sha256(repr(kind).encode()).hexdigest()[:8]  # any change of the kind is a new file
             path = cache / (f"video-v{CACHE_FORMAT}-{kind.name}-{digest}-seed{seed}-{config.width}x{config.height}"
                             f"-{config.readouts}.npz")
-            if path.is_file():
-                sequences.append(load_sequence(path, config.edge_readouts))
-                continue
-            log.info("simulating held-out %s sequence seed %d into %s", kind.name, seed, path)
-            sequence = simulate_video_sequence(seed, kind, config)
-            try:
-                save_sequence(sequence, path)
-            except (OSError, OutputError) as exc:
-                log.warning("%s: cannot cache the held-out sequence (%s); continuing without cache", path, exc)
-            sequences.append(sequence)
+            sequences.append(_cached(path, config, lambda: simulate_video_sequence(seed, kind, config)))
     return sequences
+
+
+def _cached(path: Path, config: HeldoutConfig, simulate: Callable[[], Sequence]) -> Sequence:
+    """The sequence cached at ``path``, or ``simulate()`` stored there (a cache that cannot be
+    written is only a warning: the sequence is still returned)."""
+    if path.is_file():
+        return load_sequence(path, config.edge_readouts)
+    log.info("simulating held-out sequence into %s", path)
+    sequence = simulate()
+    try:
+        save_sequence(sequence, path)
+    except (OSError, OutputError) as exc:
+        log.warning("%s: cannot cache the held-out sequence (%s); continuing without cache", path, exc)
+    return sequence
 
 
 def save_sequence(sequence: Sequence, path: Path) -> None:
@@ -315,18 +320,8 @@ def load_heldout_config(config: HeldoutConfig, cache: Path | None = None) -> lis
     cache = Path(cache) if cache is not None else default_cache_dir()
     sequences = []
     for seed in heldout_seeds(config):
-        path = cache / _cache_name(config, seed)
-        if path.is_file():
-            sequences.append(load_sequence(path, config.edge_readouts))
-            continue
-        log.info("simulating held-out sequence seed %d (%dx%d, %d readouts) into %s",
-                 seed, config.width, config.height, config.readouts, path)
-        sequence = simulate_sequence(seed, config)
-        try:
-            save_sequence(sequence, path)
-        except (OSError, OutputError) as exc:
-            log.warning("%s: cannot cache the held-out sequence (%s); continuing without cache", path, exc)
-        sequences.append(sequence)
+        sequences.append(_cached(cache / _cache_name(config, seed), config,
+                                 lambda: simulate_sequence(seed, config)))  # noqa: B023 (called at once)
     return sequences
 
 

@@ -22,9 +22,9 @@ from typing import Callable, ClassVar, Literal, Protocol, Sequence
 
 import numpy as np
 
-from rmbvideo.chunks import Frame, RmbChunk, SpikeChunk
+from rmbvideo.chunks import DenseChunk, Frame, RmbChunk, SpikeChunk
 from rmbvideo.io.dat import DatGeometry, PackedChunk
-from rmbvideo.recon.prelim import DenseChunk, MultiUpsampler, TemporalInterpolation
+from rmbvideo.recon.prelim import MultiUpsampler, TemporalInterpolation
 
 InputKind = Literal["spikes", "rmb"]
 # Planes handled at once by TFI's (block, H, W) index arrays: bounds memory for any chunk size.

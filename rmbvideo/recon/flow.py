@@ -26,8 +26,7 @@ from typing import Protocol
 import cv2
 import numpy as np
 
-from rmbvideo.chunks import RmbChunk
-from rmbvideo.recon.prelim import DenseChunk
+from rmbvideo.chunks import DenseChunk, RmbChunk
 
 log = logging.getLogger(__name__)
 

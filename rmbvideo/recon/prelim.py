@@ -21,7 +21,7 @@ from typing import Protocol
 
 import numpy as np
 
-from rmbvideo.chunks import RmbChunk
+from rmbvideo.chunks import DenseChunk, RmbChunk
 
 log = logging.getLogger(__name__)
 
@@ -31,29 +31,6 @@ log = logging.getLogger(__name__)
 _DENSE_QUANTUM = 1024.0
 # Readouts interpolated per block: bounds the (block, H, W) float temporaries.
 _BLOCK_READOUTS = 64
-
-
-@dataclass
-class DenseChunk:
-    """Consecutive readouts with a multi-bit value in every row.
-
-    ``single``: (T, H, W) uint8 1-bit values as read; ``multi``: (T, H, W) float32 multi-bit values
-    (measured or upsampled, in levels 0..``level``); ``multi_valid``: (T, H) bool, False where the row
-    had no multi-bit sample anywhere in reach (its ``multi`` is 0 and carries no information, e.g.
-    pure-S data). Other fields as in :class:`~rmbvideo.chunks.RmbChunk`.
-    """
-
-    single: np.ndarray
-    multi: np.ndarray
-    multi_valid: np.ndarray
-    start: int
-    rate_hz: float
-    level: int = 7
-    raw_per_readout: int = 2
-
-    @property
-    def stop(self) -> int:
-        return self.start + len(self.single)
 
 
 class MultiUpsampler(Protocol):
