@@ -86,3 +86,14 @@ class Frame:
     index: int
     time_s: float
     image: np.ndarray
+
+
+def clean_image(image: np.ndarray) -> tuple[np.ndarray, int]:
+    """``image`` as a ``Frame`` must be (float32, finite, >= 0): NaN/Inf become 0, negatives 0;
+    also returns how many pixels were not finite. Returns the input itself when it is clean."""
+    image = np.asarray(image, dtype=np.float32)
+    bad = ~np.isfinite(image)
+    count = int(bad.sum())
+    if count == 0 and image.min(initial=0.0) >= 0:
+        return image, 0
+    return np.where(bad, np.float32(0.0), np.maximum(image, np.float32(0.0))).astype(np.float32), count

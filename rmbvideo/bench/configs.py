@@ -11,16 +11,13 @@ import itertools
 from dataclasses import dataclass, field
 from typing import Any
 
+from rmbvideo.evaluate.harness import BASELINE_SPECS, RAW_SPECS
+
+#: name -> (method, options): the RMB-input baselines of ``rmbvideo evaluate`` (paper Table 2) and
+#: the classical methods on the raw capture that ``reconstruct`` runs at full resolution (scored
+#: after 2x2 averaging). TFI on the RMB 1-bit plane is an evaluation-only input and is left out.
 BASELINES: dict[str, tuple[str, dict[str, Any]]] = {
-    # name -> (pipeline method, options); windows and steps in binned readouts except TFI (raw planes).
-    # The bench runs what `reconstruct` runs: TFI on the raw 1-bit stream at full resolution (scored
-    # after 2x2 averaging), which carries more than the RMB input `evaluate` gives every row.
-    "TFW-S": ("tfw", {"window": 10, "step": 10}),
-    "TFW-L": ("tfw", {"window": 70, "step": 10}),
-    "TFI (raw, full res)": ("tfi", {"step": 20}),
-    "GC20": ("gc20", {}),
-    "MG20": ("mg20", {}),
-}
+    spec.name: (spec.method, spec.options) for spec in (*BASELINE_SPECS, *RAW_SPECS) if spec.name != "TFI"}
 W_VALUES = (0, 1, 2, 3)
 ALIGNMENTS = ("none", "dis", "tvl1")
 WIDTHS = (0.5, 1.0)

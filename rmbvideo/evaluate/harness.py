@@ -276,6 +276,14 @@ ABLATIONS: dict[str, tuple[str, str]] = {
 }
 
 
+#: The classical baselines of paper Table 2, all on the same RMB input (TFI on its 1-bit plane).
+BASELINE_SPECS = (
+    MethodSpec("TFW-S", "tfw", {"window": 10, "step": 10}),
+    MethodSpec("TFW-L", "tfw", {"window": 70, "step": 10}),
+    MethodSpec("TFI", "tfi", {"step": 10}),
+    MethodSpec("GC20", "gc20", {}),
+    MethodSpec("MG20", "mg20", {}),
+)
 #: Classical methods on the raw capture at full resolution, scored after 2x2 averaging; the table
 #: adds their per-sequence best as ``BEST_RAW``.
 RAW_SPECS = (
@@ -313,11 +321,7 @@ def table2_specs(models_dir: Path, device: str = "auto") -> list[MethodSpec]:
         return MethodSpec(name, "rmbnet", {"model": str(path), "device": device, "input_mode": "binned"}, readout)
 
     specs = [
-        MethodSpec("TFW-S", "tfw", {"window": 10, "step": 10}),
-        MethodSpec("TFW-L", "tfw", {"window": 70, "step": 10}),
-        MethodSpec("TFI", "tfi", {"step": 10}),
-        MethodSpec("GC20", "gc20", {}),
-        MethodSpec("MG20", "mg20", {}),
+        *BASELINE_SPECS,
         rmbnet("RMB-Net", models_dir / "rmbnet-binned.safetensors", "rmb"),
         *RAW_SPECS,
     ]

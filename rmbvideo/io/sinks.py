@@ -30,7 +30,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from rmbvideo.chunks import Frame
+from rmbvideo.chunks import Frame, clean_image
 from rmbvideo.errors import OutputError
 from rmbvideo.io.atomic import (
     atomic_write_bytes,
@@ -139,13 +139,11 @@ class FrameSink(ABC):
             self._shape = (int(image.shape[0]), int(image.shape[1]))
         elif image.shape != self._shape:
             raise ValueError(f"frame {frame.index}: shape {image.shape} differs from earlier {self._shape}")
-        finite = np.isfinite(image)
-        if not finite.all():
-            bad = int(finite.size - np.count_nonzero(finite))
+        image, bad = clean_image(image)
+        if bad:
             if self.nonfinite_pixels == 0:
                 log.warning("frame %d: %d NaN/Inf pixels written as 0", frame.index, bad)
             self.nonfinite_pixels += bad
-            image = np.where(finite, image, np.float32(0.0))
         self._write(frame, image)
         self.frames_written += 1
 

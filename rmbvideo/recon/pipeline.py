@@ -11,10 +11,9 @@ import time
 from dataclasses import dataclass, field
 from typing import Iterator, Protocol
 
-import numpy as np
 from tqdm import tqdm
 
-from rmbvideo.chunks import Frame, RmbChunk, SpikeChunk
+from rmbvideo.chunks import Frame, RmbChunk, SpikeChunk, clean_image
 from rmbvideo.io.dat import PackedChunk
 from rmbvideo.recon.classical import Reconstructor
 from rmbvideo.sensor.readout import RmbReadout
@@ -61,12 +60,11 @@ STAGES = ("read", "readout", "method", "sink")
 
 
 def finite_frame(frame: Frame) -> tuple[Frame, int]:
-    """``frame`` with NaN/Inf replaced by 0 and negatives clipped to 0, and how many pixels were not finite."""
-    bad = ~np.isfinite(frame.image)
-    count = int(bad.sum())
-    if count == 0 and frame.image.min(initial=0.0) >= 0:
+    """``frame`` with NaN/Inf replaced by 0 and negatives clipped to 0 (``clean_image``), and how
+    many pixels were not finite."""
+    image, count = clean_image(frame.image)
+    if image is frame.image:
         return frame, 0
-    image = np.where(bad, 0.0, np.maximum(frame.image, 0.0)).astype(np.float32)
     return Frame(index=frame.index, time_s=frame.time_s, image=image), count
 
 
