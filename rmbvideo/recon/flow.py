@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 
 from rmbvideo.chunks import DenseChunk, RmbChunk
+from rmbvideo.recon.prelim import ReadoutBuffer
 
 log = logging.getLogger(__name__)
 
@@ -136,32 +137,22 @@ class FlowUpsampler:
         self.cycle = cycle
         self.shift = shift
         self.method = method
-        self._single: np.ndarray | None = None
-        self._multi: np.ndarray | None = None
-        self._rows: np.ndarray | None = None
-        self._start = 0               # absolute readout of the buffer's first entry
+        self._buf = ReadoutBuffer()
         self._next_emit = 0
-        self._meta: tuple[float, int, int] = (0.0, 7, 2)
         self._cycles: list[_Cycle] = []   # the last two rectified cycles
         self._pair_flow: tuple[np.ndarray, np.ndarray] | None = None  # flows between them
 
     def push(self, chunk: RmbChunk) -> list[DenseChunk]:
         """Buffer ``chunk``; return the readouts that are now final."""
-        if self._rows is None:
+        if self._buf.rows is None:
             if self.cycle is None:
                 self.cycle = max(2, -(-chunk.multi_rows.shape[1] // self.shift))
-            self._start = self._next_emit = chunk.start
-            self._single, self._multi, self._rows = chunk.single[:0], chunk.multi[:0], chunk.multi_rows[:0]
-        elif chunk.start != self._start + len(self._rows):
-            raise ValueError(f"chunk starts at readout {chunk.start}, expected {self._start + len(self._rows)}")
-        self._meta = (chunk.rate_hz, chunk.level, chunk.raw_per_readout)
-        self._single = np.concatenate([self._single, chunk.single])
-        self._multi = np.concatenate([self._multi, chunk.multi])
-        self._rows = np.concatenate([self._rows, chunk.multi_rows.astype(bool, copy=False)])
+            self._next_emit = chunk.start
+        self._buf.append(chunk)
         out: list[DenseChunk] = []
-        stop = self._start + len(self._rows)
+        stop = self._buf.start + len(self._buf.rows)
         while True:
-            c = self._cycles[-1].index + 1 if self._cycles else self._start // self.cycle
+            c = self._cycles[-1].index + 1 if self._cycles else self._buf.start // self.cycle
             if (c + 1) * self.cycle > stop:
                 break
             self._add_cycle(c, stop)
@@ -171,20 +162,20 @@ class FlowUpsampler:
 
     def flush(self) -> list[DenseChunk]:
         """End of stream: rectify the partial last cycle, emit everything left."""
-        if self._rows is None:
+        if self._buf.rows is None:
             return []
-        stop = self._start + len(self._rows)
-        c = self._cycles[-1].index + 1 if self._cycles else self._start // self.cycle
+        stop = self._buf.start + len(self._buf.rows)
+        c = self._cycles[-1].index + 1 if self._cycles else self._buf.start // self.cycle
         if c * self.cycle < stop:
             self._add_cycle(c, stop)
         return self._emit_until(stop)
 
     def _add_cycle(self, c: int, stop: int) -> None:
-        a = max(c * self.cycle, self._start)
+        a = max(c * self.cycle, self._buf.start)
         b = min((c + 1) * self.cycle, stop)
-        rows = self._rows[a - self._start : b - self._start]
-        multi = self._multi[a - self._start : b - self._start].astype(np.float32)
-        single = self._single[a - self._start : b - self._start].astype(np.float32)
+        rows = self._buf.rows[a - self._buf.start : b - self._buf.start]
+        multi = self._buf.multi[a - self._buf.start : b - self._buf.start].astype(np.float32)
+        single = self._buf.single[a - self._buf.start : b - self._buf.start].astype(np.float32)
         counts = rows.sum(axis=0)
         valid = counts > 0
         safe = np.maximum(counts, 1)
@@ -229,7 +220,7 @@ class FlowUpsampler:
         return dense, first.valid & last.valid
 
     def _emit_until(self, stop: int) -> list[DenseChunk]:
-        stop = min(stop, self._start + len(self._rows))
+        stop = min(stop, self._buf.start + len(self._buf.rows))
         if stop <= self._next_emit:
             return []
         planes, valids = [], []
@@ -237,15 +228,14 @@ class FlowUpsampler:
             dense, valid = self._dense_at(t)
             planes.append(np.where(valid[:, None], np.round(np.maximum(dense, 0.0) * _DENSE_QUANTUM) / _DENSE_QUANTUM, 0.0))
             valids.append(valid)
-        a, b = self._next_emit - self._start, stop - self._start
-        rate_hz, level, raw_per_readout = self._meta
-        out = DenseChunk(single=self._single[a:b], multi=np.stack(planes).astype(np.float32),
+        a, b = self._next_emit - self._buf.start, stop - self._buf.start
+        rate_hz, level, raw_per_readout = self._buf.meta
+        out = DenseChunk(single=self._buf.single[a:b], multi=np.stack(planes).astype(np.float32),
                          multi_valid=np.stack(valids), start=self._next_emit, rate_hz=rate_hz,
                          level=level, raw_per_readout=raw_per_readout)
         self._next_emit = stop
         keep_from = min(self._next_emit, (self._cycles[-1].index + 1) * self.cycle)
-        drop = keep_from - self._start
+        drop = keep_from - self._buf.start
         if drop > 0:
-            self._single, self._multi, self._rows = self._single[drop:], self._multi[drop:], self._rows[drop:]
-            self._start = keep_from
+            self._buf.drop(drop)
         return [out]

@@ -45,6 +45,41 @@ class MultiUpsampler(Protocol):
         ...
 
 
+class ReadoutBuffer:
+    """Readouts of an RMB stream that an upsampler holds until they are final: contiguous from
+    absolute readout ``start`` (``single``, ``multi``, ``rows`` as in ``RmbChunk``; None before the
+    first chunk); ``meta`` is the stream's (rate_hz, level, raw_per_readout)."""
+
+    def __init__(self) -> None:
+        self.single: np.ndarray | None = None
+        self.multi: np.ndarray | None = None
+        self.rows: np.ndarray | None = None
+        self.start = 0
+        self.meta: tuple[float, int, int] = (0.0, 7, 2)
+
+    @property
+    def stop(self) -> int:
+        """Absolute readout after the last one held."""
+        return self.start + (0 if self.rows is None else len(self.rows))
+
+    def append(self, chunk: RmbChunk) -> None:
+        """Add the next chunk; it must start where the buffer ends."""
+        if self.rows is None:
+            self.start = chunk.start
+            self.single, self.multi, self.rows = chunk.single[:0], chunk.multi[:0], chunk.multi_rows[:0].astype(bool)
+        elif chunk.start != self.stop:
+            raise ValueError(f"chunk starts at readout {chunk.start}, expected {self.stop}")
+        self.meta = (chunk.rate_hz, chunk.level, chunk.raw_per_readout)
+        self.single = np.concatenate([self.single, chunk.single])
+        self.multi = np.concatenate([self.multi, chunk.multi])
+        self.rows = np.concatenate([self.rows, chunk.multi_rows.astype(bool, copy=False)])
+
+    def drop(self, count: int) -> None:
+        """Forget the first ``count`` readouts (copies, so the dropped part can be freed)."""
+        self.single, self.multi, self.rows = self.single[count:].copy(), self.multi[count:].copy(), self.rows[count:].copy()
+        self.start += count
+
+
 class TemporalInterpolation:
     """Flow-free upsampling: per row, linear interpolation in time between consecutive multi-bit samples.
 
@@ -61,18 +96,14 @@ class TemporalInterpolation:
         if max_gap < 1:
             raise ValueError(f"max_gap must be >= 1, got {max_gap}")
         self.max_gap = max_gap
-        self._single: np.ndarray | None = None  # (L, H, W) buffered readouts from self._start
-        self._multi: np.ndarray | None = None
-        self._rows: np.ndarray | None = None
-        self._start = 0
-        self._meta: tuple[float, int, int] = (0.0, 7, 2)  # rate_hz, level, raw_per_readout
+        self._buf = ReadoutBuffer()
         self._last_t: np.ndarray | None = None  # (H,) absolute readout of the row's last emitted sample, -1 if none
         self._last_v: np.ndarray | None = None  # (H, W) float32 values of that sample
 
     def push(self, chunk: RmbChunk) -> list[DenseChunk]:
         """Buffer ``chunk``; return the readouts whose interpolation no longer depends on later data."""
         self._append(chunk)
-        rows = self._rows
+        rows = self._buf.rows
         length = len(rows)
         if length == 0:
             return []
@@ -84,43 +115,34 @@ class TemporalInterpolation:
 
     def flush(self) -> list[DenseChunk]:
         """End of stream: interpolate what is left, holding each row's last sample."""
-        if self._rows is None:
+        if self._buf.rows is None:
             return []
-        return self._emit(len(self._rows))
+        return self._emit(len(self._buf.rows))
 
     def _append(self, chunk: RmbChunk) -> None:
-        if self._rows is None:
+        if self._last_t is None:
             height, width = chunk.single.shape[1:]
-            self._start = chunk.start
-            self._single = chunk.single[:0]
-            self._multi = chunk.multi[:0]
-            self._rows = chunk.multi_rows[:0]
             self._last_t = np.full(height, -1, dtype=np.int64)
             self._last_v = np.zeros((height, width), dtype=np.float32)
-        elif chunk.start != self._start + len(self._rows):
-            raise ValueError(f"chunk starts at readout {chunk.start}, expected {self._start + len(self._rows)}")
-        self._meta = (chunk.rate_hz, chunk.level, chunk.raw_per_readout)
-        self._single = np.concatenate([self._single, chunk.single])
-        self._multi = np.concatenate([self._multi, chunk.multi])
-        self._rows = np.concatenate([self._rows, chunk.multi_rows.astype(bool, copy=False)])
+        self._buf.append(chunk)
 
     def _emit(self, count: int) -> list[DenseChunk]:
         """Interpolate the first ``count`` buffered readouts, update the carried samples, trim the buffer."""
         if count <= 0:
             return []
-        rows, multi = self._rows, self._multi
+        rows, multi = self._buf.rows, self._buf.multi
         length, height = rows.shape
         index = np.arange(length, dtype=np.int64)[:, None]
         prev = np.maximum.accumulate(np.where(rows, index, -1), axis=0)[:count]
         nxt = np.minimum.accumulate(np.where(rows, index, length)[::-1], axis=0)[::-1][:count]
-        last_rel = self._last_t - self._start  # negative: before the buffer
+        last_rel = self._last_t - self._buf.start  # negative: before the buffer
         in_buffer_prev = prev >= 0
         has_prev = in_buffer_prev | (self._last_t >= 0)[None, :]
         prev_time = np.where(in_buffer_prev, prev, last_rel[None, :])
         t = index[:count]
         has_next = (nxt < length) & (nxt - t <= self.max_gap)
         row_index = np.arange(height)[None, :]
-        rate_hz, level, raw_per_readout = self._meta
+        rate_hz, level, raw_per_readout = self._buf.meta
         out: list[DenseChunk] = []
         for b0 in range(0, count, _BLOCK_READOUTS):
             b1 = min(b0 + _BLOCK_READOUTS, count)
@@ -141,10 +163,10 @@ class TemporalInterpolation:
             dense = np.where(valid[:, :, None], dense, 0.0).astype(np.float32)
             out.append(
                 DenseChunk(
-                    single=self._single[sl],
+                    single=self._buf.single[sl],
                     multi=dense,
                     multi_valid=valid,
-                    start=self._start + b0,
+                    start=self._buf.start + b0,
                     rate_hz=rate_hz,
                     level=level,
                     raw_per_readout=raw_per_readout,
@@ -153,12 +175,9 @@ class TemporalInterpolation:
         seen = rows[:count].any(axis=0)
         if seen.any():
             last = count - 1 - np.argmax(rows[:count][::-1], axis=0)
-            self._last_t = np.where(seen, self._start + last, self._last_t)
+            self._last_t = np.where(seen, self._buf.start + last, self._last_t)
             self._last_v = np.where(seen[:, None], multi[last, np.arange(height)].astype(np.float32), self._last_v)
-        self._single = self._single[count:].copy()
-        self._multi = self._multi[count:].copy()
-        self._rows = self._rows[count:].copy()
-        self._start += count
+        self._buf.drop(count)
         return out
 
 
