@@ -46,33 +46,11 @@ def simulate(scene_name: str | None, output: Path | None, gt_dir: Path | None, g
         return
     if scene_name is None or output is None:
         raise click.UsageError("SCENE and -o/--output are required (or use --list)")
-    from tqdm import tqdm
+    from rmbvideo.errors import OptionError
+    from rmbvideo.simulate.capture import simulate_capture
 
-    from rmbvideo.io.sidecar import CaptureInfo, write_sidecar
-    from rmbvideo.simulate.capture import CaptureSimulator, open_writer
-    from rmbvideo.simulate.ground_truth import write_ground_truth
-
-    scene = resolve_scene(scene_name)
-    simulator = CaptureSimulator(scene, duration_s)
-    readout = scene.readout
-    log.info("scene %s: %dx%d at %g Hz, %d readouts, %s readout, effects: %s", scene.name, scene.width,
-             scene.height, scene.rate_hz, simulator.total_readouts, readout.kind,
-             ", ".join(scene.effects) or "none (deterministic)")
-    if simulator.total_readouts == 0:
-        raise click.UsageError(f"--duration {duration_s} s is shorter than one readout")
-    progress = tqdm(total=simulator.total_readouts, unit="readout", disable=not progress_enabled(quiet))
-    with progress, open_writer(output, scene) as writer:
-        for chunk in simulator.chunks(chunk_readouts):
-            writer.write(chunk.planes if not readout.is_multibit else chunk)
-            progress.update(len(chunk.planes) if not readout.is_multibit else len(chunk.single))
-    extra = {"readout": readout.kind, "scene": scene.name}
-    if readout.is_multibit:
-        extra.update(level=readout.level)
-    if readout.kind == "rmb":
-        extra.update(band=readout.band, shift=readout.shift)
-    write_sidecar(output, CaptureInfo(width=scene.width, height=scene.height, rate_hz=scene.rate_hz,
-                                      flip=True, header_cols=0), **extra)
-    log.info("wrote %s (%d readouts)", output, simulator.total_readouts)
-    if gt_dir is not None:
-        frames = write_ground_truth(simulator, gt_dir, gt_step)
-        log.info("wrote %d ground-truth frames to %s", frames, gt_dir)
+    try:
+        simulate_capture(resolve_scene(scene_name), output, duration_s=duration_s, gt_dir=gt_dir, gt_step=gt_step,
+                         chunk_readouts=chunk_readouts, progress=progress_enabled(quiet))
+    except OptionError as exc:
+        raise click.UsageError(str(exc)) from None

@@ -22,7 +22,7 @@ from __future__ import annotations
 import logging
 import os
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -433,3 +433,12 @@ def make_sink(fmt: SinkFormat, outdir: Path, *, tonemap: ToneMapConfig | None = 
             raise output_error(outdir, exc) from exc
         raise
     return SINKS[fmt](outdir, settings)
+
+
+def write_frames(frames: Iterable[Frame], outdir: Path, fmt: SinkFormat = "mp4", **options: Any) -> int:
+    """Write ``frames`` to ``outdir`` as ``fmt`` (``make_sink`` options), committed atomically when
+    all are written (removed on error); returns the number of frames written."""
+    with make_sink(fmt, Path(outdir), **options) as sink:
+        for frame in frames:
+            sink.write(frame)
+        return sink.frames_written

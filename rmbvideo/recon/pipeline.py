@@ -68,27 +68,40 @@ def finite_frame(frame: Frame) -> tuple[Frame, int]:
     return Frame(index=frame.index, time_s=frame.time_s, image=image), count
 
 
-def reconstruct_stream(
+@dataclass
+class StreamStats:
+    """Counters an ``iter_frames`` run fills in as it goes: planes read, frames emitted, pixels
+    repaired, seconds per stage (``STAGES`` except "sink", which the consumer adds)."""
+
+    planes: int = 0
+    frames: int = 0
+    nonfinite_pixels: int = 0
+    stages: dict[str, float] = field(default_factory=lambda: dict.fromkeys(STAGES, 0.0))
+
+
+def iter_frames(
     reader: SpikeSource,
     method: Reconstructor,
-    sink: FrameConsumer,
     *,
     start: int = 0,
     stop: int | None = None,
     chunk_planes: int = 1024,
     progress: bool = False,
     readout: RmbReadout | None = None,
-) -> RunSummary:
-    """Run ``method`` over raw planes ``start..stop`` of ``reader`` and write its frames to ``sink``.
+    stats: StreamStats | None = None,
+) -> Iterator[Frame]:
+    """The frames of ``method`` over raw planes ``start..stop`` of ``reader``, as they are made:
+    finite, >= 0 (``finite_frame``), in bounded memory. The one streaming loop of the library.
 
     Methods on the RMB stream (``input_kind == "rmb"``) read 2x2x2-binned data, passed through
     ``readout`` when given (default: the binned pure-M stream as is); binning needs an even start and
     chunk size, so odd values are rounded up. ``readout`` is an error for methods on raw spikes.
     Methods on raw spikes that declare ``accepts_packed`` get the stored bits undecoded
-    (``reader.packed_chunks``) when the reader offers them.
-    Memory is bounded by ``chunk_planes`` and the method's own look-ahead. The sink is not closed
-    here: the caller commits it (or aborts it on error), e.g. by using it as a context manager.
+    (``reader.packed_chunks``) when the reader offers them. Memory is bounded by ``chunk_planes``
+    and the method's own look-ahead. ``stats`` (optional) is filled in while the frames flow.
     """
+    stats = stats if stats is not None else StreamStats()
+    stages = stats.stages
     stop = reader.n_planes if stop is None else stop
     if method.input_kind == "rmb":
         if start % 2 or chunk_planes % 2:
@@ -104,21 +117,16 @@ def reconstruct_stream(
     else:
         chunks = reader.chunks(chunk_planes, start, stop)
 
-    began = time.perf_counter()
-    frames = planes = nonfinite = 0
-    stages = dict.fromkeys(STAGES, 0.0)
-    bar = tqdm(total=max(stop - start, 0), unit="plane", disable=not progress, dynamic_ncols=True)
-
-    def emit(batch: list[Frame]) -> None:
-        nonlocal frames, nonfinite
+    def cleaned(batch: list[Frame]) -> Iterator[Frame]:
         for frame in batch:
             frame, bad = finite_frame(frame)
             if bad:
                 log.warning("frame %d: replaced %d non-finite pixels with 0", frame.index, bad)
-                nonfinite += bad
-            sink.write(frame)
-            frames += 1
+                stats.nonfinite_pixels += bad
+            stats.frames += 1
+            yield frame
 
+    bar = tqdm(total=max(stop - start, 0), unit="plane", disable=not progress, dynamic_ncols=True)
     with bar:
         iterator = iter(chunks)
         while True:
@@ -139,19 +147,39 @@ def reconstruct_stream(
             tick = time.perf_counter()
             stages["readout"] += tick - tock
             out = method.push(chunk)
-            tock = time.perf_counter()
-            stages["method"] += tock - tick
-            emit(out)
-            stages["sink"] += time.perf_counter() - tock
-            planes += advanced
+            stages["method"] += time.perf_counter() - tick
+            yield from cleaned(out)
+            stats.planes += advanced
             bar.update(advanced)
         tick = time.perf_counter()
         out = method.flush()
-        tock = time.perf_counter()
-        stages["method"] += tock - tick
-        emit(out)
-        stages["sink"] += time.perf_counter() - tock
-    seconds = time.perf_counter() - began
+        stages["method"] += time.perf_counter() - tick
+        yield from cleaned(out)
     stages.update(getattr(method, "stage_seconds", {}))
-    log.debug("%d frames from %d planes in %.2f s", frames, planes, seconds)
-    return RunSummary(frames=frames, planes=planes, seconds=seconds, nonfinite_pixels=nonfinite, stages=stages)
+
+
+def reconstruct_stream(
+    reader: SpikeSource,
+    method: Reconstructor,
+    sink: FrameConsumer,
+    *,
+    start: int = 0,
+    stop: int | None = None,
+    chunk_planes: int = 1024,
+    progress: bool = False,
+    readout: RmbReadout | None = None,
+) -> RunSummary:
+    """Run ``method`` over raw planes ``start..stop`` of ``reader`` (``iter_frames``) and write its
+    frames to ``sink``. The sink is not closed here: the caller commits it (or aborts it on error),
+    e.g. by using it as a context manager."""
+    began = time.perf_counter()
+    stats = StreamStats()
+    for frame in iter_frames(reader, method, start=start, stop=stop, chunk_planes=chunk_planes, progress=progress,
+                             readout=readout, stats=stats):
+        tick = time.perf_counter()
+        sink.write(frame)
+        stats.stages["sink"] += time.perf_counter() - tick
+    seconds = time.perf_counter() - began
+    log.debug("%d frames from %d planes in %.2f s", stats.frames, stats.planes, seconds)
+    return RunSummary(frames=stats.frames, planes=stats.planes, seconds=seconds,
+                      nonfinite_pixels=stats.nonfinite_pixels, stages=stats.stages)

@@ -1,39 +1,49 @@
-"""Reconstruct one capture file into an output folder: the library form of ``rmbvideo reconstruct``
-(used by the command and by ``batch``)."""
+"""Reconstruct one capture file: into an output folder (``run_reconstruction``, the library form of
+``rmbvideo reconstruct``, also used by ``batch``) or as a stream of frames (``reconstruct_frames``,
+``rmbvideo.reconstruct`` for notebooks)."""
 
 from __future__ import annotations
 
 import shutil
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from rmbvideo.errors import InputError
+from rmbvideo.chunks import Frame
+from rmbvideo.errors import InputError, OptionError
 from rmbvideo.io.capture import open_capture
+from rmbvideo.io.dat import DatReader
 from rmbvideo.io.rmbfile import RmbFileReader
 from rmbvideo.io.sinks import make_sink
 from rmbvideo.io.tonemap import ToneMapConfig
 from rmbvideo.recon.methods import DEFAULT_METHOD, get_method
-from rmbvideo.recon.pipeline import RunSummary, reconstruct_stream
+from rmbvideo.recon.pipeline import RunSummary, iter_frames, reconstruct_stream
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
 
 
-def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_METHOD,
-                       window: int | None = None, step: int | None = None, fmt: str = "mp4",
-                       fps: float = 30.0, tonemap: str = "mulaw", exr_dtype: str = "half",
-                       pixel_format: str = "auto",
-                       readout: str = "rmb", start_s: float = 0.0, duration_s: float | None = None,
-                       chunk_planes: int = 1024, progress: bool = False,
-                       capture: dict | None = None, extra_options: dict[str, Any] | None = None) -> RunSummary:
-    """Reconstruct ``input_path`` into ``outdir`` with ``method``; ``extra_options`` are further
-    command-line values, of which the method takes those it declares (``Method.extra_options``).
+@dataclass
+class PreparedRun:
+    """A capture opened and a method built, with the raw-plane range and readout to run them on."""
 
-    The input is opened and checked before anything is created, and a failed run removes what it
-    wrote (and ``outdir`` itself if this run created it), so bad input leaves no output behind.
-    """
-    reader = open_capture(input_path, **(capture or {}))
+    reader: DatReader | RmbFileReader
+    method: Any
+    start: int
+    stop: int
+    step: int
+    readout: RmbReadout | None
+
+
+def prepare_run(input_path: Path, *, method: str = DEFAULT_METHOD, window: int | None = None,
+                step: int | None = None, readout: str = "rmb", start_s: float = 0.0,
+                duration_s: float | None = None, capture: dict | None = None,
+                extra_options: dict[str, Any] | None = None) -> PreparedRun:
+    """Open ``input_path`` (options over sidecar over defaults) and build ``method`` for it, as
+    ``rmbvideo reconstruct`` does; ``extra_options`` are further method options, of which the method
+    takes those it declares (``Method.extra_options``). Bad input raises before anything runs."""
+    reader = open_capture(Path(input_path), **(capture or {}))
     start = reader.plane_index(start_s)
-    stop = reader.n_planes if duration_s is None else min(reader.n_planes,
-                                                           start + reader.plane_index(duration_s))
+    stop = reader.n_planes if duration_s is None else min(reader.n_planes, start + reader.plane_index(duration_s))
     if start >= reader.n_planes:
         raise InputError(f"{input_path}: --start {start_s} s is past the end of the capture "
                          f"({reader.duration_s:.6f} s)")
@@ -47,14 +57,51 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
     recon = spec.build(**options)
     # A native capture was read out by its sensor already; binned data gets the chosen design.
     rmb_readout = RmbReadout(mode=ReadoutMode(readout)) if recon.input_kind == "rmb" and not native else None
+    return PreparedRun(reader, recon, start, stop, step, rmb_readout)
+
+
+def reconstruct_frames(path: str | Path, method: str = DEFAULT_METHOD, *, window: int | None = None,
+                       step: int | None = None, readout: str = "rmb", start_s: float = 0.0,
+                       duration_s: float | None = None, chunk_planes: int = 1024, progress: bool = False,
+                       width: int | None = None, height: int | None = None, flip: bool | None = None,
+                       header_cols: int | None = None, rate_hz: float | None = None,
+                       **options: Any) -> Iterator[Frame]:
+    """The frames of capture ``path`` (``.index``, ``.time_s``, ``.image``: linear float32, finite,
+    >= 0) reconstructed with ``method``, with the defaults and sidecar handling of ``rmbvideo
+    reconstruct``, streaming in bounded memory. ``options`` go to the method (e.g. RMB-Net's ``model``,
+    ``device``, ``threads``). Available as ``rmbvideo.reconstruct``."""
+    unknown = sorted(set(options) - set(get_method(method).extra_options))
+    if unknown:
+        raise OptionError(f"method {method} takes no option {', '.join(unknown)}")
+    run = prepare_run(Path(path), method=method, window=window, step=step, readout=readout, start_s=start_s,
+                      duration_s=duration_s, extra_options=options,
+                      capture=dict(width=width, height=height, flip=flip, header_cols=header_cols, rate_hz=rate_hz))
+    return iter_frames(run.reader, run.method, start=run.start, stop=run.stop, chunk_planes=chunk_planes,
+                       progress=progress, readout=run.readout)
+
+
+def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_METHOD,
+                       window: int | None = None, step: int | None = None, fmt: str = "mp4",
+                       fps: float = 30.0, tonemap: str = "mulaw", exr_dtype: str = "half",
+                       pixel_format: str = "auto",
+                       readout: str = "rmb", start_s: float = 0.0, duration_s: float | None = None,
+                       chunk_planes: int = 1024, progress: bool = False,
+                       capture: dict | None = None, extra_options: dict[str, Any] | None = None) -> RunSummary:
+    """Reconstruct ``input_path`` into ``outdir`` with ``method`` (see ``prepare_run``).
+
+    The input is opened and checked before anything is created, and a failed run removes what it
+    wrote (and ``outdir`` itself if this run created it), so bad input leaves no output behind.
+    """
+    run = prepare_run(input_path, method=method, window=window, step=step, readout=readout, start_s=start_s,
+                      duration_s=duration_s, capture=capture, extra_options=extra_options)
+    reader = run.reader
     created = not outdir.exists()
     try:
         with make_sink(fmt, outdir, fps=fps, tonemap=ToneMapConfig(method=tonemap),
                        exr_dtype=exr_dtype, mp4_pixel_format=pixel_format, capture_rate_hz=reader.rate_hz,
-                       frame_rate_hz=reader.rate_hz / step) as sink:
-            summary = reconstruct_stream(reader, recon, sink, start=start, stop=stop,
-                                         chunk_planes=chunk_planes, progress=progress,
-                                         readout=rmb_readout)
+                       frame_rate_hz=reader.rate_hz / run.step) as sink:
+            summary = reconstruct_stream(reader, run.method, sink, start=run.start, stop=run.stop,
+                                         chunk_planes=chunk_planes, progress=progress, readout=run.readout)
     except BaseException:
         if created and outdir.is_dir() and not any(outdir.iterdir()):
             shutil.rmtree(outdir, ignore_errors=True)

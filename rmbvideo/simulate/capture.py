@@ -5,6 +5,8 @@ pixel responds): ``CaptureSimulator`` for TOML scenes, ``capture_planes`` for vi
 
 from __future__ import annotations
 
+import logging
+
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -19,6 +21,8 @@ from rmbvideo.scenes.video import VideoScene
 from rmbvideo.sensor.effects import REALISTIC_EFFECTS, row_delay
 from rmbvideo.sensor.emission import RateIntegrateFire, SpikeEmitter
 from rmbvideo.sensor.params import SensorParams
+
+log = logging.getLogger(__name__)
 
 
 class CaptureSimulator:
@@ -110,3 +114,40 @@ def open_writer(output: Path, scene: Scene) -> DatWriter | RmbFileWriter:
         return RmbFileWriter(output, scene.width, scene.height, readout.level, scene.rate_hz,
                              band=readout.band, shift=readout.shift)
     return DatWriter(output, DatGeometry(width=scene.width, height=scene.height, flip=True))
+
+
+def simulate_capture(scene: Scene, output: Path, *, duration_s: float | None = None, gt_dir: Path | None = None,
+                     gt_step: int = 20, chunk_readouts: int = 64, progress: bool = False) -> CaptureSimulator:
+    """Simulate ``scene`` into ``output`` (``.dat``, ``.mbit`` for multi-bit readouts, and the
+    ``.capture.json`` sidecar other commands read), and its ground truth into ``gt_dir`` if given
+    (``rmbvideo.simulate.ground_truth``). Returns the simulator (its renderer gives exact frames)."""
+    from tqdm import tqdm
+
+    from rmbvideo.errors import OptionError
+    from rmbvideo.io.sidecar import CaptureInfo, write_sidecar
+    from rmbvideo.simulate.ground_truth import write_ground_truth
+
+    simulator = CaptureSimulator(scene, duration_s)
+    readout = scene.readout
+    log.info("scene %s: %dx%d at %g Hz, %d readouts, %s readout, effects: %s", scene.name, scene.width,
+             scene.height, scene.rate_hz, simulator.total_readouts, readout.kind,
+             ", ".join(scene.effects) or "none (deterministic)")
+    if simulator.total_readouts == 0:
+        raise OptionError(f"--duration {duration_s} s is shorter than one readout")
+    bar = tqdm(total=simulator.total_readouts, unit="readout", disable=not progress)
+    with bar, open_writer(Path(output), scene) as writer:
+        for chunk in simulator.chunks(chunk_readouts):
+            writer.write(chunk.planes if not readout.is_multibit else chunk)
+            bar.update(len(chunk.planes) if not readout.is_multibit else len(chunk.single))
+    extra = {"readout": readout.kind, "scene": scene.name}
+    if readout.is_multibit:
+        extra.update(level=readout.level)
+    if readout.kind == "rmb":
+        extra.update(band=readout.band, shift=readout.shift)
+    write_sidecar(Path(output), CaptureInfo(width=scene.width, height=scene.height, rate_hz=scene.rate_hz,
+                                            flip=True, header_cols=0), **extra)
+    log.info("wrote %s (%d readouts)", output, simulator.total_readouts)
+    if gt_dir is not None:
+        frames = write_ground_truth(simulator, Path(gt_dir), gt_step)
+        log.info("wrote %d ground-truth frames to %s", frames, gt_dir)
+    return simulator
