@@ -75,11 +75,13 @@ def rmbnet_options(func):
 @click.option("--chunk-planes", type=click.IntRange(min=1), default=1024, show_default=True,
               help="Raw planes read per chunk (memory bound; the output does not depend on it).")
 @rmbnet_options
+@click.option("--overwrite", is_flag=True,
+              help="Replace the outputs of an earlier run in OUTDIR (kept intact until the new run is complete).")
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
 def reconstruct(input_path: Path, outdir: Path, method: str, window, step, fmt: str, fps: float,
                 pixel_format: str, tonemap: str, exr_dtype: str, readout: str, width, height, flip, header_cols, rate_hz,
                 start_s: float, duration_s, chunk_planes: int, model, align: str, device: str,
-                upsampling: str, precision: str, threads, quiet: bool) -> None:
+                upsampling: str, precision: str, threads, overwrite: bool, quiet: bool) -> None:
     """Reconstruct a .dat capture INPUT into frames in OUTDIR."""
     extra = dict(model=model, align=align, device=device, upsampling=upsampling, precision=precision,
                  threads=threads)
@@ -88,7 +90,7 @@ def reconstruct(input_path: Path, outdir: Path, method: str, window, step, fmt: 
         pixel_format=pixel_format, tonemap=tonemap, exr_dtype=exr_dtype, readout=readout, start_s=start_s,
         duration_s=duration_s, chunk_planes=chunk_planes, progress=progress_enabled(quiet),
         capture=dict(width=width, height=height, flip=flip, header_cols=header_cols, rate_hz=rate_hz),
-        extra_options=extra,
+        extra_options=extra, overwrite=overwrite,
     )
     if not quiet:
         click.echo(f"{summary.frames} frames from {summary.planes} planes in {summary.seconds:.2f} s "

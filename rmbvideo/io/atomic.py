@@ -101,3 +101,65 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
 def atomic_write_text(path: Path, text: str) -> None:
     """Write ``text`` (UTF-8) to ``path`` atomically."""
     atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def remove_stale_staging(final: Path) -> None:
+    """Remove what killed runs left beside ``final``: ``.name.partial-<pid>-*`` and ``.name.old-<pid>-*``
+    folders whose process is gone (a live run's folders are left alone)."""
+    import shutil
+
+    final = Path(final)
+    for kind in ("partial", "old"):
+        for path in final.parent.glob(f".{final.name}.{kind}-*"):
+            try:
+                pid = int(path.name.rsplit(f".{kind}-", 1)[1].split("-")[0])
+            except ValueError:
+                continue
+            if not _pid_alive(pid):
+                shutil.rmtree(path, ignore_errors=True)
+
+
+@contextmanager
+def staged_folder(final: Path, overwrite: bool = False) -> Iterator[Path]:
+    """A fresh hidden folder beside ``final`` to write a whole output into; when the block ends
+    without error it replaces ``final`` (its previous content is removed only once the new one is in
+    place), otherwise it is deleted. At any moment ``final`` is absent, the previous complete output,
+    or the new complete output. An existing non-empty ``final`` is an ``OutputError`` unless
+    ``overwrite``. Stale staging folders of killed runs are removed first."""
+    import shutil
+
+    final = Path(final)
+    if final.exists() and not final.is_dir():
+        raise OutputError(f"{final}: exists and is not a folder")
+    if final.is_dir() and any(final.iterdir()) and not overwrite:
+        raise OutputError(f"{final}: holds earlier outputs; use --overwrite to replace them")
+    try:
+        final.parent.mkdir(parents=True, exist_ok=True)
+        remove_stale_staging(final)
+        token = f"{os.getpid()}-{secrets.token_hex(4)}"
+        staging = final.with_name(f".{final.name}.partial-{token}")
+        staging.mkdir()
+    except OSError as exc:
+        raise output_error(final, exc) from exc
+    try:
+        yield staging
+        old = final.with_name(f".{final.name}.old-{token}")
+        if final.exists():
+            os.rename(final, old)
+        os.rename(staging, final)
+        shutil.rmtree(old, ignore_errors=True)
+    except BaseException as exc:
+        shutil.rmtree(staging, ignore_errors=True)
+        if isinstance(exc, OSError) and is_environment_error(exc):
+            raise output_error(final, exc) from exc
+        raise

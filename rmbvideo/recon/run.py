@@ -4,7 +4,6 @@
 
 from __future__ import annotations
 
-import shutil
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -12,6 +11,7 @@ from typing import Any
 
 from rmbvideo.chunks import Frame
 from rmbvideo.errors import InputError, OptionError
+from rmbvideo.io.atomic import staged_folder
 from rmbvideo.io.capture import open_capture
 from rmbvideo.io.dat import DatReader
 from rmbvideo.io.rmbfile import RmbFileReader
@@ -86,24 +86,32 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
                        pixel_format: str = "auto",
                        readout: str = "rmb", start_s: float = 0.0, duration_s: float | None = None,
                        chunk_planes: int = 1024, progress: bool = False,
-                       capture: dict | None = None, extra_options: dict[str, Any] | None = None) -> RunSummary:
+                       capture: dict | None = None, extra_options: dict[str, Any] | None = None,
+                       overwrite: bool = False) -> RunSummary:
     """Reconstruct ``input_path`` into ``outdir`` with ``method`` (see ``prepare_run``).
 
-    The input is opened and checked before anything is created, and a failed run removes what it
-    wrote (and ``outdir`` itself if this run created it), so bad input leaves no output behind.
+    The input is opened and checked before anything is created. The outputs are written into a
+    staging folder that replaces ``outdir`` as a whole when the run is complete (``staged_folder``):
+    a failed or interrupted run leaves ``outdir`` as it was, an existing non-empty ``outdir`` is
+    refused unless ``overwrite``, and a run that produces no frame is an ``InputError``.
     """
     run = prepare_run(input_path, method=method, window=window, step=step, readout=readout, start_s=start_s,
                       duration_s=duration_s, capture=capture, extra_options=extra_options)
     reader = run.reader
-    created = not outdir.exists()
-    try:
-        with make_sink(fmt, outdir, fps=fps, tonemap=ToneMapConfig(method=tonemap),
-                       exr_dtype=exr_dtype, mp4_pixel_format=pixel_format, capture_rate_hz=reader.rate_hz,
-                       frame_rate_hz=reader.rate_hz / run.step) as sink:
+    sink_options = dict(fps=fps, tonemap=ToneMapConfig(method=tonemap), exr_dtype=exr_dtype,
+                        mp4_pixel_format=pixel_format, capture_rate_hz=reader.rate_hz,
+                        frame_rate_hz=reader.rate_hz / run.step)
+
+    def run_into(folder: Path) -> RunSummary:
+        with make_sink(fmt, folder, **sink_options) as sink:
             summary = reconstruct_stream(reader, run.method, sink, start=run.start, stop=run.stop,
                                          chunk_planes=chunk_planes, progress=progress, readout=run.readout)
-    except BaseException:
-        if created and outdir.is_dir() and not any(outdir.iterdir()):
-            shutil.rmtree(outdir, ignore_errors=True)
-        raise
-    return summary
+            if summary.frames == 0:
+                raise InputError(f"{input_path}: no frame to reconstruct: planes {run.start}..{run.stop} hold no "
+                                 f"whole frame of {run.step} planes (check --start/--duration)")
+        return summary
+
+    if fmt == "null":
+        return run_into(Path(outdir))
+    with staged_folder(Path(outdir), overwrite=overwrite) as staging:
+        return run_into(staging)

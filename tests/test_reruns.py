@@ -1,0 +1,94 @@
+"""Reruns into an output folder: refused without --overwrite, replaced as a whole with it, and a
+run that fails or produces no frame leaves the folder exactly as it was."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rmbvideo.chunks import Frame
+from rmbvideo.cli import main
+from rmbvideo.errors import InputError
+from rmbvideo.io.dat import DatGeometry, write_dat
+from rmbvideo.recon.methods import METHODS, Method, register_method
+from rmbvideo.recon.run import run_reconstruction
+
+GEOM = ["--width", "32", "--height", "16", "--rate", "20000"]
+
+
+@pytest.fixture
+def capture(tmp_path) -> Path:
+    rng = np.random.default_rng(3)
+    path = tmp_path / "c.dat"
+    write_dat(path, (rng.random((200, 16, 32)) < 0.3).astype(np.uint8), DatGeometry(32, 16))
+    return path
+
+
+def run(*args: str) -> int:
+    """Exit status of ``rmbvideo reconstruct ARGS -q`` (click returns it without standalone mode)."""
+    try:
+        return int(main(["reconstruct", *args, "-q"], standalone_mode=False) or 0)
+    except SystemExit as exc:
+        return int(exc.code or 0)
+
+
+def snapshot(folder: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+def test_rerun_is_refused_without_overwrite_and_replaces_whole_with_it(capture, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert run(str(capture), "-o", str(out), "--method", "tfp", "--format", "exr", *GEOM) == 0
+    before = snapshot(out)
+    assert len([n for n in before if n.endswith(".exr")]) == 10
+    assert run(str(capture), "-o", str(out), "--method", "tfp", "--format", "exr", *GEOM) == 2
+    assert "use --overwrite" in capsys.readouterr().err and snapshot(out) == before
+    assert run(str(capture), "-o", str(out), "--method", "tfp", "--format", "exr", "--duration", "0.002",
+               "--overwrite", *GEOM) == 0
+    after = snapshot(out)
+    assert len([n for n in after if n.endswith(".exr")]) == 2  # no frame of the old run is left
+    listed = after["frames.csv"].decode().splitlines()[1:]
+    assert sorted(line.split(",")[2] for line in listed) == sorted(n for n in after if n.endswith(".exr"))
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out.")]  # no staging left behind
+
+
+def test_a_failing_overwrite_leaves_the_previous_output(capture, tmp_path):
+    out = tmp_path / "out"
+    run(str(capture), "-o", str(out), "--method", "tfp", "--format", "exr", *GEOM)
+    before = snapshot(out)
+
+    class Fails:
+        input_kind = "spikes"
+
+        def __init__(self, step: int = 20) -> None:
+            self.seen = 0
+
+        def push(self, chunk):
+            self.seen += 1
+            if self.seen > 1:
+                raise OSError(28, "No space left on device")
+            return [Frame(0, 0.0, np.ones(chunk.planes.shape[1:], np.float32))]
+
+        def flush(self):
+            return []
+
+    register_method(Method("fails-test", Fails, "spikes", "fails on its second chunk"))
+    try:
+        with pytest.raises(Exception):
+            run_reconstruction(capture, out, method="fails-test", fmt="exr", chunk_planes=50, overwrite=True,
+                               capture=dict(width=32, height=16))
+    finally:
+        METHODS.pop("fails-test")
+    assert snapshot(out) == before
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out.")]
+
+
+def test_a_run_without_frames_is_an_error_and_leaves_no_folder(capture, tmp_path, capsys):
+    out = tmp_path / "none"
+    assert run(str(capture), "-o", str(out), "--method", "tfp", "--duration", "0.0005", *GEOM) == 2
+    assert "no frame" in capsys.readouterr().err and not out.exists()
+    with pytest.raises(InputError):
+        run_reconstruction(capture, out, method="tfw", duration_s=0.0005, capture=dict(width=32, height=16))
+    assert not out.exists() and not list(tmp_path.glob(".none.*"))
