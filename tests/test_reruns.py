@@ -92,3 +92,26 @@ def test_a_run_without_frames_is_an_error_and_leaves_no_folder(capture, tmp_path
     with pytest.raises(InputError):
         run_reconstruction(capture, out, method="tfw", duration_s=0.0005, capture=dict(width=32, height=16))
     assert not out.exists() and not list(tmp_path.glob(".none.*"))
+
+
+def test_quiet_prints_nothing_and_verbose_works_after_the_subcommand(capture, tmp_path):
+    import subprocess
+    import sys
+
+    base = [sys.executable, "-m", "rmbvideo", "reconstruct", str(capture), "--method", "tfp", *GEOM]
+    quiet = subprocess.run([*base, "-o", str(tmp_path / "q"), "-q"], capture_output=True, text=True)
+    assert quiet.returncode == 0 and quiet.stdout == "" and quiet.stderr == ""
+    verbose = subprocess.run([*base, "-o", str(tmp_path / "v"), "-v"], capture_output=True, text=True)
+    assert verbose.returncode == 0 and "DEBUG" in verbose.stderr
+    typo = subprocess.run([sys.executable, "-m", "rmbvideo", "reconstrut"], capture_output=True, text=True)
+    assert typo.returncode == 2 and "Did you mean 'reconstruct'?" in typo.stderr
+
+
+def test_old_option_spellings_work_but_are_not_advertised():
+    from click.testing import CliRunner
+
+    result = CliRunner().invoke(main, ["dynamic-range", "--L", "3", "--N", "1,10", "--json"])
+    assert result.exit_code == 0, result.output
+    shown = CliRunner().invoke(main, ["dynamic-range", "--help"]).output
+    assert "--levels" in shown and "--L " not in shown
+    assert "--out " not in CliRunner().invoke(main, ["evaluate", "--help"]).output

@@ -10,6 +10,7 @@ from __future__ import annotations
 import importlib
 import importlib.util
 import logging
+import os
 import sys
 
 import click
@@ -81,11 +82,59 @@ def _spec_exists(spec: str) -> bool:
 @click.version_option(package_name="rmbvideo")
 def main(verbose: bool) -> None:
     """Turn spiking-camera captures (.dat) into HDR, high-frame-rate video."""
-    logging.basicConfig(
-        level=logging.DEBUG if verbose else logging.INFO,
-        format="rmbvideo: %(levelname)s: %(message)s" if verbose else "rmbvideo: %(message)s",
-        stream=sys.stderr,
-    )
+    configure_logging(verbose=verbose)
+
+
+class _TqdmHandler(logging.StreamHandler):
+    """Writes log lines through ``tqdm.write`` so they never tear an active progress bar."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            from tqdm import tqdm
+
+            tqdm.write(self.format(record), file=sys.stderr)
+        except Exception:  # logging must never raise
+            self.handleError(record)
+
+
+def configure_logging(verbose: bool = False, quiet: bool = False) -> None:
+    """Log to stderr through tqdm: debug with ``verbose``, warnings only with ``quiet`` (and
+    OpenCV's own messages off), else info. Later calls (a subcommand's -v/-q) override earlier ones."""
+    level = logging.DEBUG if verbose else logging.WARNING if quiet else logging.INFO
+    root = logging.getLogger()
+    for handler in list(root.handlers):
+        if isinstance(handler, _TqdmHandler):
+            root.removeHandler(handler)
+    handler = _TqdmHandler()
+    handler.setFormatter(logging.Formatter("rmbvideo: %(levelname)s: %(message)s" if verbose else "rmbvideo: %(message)s"))
+    root.addHandler(handler)
+    root.setLevel(level)
+    if not verbose:
+        os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
+
+
+def _set_quiet(ctx: click.Context, param: click.Parameter, value: bool) -> bool:
+    if value:
+        configure_logging(quiet=True)
+    return value
+
+
+def _set_verbose(ctx: click.Context, param: click.Parameter, value: bool) -> bool:
+    if value:
+        configure_logging(verbose=True)
+    return value
+
+
+def quiet_option(func):
+    """``-q/--quiet``: no progress bar and no info lines (warnings and errors still show)."""
+    return click.option("-q", "--quiet", is_flag=True, callback=_set_quiet,
+                        help="No progress bar and no messages but warnings and errors.")(func)
+
+
+def verbose_option(func):
+    """``-v/--verbose`` after a subcommand, as before it: debug messages."""
+    return click.option("-v", "--verbose", "verbose_", is_flag=True, expose_value=False, callback=_set_verbose,
+                        help="Log debug messages.")(func)
 
 
 def progress_enabled(quiet: bool) -> bool:

@@ -16,14 +16,14 @@ from typing import Any
 import click
 
 from rmbvideo.batch import REPORT_NAME, plan_jobs, run_batch, summary_table
-from rmbvideo.cli import progress_enabled
+from rmbvideo.cli import progress_enabled, quiet_option, verbose_option
 from rmbvideo.cli.reconstruct import reconstruct
 from rmbvideo.recon.methods import get_method
 from rmbvideo.recon.run import run_reconstruction
 
 CAPTURE_KEYS = ("width", "height", "flip", "header_cols", "rate_hz")
 # parameters of reconstruct that batch replaces with its own
-_OWN_PARAMS = {"input_path", "outdir", "quiet"}
+_OWN_PARAMS = {"input_path", "outdir", "quiet", "verbose_"}
 _RECON_KEYWORDS = set(inspect.signature(run_reconstruction).parameters) - {"input_path", "outdir", "capture",
                                                                            "extra_options", "progress"}
 
@@ -55,7 +55,8 @@ def check_method(options: dict[str, Any]) -> None:
               help="Parallel worker processes [default: one per core].")
 @click.option("--scheduler", metavar="ADDRESS", default=None,
               help="Run on an existing Dask cluster (e.g. tcp://host:8786); needs rmbvideo[cluster].")
-@click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
+@quiet_option
+@verbose_option
 def batch(inputs: tuple[str, ...], outdir: Path, jobs: int | None, scheduler: str | None, quiet: bool,
           **params: Any) -> None:
     """Convert captures INPUTS (files, folders searched for .dat, or quoted globs) into OUTDIR.

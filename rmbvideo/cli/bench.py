@@ -11,6 +11,7 @@ from pathlib import Path
 import click
 
 from rmbvideo.bench.configs import DEFAULT_WIDTH
+from rmbvideo.cli import verbose_option
 
 log = logging.getLogger(__name__)
 
@@ -32,6 +33,7 @@ def _stage_table(stages: dict[str, float]) -> str:
 
 
 @click.group(invoke_without_command=True)
+@verbose_option
 @click.option("--quick", is_flag=True, help="Small held-out set (2 scenes, 112x64), short timing captures, "
               "no TV-L1 row: a few minutes.")
 @click.option("-o", "--output", "outdir", type=click.Path(path_type=Path), default=Path("bench-results"),

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import click
 
+from rmbvideo.cli import verbose_option
+from rmbvideo.cli.options import AliasOption
 from rmbvideo.errors import InputError
 from rmbvideo.sensor.params import SensorParams
 
@@ -24,9 +26,10 @@ def _int_list(ctx: click.Context, param: click.Parameter, value: str) -> list[in
 
 
 @click.command("dynamic-range")
-@click.option("--L", "levels", default="1,3,7", show_default=True, callback=_int_list,
+@verbose_option
+@click.option("--levels", "--L", "levels", cls=AliasOption, aliases=("--L",), default="1,3,7", show_default=True, callback=_int_list,
               help="Quantisation levels L = 2^B - 1, comma separated.")
-@click.option("--N", "n_values", default="1,10,30,70,1000,10000,20000", show_default=True,
+@click.option("--readouts", "--N", "n_values", cls=AliasOption, aliases=("--N",), default="1,10,30,70,1000,10000,20000", show_default=True,
               callback=_int_list, help="Numbers of summed readouts N, comma separated.")
 @click.option("--q-r", type=click.FloatRange(min=1.0), default=None,
               help="Nominal threshold Q_r = C*V in electrons (C kept, V = Q_r/C) [default: 105].")
@@ -44,7 +47,8 @@ def dynamic_range(levels: list[int], n_values: list[int], q_r: float | None, dar
                   noise_var: float | None, variance: str, plots_dir: Path | None,
                   as_json: bool) -> None:
     """Print the dynamic range (dB) of S_N^L for each L (rows) and N (columns)."""
-    from rmbvideo.sensor.theory import PAPER_TABLE1, PAPER_TABLE1_N, dynamic_range as compute
+    from rmbvideo.sensor.theory import PAPER_TABLE1, PAPER_TABLE1_N
+    from rmbvideo.sensor.theory import dynamic_range as compute
 
     params = SensorParams()
     if q_r is not None:

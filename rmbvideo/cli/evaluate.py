@@ -15,15 +15,23 @@ from pathlib import Path
 
 import click
 
-from rmbvideo.cli import progress_enabled
+from rmbvideo.cli import progress_enabled, quiet_option, verbose_option
+from rmbvideo.cli.options import AliasOption
 
 log = logging.getLogger(__name__)
 
 
 def _real_video(folder: Path, model: Path, device: str, out_dir: Path) -> list[Path]:
     """Score the real-video streams in ``folder``; write ``real_video.md`` and ``real_video.png``."""
-    from rmbvideo.evaluate.real_video import (BEST_RAW, binned_reference, comparison_image, evaluate_streams,
-                                              find_streams, markdown_table, real_video_rows)
+    from rmbvideo.evaluate.real_video import (
+        BEST_RAW,
+        binned_reference,
+        comparison_image,
+        evaluate_streams,
+        find_streams,
+        markdown_table,
+        real_video_rows,
+    )
     from rmbvideo.evaluate.table import write_png
     from rmbvideo.io.atomic import atomic_write_text
 
@@ -84,7 +92,8 @@ def _notes(sequences: list, quick: bool, device: str, figure: tuple[str, int]) -
 @click.option("--models", "models_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Folder with rmbnet-binned.safetensors and ablations/*.safetensors [shipped models].")
 @click.option("--quick", is_flag=True, help="2 small, short sequences (a few minutes on 2 CPU cores).")
-@click.option("-o", "--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
+@click.option("-o", "--output", "--out", "out_dir", cls=AliasOption, aliases=("--out",),
+              type=click.Path(file_okay=False, path_type=Path),
               default=Path("evaluation"), show_default=True, help="Folder for evaluation.md/.csv/.png.")
 @click.option("--cache", "cache_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Cache of simulated held-out sequences [~/.cache/rmbvideo/heldout].")
@@ -96,16 +105,26 @@ def _notes(sequences: list, quick: bool, device: str, figure: tuple[str, int]) -
 @click.option("--real-video", "real_video", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Also score every method on a folder of real-video spike streams with reference frames "
                    "(NAME.dat + NAME.png, spikezoo's format): real_video.md and real_video.png.")
-@click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
+@quiet_option
+@verbose_option
 def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Path | None, device: str,
              as_json: bool, real_path: Path | None, real_video: Path | None, quiet: bool) -> None:
     """Score TFW-S/L, TFI, GC20, MG20, RMB-Net, its ablations and the classical methods on the raw
     capture (2x2-averaged) on the held-out synthetic set, and optionally on real-video streams."""
     from rmbvideo.errors import OutputError
-    from rmbvideo.evaluate.harness import evaluate_rows, middle_frame, table2_specs, with_best_raw
+    from rmbvideo.evaluate.harness import (
+        evaluate_rows,
+        middle_frame,
+        table2_specs,
+        with_best_raw,
+    )
     from rmbvideo.evaluate.heldout import load_heldout, load_video_heldout
-    from rmbvideo.evaluate.table import (real_capture_comparison, write_comparison_png, write_sequence_png,
-                                         write_tables)
+    from rmbvideo.evaluate.table import (
+        real_capture_comparison,
+        write_comparison_png,
+        write_sequence_png,
+        write_tables,
+    )
     from rmbvideo.net.weights import MODELS_DIR
     from rmbvideo.recon.rmbnet import resolve_device
 

@@ -7,11 +7,13 @@ from pathlib import Path
 
 import click
 
+from rmbvideo.cli import verbose_option
 from rmbvideo.cli.options import capture_options
 from rmbvideo.io.capture import open_capture
 
 
 @click.command()
+@verbose_option
 @click.argument("input_path", metavar="INPUT", type=click.Path(path_type=Path))
 @capture_options
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object on stdout.")

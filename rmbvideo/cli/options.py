@@ -26,3 +26,22 @@ def capture_options(func: Callable) -> Callable:
     for option in reversed(options):
         func = option(func)
     return func
+
+
+class AliasOption(click.Option):
+    """An option whose old spellings (``aliases``) still work but are left out of ``--help``."""
+
+    def __init__(self, *args, aliases: tuple[str, ...] = (), **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.aliases = aliases
+
+    def get_help_record(self, ctx: click.Context):
+        shown, self.opts = self.opts, [o for o in self.opts if o not in self.aliases]
+        try:
+            return super().get_help_record(ctx)
+        finally:
+            self.opts = shown
+
+
+#: ``--device`` as every command spells it.
+DEVICE_CHOICE = click.Choice(["auto", "cpu", "cuda"])

@@ -8,10 +8,11 @@ import click
 import cv2
 import numpy as np
 
+from rmbvideo.cli import verbose_option
 from rmbvideo.cli.options import capture_options
-from rmbvideo.io.capture import open_capture
 from rmbvideo.errors import OutputError
 from rmbvideo.io.atomic import atomic_path
+from rmbvideo.io.capture import open_capture
 from rmbvideo.mulaw import mu_law
 
 
@@ -43,6 +44,7 @@ def contact_sheet(reader, count: int = 6, window: int = 41, columns: int = 3) ->
 
 
 @click.command()
+@verbose_option
 @click.argument("input_path", metavar="INPUT", type=click.Path(path_type=Path))
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("preview.png"),
               show_default=True, help="PNG file to write.")

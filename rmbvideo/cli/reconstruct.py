@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from rmbvideo.cli import progress_enabled
+from rmbvideo.cli import progress_enabled, quiet_option, verbose_option
 from rmbvideo.cli.options import capture_options
 from rmbvideo.io.sinks import SINK_FORMATS
 from rmbvideo.recon.methods import DEFAULT_METHOD, METHODS
@@ -77,7 +77,8 @@ def rmbnet_options(func):
 @rmbnet_options
 @click.option("--overwrite", is_flag=True,
               help="Replace the outputs of an earlier run in OUTDIR (kept intact until the new run is complete).")
-@click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
+@quiet_option
+@verbose_option
 def reconstruct(input_path: Path, outdir: Path, method: str, window, step, fmt: str, fps: float,
                 pixel_format: str, tonemap: str, exr_dtype: str, readout: str, width, height, flip, header_cols, rate_hz,
                 start_s: float, duration_s, chunk_planes: int, model, align: str, device: str,

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import click
 
-from rmbvideo.cli import progress_enabled
+from rmbvideo.cli import progress_enabled, quiet_option, verbose_option
 
 log = logging.getLogger(__name__)
 
@@ -33,7 +33,8 @@ log = logging.getLogger(__name__)
               help="Simulate only the first S seconds of the scene.")
 @click.option("--chunk", "chunk_readouts", type=click.IntRange(min=1), default=64, show_default=True,
               help="Readouts simulated and written per chunk (memory vs. overhead; no effect on results).")
-@click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
+@quiet_option
+@verbose_option
 @click.option("--list", "list_scenes", is_flag=True, help="List bundled scenes and exit.")
 def simulate(scene_name: str | None, output: Path | None, gt_dir: Path | None, gt_step: int,
              duration_s: float | None, chunk_readouts: int, quiet: bool, list_scenes: bool) -> None:

@@ -11,20 +11,24 @@ from pathlib import Path
 
 import click
 
-from rmbvideo.cli import progress_enabled
+from rmbvideo.cli import progress_enabled, quiet_option, verbose_option
+from rmbvideo.cli.options import DEVICE_CHOICE, AliasOption
 
 
 @click.command()
 @click.argument("recipe", metavar="RECIPE")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+@click.option("-o", "--output", "--out", "out_dir", cls=AliasOption, aliases=("--out",),
+              type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output folder (default: train-<recipe name> in the current folder).")
 @click.option("--cache", "cache_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Folder of cached training samples, shareable between runs (default: OUT/cache).")
 @click.option("--resume", is_flag=True, help="Continue from the checkpoint in --out.")
 @click.option("--minutes", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Override the recipe's wall-time budget.")
-@click.option("--device", default="cpu", show_default=True, help="Torch device: cpu, cuda, cuda:1, ...")
-@click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
+@click.option("--device", type=DEVICE_CHOICE, default="auto", show_default=True,
+              help="Where to train (auto: CUDA when available, else CPU).")
+@quiet_option
+@verbose_option
 def train(recipe: str, out_dir: Path | None, cache_dir: Path | None, resume: bool, minutes: float | None,
           device: str, quiet: bool) -> None:
     """Train RMB-Net from RECIPE (a .toml file or a bundled recipe name)."""
@@ -38,11 +42,12 @@ def train(recipe: str, out_dir: Path | None, cache_dir: Path | None, resume: boo
     config = load_recipe(path)
     if minutes is not None:
         config = config.with_minutes(minutes)
-    if device.startswith("cuda"):
-        import torch
+    import torch
 
-        if not torch.cuda.is_available():
-            raise InputError(f"--device {device}: no CUDA device is available")
+    if device == "auto":
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    elif device == "cuda" and not torch.cuda.is_available():
+        raise InputError(f"--device {device}: no CUDA device is available")
     out_dir = out_dir if out_dir is not None else Path(f"train-{config.name}")
     result = Trainer(config, out_dir, cache_dir=cache_dir, resume=resume,
                      progress=progress_enabled(quiet), device=device).run()

@@ -89,6 +89,7 @@ def iter_frames(
     progress: bool = False,
     readout: RmbReadout | None = None,
     stats: StreamStats | None = None,
+    expected_frames: int | None = None,
 ) -> Iterator[Frame]:
     """The frames of ``method`` over raw planes ``start..stop`` of ``reader``, as they are made:
     finite, >= 0 (``finite_frame``), in bounded memory. The one streaming loop of the library.
@@ -99,6 +100,8 @@ def iter_frames(
     Methods on raw spikes that declare ``accepts_packed`` get the stored bits undecoded
     (``reader.packed_chunks``) when the reader offers them. Memory is bounded by ``chunk_planes``
     and the method's own look-ahead. ``stats`` (optional) is filled in while the frames flow.
+    ``progress``: a progress bar on stderr counting output frames (of ``expected_frames``, with
+    frames/s and time left) or, without that number, raw planes read.
     """
     stats = stats if stats is not None else StreamStats()
     stages = stats.stages
@@ -124,9 +127,13 @@ def iter_frames(
                 log.warning("frame %d: replaced %d non-finite pixels with 0", frame.index, bad)
                 stats.nonfinite_pixels += bad
             stats.frames += 1
+            if by_frames:
+                bar.update(1)
             yield frame
 
-    bar = tqdm(total=max(stop - start, 0), unit="plane", disable=not progress, dynamic_ncols=True)
+    by_frames = expected_frames is not None
+    bar = tqdm(total=expected_frames if by_frames else max(stop - start, 0), unit="frame" if by_frames else "plane",
+               disable=not progress, dynamic_ncols=True, mininterval=0.5)
     with bar:
         iterator = iter(chunks)
         while True:
@@ -150,7 +157,8 @@ def iter_frames(
             stages["method"] += time.perf_counter() - tick
             yield from cleaned(out)
             stats.planes += advanced
-            bar.update(advanced)
+            if not by_frames:
+                bar.update(advanced)
         tick = time.perf_counter()
         out = method.flush()
         stages["method"] += time.perf_counter() - tick
@@ -168,6 +176,7 @@ def reconstruct_stream(
     chunk_planes: int = 1024,
     progress: bool = False,
     readout: RmbReadout | None = None,
+    expected_frames: int | None = None,
 ) -> RunSummary:
     """Run ``method`` over raw planes ``start..stop`` of ``reader`` (``iter_frames``) and write its
     frames to ``sink``. The sink is not closed here: the caller commits it (or aborts it on error),
@@ -175,7 +184,7 @@ def reconstruct_stream(
     began = time.perf_counter()
     stats = StreamStats()
     for frame in iter_frames(reader, method, start=start, stop=stop, chunk_planes=chunk_planes, progress=progress,
-                             readout=readout, stats=stats):
+                             readout=readout, stats=stats, expected_frames=expected_frames):
         tick = time.perf_counter()
         sink.write(frame)
         stats.stages["sink"] += time.perf_counter() - tick

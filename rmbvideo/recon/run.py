@@ -77,7 +77,7 @@ def reconstruct_frames(path: str | Path, method: str = DEFAULT_METHOD, *, window
                       duration_s=duration_s, extra_options=options,
                       capture=dict(width=width, height=height, flip=flip, header_cols=header_cols, rate_hz=rate_hz))
     return iter_frames(run.reader, run.method, start=run.start, stop=run.stop, chunk_planes=chunk_planes,
-                       progress=progress, readout=run.readout)
+                       progress=progress, readout=run.readout, expected_frames=(run.stop - run.start) // run.step)
 
 
 def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_METHOD,
@@ -105,7 +105,8 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
     def run_into(folder: Path) -> RunSummary:
         with make_sink(fmt, folder, **sink_options) as sink:
             summary = reconstruct_stream(reader, run.method, sink, start=run.start, stop=run.stop,
-                                         chunk_planes=chunk_planes, progress=progress, readout=run.readout)
+                                         chunk_planes=chunk_planes, progress=progress, readout=run.readout,
+                                         expected_frames=(run.stop - run.start) // run.step)
             if summary.frames == 0:
                 raise InputError(f"{input_path}: no frame to reconstruct: planes {run.start}..{run.stop} hold no "
                                  f"whole frame of {run.step} planes (check --start/--duration)")
