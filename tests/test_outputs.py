@@ -280,3 +280,22 @@ def test_unwritable_output_folder_is_an_output_error(tmp_path: Path) -> None:
     blocker.write_text("x")
     with pytest.raises(OutputError, match="file"):
         make_sink("png", blocker / "out")
+
+
+def test_sdr_outputs_carry_bt709_tags(tmp_path):
+    """The MP4 stream says BT.709 (primaries, transfer, matrix) and limited range; PNGs carry cICP."""
+    import subprocess
+
+    import imageio_ffmpeg
+
+    from rmbvideo.chunks import Frame
+    from rmbvideo.io.sinks import write_frames
+
+    frames = [Frame(i, i / 1000, np.full((16, 24), 0.1 * (i + 1), np.float32)) for i in range(4)]
+    write_frames(frames, tmp_path / "mp4", fmt="mp4")
+    probe = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-hide_banner", "-i", str(tmp_path / "mp4" / "frames.mp4")],
+                           capture_output=True, text=True).stderr
+    assert "yuv420p(tv, bt709, progressive)" in probe, probe
+    write_frames(frames, tmp_path / "png", fmt="png")
+    data = (tmp_path / "png" / "frame_000000.png").read_bytes()
+    assert data[37:45] == b"cICP" + bytes([1, 1, 0, 1])

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import logging
 import os
+import struct
+import zlib
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -48,6 +50,10 @@ log = logging.getLogger(__name__)
 SinkFormat = Literal["mp4", "exr", "png", "null"]
 Mp4PixelFormat = Literal["auto", "yuv420p", "yuv444p"]
 INDEX_HEADER = "index,time_s,file"
+#: BT.709 primaries, transfer and matrix, limited ("tv") range: how the SDR MP4's values are meant.
+#: (in the container and in the H.264 stream's VUI, where players look for them).
+BT709_TAGS = ("-colorspace", "bt709", "-color_primaries", "bt709", "-color_trc", "bt709", "-color_range", "tv",
+              "-x264-params", "colorprim=bt709:transfer=bt709:colormatrix=bt709")
 # x264 constant-rate factor: 18 is visually lossless for 8-bit tone-mapped video.
 _X264_CRF = 18
 
@@ -253,7 +259,16 @@ class PngSink(_SequenceSink):
         ok, encoded = cv2.imencode(".png", self._tonemapper(image))
         if not ok:
             raise OutputError(f"{path}: PNG encoding failed")
-        atomic_write_bytes(path, encoded.tobytes())
+        atomic_write_bytes(path, with_bt709_tag(encoded.tobytes()))
+
+
+def with_bt709_tag(png: bytes) -> bytes:
+    """``png`` with a cICP chunk after its header: BT.709 primaries and transfer, RGB (identity)
+    matrix, full range, so viewers know how the 8-bit values were meant (PNG 3rd edition)."""
+    ihdr_end = 8 + 4 + 4 + 13 + 4  # signature, then the IHDR chunk (length, type, 13 bytes, CRC)
+    body = b"cICP" + bytes([1, 1, 0, 1])
+    chunk = struct.pack(">I", 4) + body + struct.pack(">I", zlib.crc32(body) & 0xFFFFFFFF)
+    return png[:ihdr_end] + chunk + png[ihdr_end:]
 
 
 class Mp4Sink(FrameSink):
@@ -334,7 +349,7 @@ class Mp4Sink(FrameSink):
                 codec="libx264",
                 macro_block_size=1,
                 ffmpeg_log_level="error",
-                output_params=["-crf", str(_X264_CRF), "-movflags", "+faststart", "-f", "mp4"],
+                output_params=["-crf", str(_X264_CRF), *BT709_TAGS, "-movflags", "+faststart", "-f", "mp4"],
             )
             self._encoder.send(None)
         except (RuntimeError, OSError) as exc:
