@@ -54,9 +54,13 @@ def rmbnet_options(func):
               help="Raw planes per output frame [default: 20 (1000 frames per second of a 20 kHz "
                    "capture); 10 for a native RMB capture, whose readouts are not binned].")
 @click.option("--format", "fmt", type=click.Choice(SINK_FORMATS), default="mp4", show_default=True,
-              help="mp4 (tone-mapped H.264), exr (linear HDR), png (tone-mapped 8-bit), null (timing).")
+              help="mp4 (tone-mapped SDR H.264, BT.709), hdr10 (HEVC Main10, BT.2020, PQ), hlg (HEVC Main10, "
+                   "BT.2020, HLG), exr (linear HDR frames), png (tone-mapped 8-bit), null (timing).")
 @click.option("--fps", type=click.FloatRange(min=0, min_open=True), default=30.0, show_default=True,
-              help="MP4 playback frame rate.")
+              help="Video playback frame rate.")
+@click.option("--nits-per-unit", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="HDR video (hdr10, hlg): display light (cd/m^2) of one linear unit [default: chosen from the "
+                   "first frames, their median at 20 nits].")
 @click.option("--pixel-format", type=click.Choice(["auto", "yuv420p", "yuv444p"]), default="auto",
               show_default=True,
               help="MP4 chroma: auto keeps the exact size (yuv444p for odd sizes, which QuickTime and some "
@@ -82,7 +86,7 @@ def rmbnet_options(func):
 def reconstruct(input_path: Path, outdir: Path, method: str, window, step, fmt: str, fps: float,
                 pixel_format: str, tonemap: str, exr_dtype: str, readout: str, width, height, flip, header_cols, rate_hz,
                 start_s: float, duration_s, chunk_planes: int, model, align: str, device: str,
-                upsampling: str, precision: str, threads, overwrite: bool, quiet: bool) -> None:
+                upsampling: str, precision: str, threads, overwrite: bool, nits_per_unit, quiet: bool) -> None:
     """Reconstruct a .dat capture INPUT into frames in OUTDIR."""
     extra = dict(model=model, align=align, device=device, upsampling=upsampling, precision=precision,
                  threads=threads)
@@ -91,7 +95,7 @@ def reconstruct(input_path: Path, outdir: Path, method: str, window, step, fmt: 
         pixel_format=pixel_format, tonemap=tonemap, exr_dtype=exr_dtype, readout=readout, start_s=start_s,
         duration_s=duration_s, chunk_planes=chunk_planes, progress=progress_enabled(quiet),
         capture=dict(width=width, height=height, flip=flip, header_cols=header_cols, rate_hz=rate_hz),
-        extra_options=extra, overwrite=overwrite,
+        extra_options=extra, overwrite=overwrite, nits_per_unit=nits_per_unit,
     )
     if not quiet:
         click.echo(f"{summary.frames} frames from {summary.planes} planes in {summary.seconds:.2f} s "

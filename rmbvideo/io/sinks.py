@@ -47,7 +47,7 @@ from rmbvideo.io.tonemap import ToneMapConfig, ToneMapper
 
 log = logging.getLogger(__name__)
 
-SinkFormat = Literal["mp4", "exr", "png", "null"]
+SinkFormat = Literal["mp4", "hdr10", "hlg", "exr", "png", "null"]
 Mp4PixelFormat = Literal["auto", "yuv420p", "yuv444p"]
 INDEX_HEADER = "index,time_s,file"
 #: BT.709 primaries, transfer and matrix, limited ("tv") range: how the SDR MP4's values are meant.
@@ -299,14 +299,26 @@ class Mp4Sink(FrameSink):
         self._last_time: float | None = None
         self._index = FrameIndex(self.outdir / f"{stem}.csv")
 
+    def _encode(self, image: np.ndarray) -> np.ndarray:
+        """Linear frame -> the pixels sent to ffmpeg (here 8-bit tone-mapped grey)."""
+        return self._tonemapper(image)
+
+    def _frame_bytes(self, pixels: np.ndarray) -> bytes:
+        """The raw frame ffmpeg reads, from the (padded) pixels of ``_encode``."""
+        return np.ascontiguousarray(pixels).tobytes()
+
+    def _codec_args(self, shape: tuple[int, int]) -> tuple[str, str, str, list[str]]:
+        """(pixel format in, pixel format out, codec, output parameters) for frames of ``shape``."""
+        return "gray", self.pixel_format, "libx264", ["-crf", str(_X264_CRF), *BT709_TAGS]
+
     def _write(self, frame: Frame, image: np.ndarray) -> None:
-        pixels = self._tonemapper(image)
+        pixels = self._encode(image)
         if self._encoder is None:
             self._start_encoder(pixels.shape)
         if any(self._padding):
             pixels = np.pad(pixels, ((0, self._padding[0]), (0, self._padding[1])), mode="edge")
         try:
-            self._encoder.send(np.ascontiguousarray(pixels).tobytes())
+            self._encoder.send(self._frame_bytes(pixels))
         except OSError as exc:
             reason = str(exc).splitlines()[0]
             raise OutputError(f"{self.path}: ffmpeg stopped accepting frames: {reason}") from exc
@@ -324,7 +336,7 @@ class Mp4Sink(FrameSink):
             self.pixel_format = "yuv420p" if height % 2 == 0 and width % 2 == 0 else "yuv444p"
             log.info("%s: %dx%d frames encoded as H.264 %s at their exact size",
                      self.path.name, width, height, self.pixel_format)
-        if self.pixel_format == "yuv420p":
+        if self.pixel_format.startswith("yuv420p"):
             self._padding = (height % 2, width % 2)
             if any(self._padding):
                 log.info(
@@ -339,17 +351,18 @@ class Mp4Sink(FrameSink):
                 "%s: %.6g output frames per second of capture played at %.6g fps: %.3gx slower "
                 "than real time", self.path.name, self.frame_rate_hz, self.fps, self.frame_rate_hz / self.fps,
             )
+        pix_fmt_in, pix_fmt_out, codec, params = self._codec_args(shape)
         try:
             self._encoder = imageio_ffmpeg.write_frames(
                 str(self._temp),
                 (width + self._padding[1], height + self._padding[0]),
-                pix_fmt_in="gray",
-                pix_fmt_out=self.pixel_format,
+                pix_fmt_in=pix_fmt_in,
+                pix_fmt_out=pix_fmt_out,
                 fps=float(self.fps),
-                codec="libx264",
+                codec=codec,
                 macro_block_size=1,
                 ffmpeg_log_level="error",
-                output_params=["-crf", str(_X264_CRF), *BT709_TAGS, "-movflags", "+faststart", "-f", "mp4"],
+                output_params=[*params, "-movflags", "+faststart", "-f", "mp4"],
             )
             self._encoder.send(None)
         except (RuntimeError, OSError) as exc:
@@ -405,6 +418,7 @@ class SinkOptions:
     capture_rate_hz: float | None = None
     frame_rate_hz: float | None = None
     mp4_pixel_format: Mp4PixelFormat = "auto"
+    nits_per_unit: float | None = None
 
     def exr_attributes(self) -> dict[str, float | int | str]:
         """The rates as EXR header attributes."""
@@ -423,9 +437,18 @@ SINKS: dict[str, Callable[[Path, SinkOptions], FrameSink]] = {
                                      capture_rate_hz=o.capture_rate_hz, frame_rate_hz=o.frame_rate_hz),
     "exr": lambda outdir, o: ExrSink(outdir, o.stem, o.exr_dtype, o.exr_attributes()),
     "png": lambda outdir, o: PngSink(outdir, o.stem, o.tonemap),
+    "hdr10": lambda outdir, o: _hdr_sink("pq", outdir, o),
+    "hlg": lambda outdir, o: _hdr_sink("hlg", outdir, o),
     "null": lambda outdir, o: NullSink(),
 }
 SINK_FORMATS: tuple[str, ...] = tuple(SINKS)
+
+
+def _hdr_sink(transfer: str, outdir: Path, o: SinkOptions) -> FrameSink:
+    from rmbvideo.io.hdr_video import HdrVideoSink
+
+    return HdrVideoSink(outdir, o.stem, transfer=transfer, fps=o.fps, nits_per_unit=o.nits_per_unit,
+                        capture_rate_hz=o.capture_rate_hz, frame_rate_hz=o.frame_rate_hz)
 
 
 def make_sink(fmt: SinkFormat, outdir: Path, *, tonemap: ToneMapConfig | None = None, **options: Any) -> FrameSink:

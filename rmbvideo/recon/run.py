@@ -87,7 +87,7 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
                        readout: str = "rmb", start_s: float = 0.0, duration_s: float | None = None,
                        chunk_planes: int = 1024, progress: bool = False,
                        capture: dict | None = None, extra_options: dict[str, Any] | None = None,
-                       overwrite: bool = False) -> RunSummary:
+                       overwrite: bool = False, nits_per_unit: float | None = None) -> RunSummary:
     """Reconstruct ``input_path`` into ``outdir`` with ``method`` (see ``prepare_run``).
 
     The input is opened and checked before anything is created. The outputs are written into a
@@ -100,7 +100,7 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
     reader = run.reader
     sink_options = dict(fps=fps, tonemap=ToneMapConfig(method=tonemap), exr_dtype=exr_dtype,
                         mp4_pixel_format=pixel_format, capture_rate_hz=reader.rate_hz,
-                        frame_rate_hz=reader.rate_hz / run.step)
+                        frame_rate_hz=reader.rate_hz / run.step, nits_per_unit=nits_per_unit)
 
     def run_into(folder: Path) -> RunSummary:
         with make_sink(fmt, folder, **sink_options) as sink:
