@@ -84,8 +84,9 @@ def test_tonemapper_treats_nan_and_inf_as_black(method: str) -> None:
 
 def test_tonemapper_uses_the_full_range_and_is_exposure_invariant_on_the_first_frame() -> None:
     scene = _texture()
-    dim = ToneMapper()(scene * 1e-3)
-    bright = ToneMapper()(scene * 1e3)
+    mulaw = ToneMapConfig(method="mulaw")
+    dim = ToneMapper(mulaw)(scene * 1e-3)
+    bright = ToneMapper(mulaw)(scene * 1e3)
     assert dim.max() == 255 and dim.min() < 130  # mu_law(0.01) is 0.46 of white
     np.testing.assert_array_equal(dim, bright)
 
@@ -114,8 +115,8 @@ def _background_brightness(config: ToneMapConfig) -> np.ndarray:
 
 
 def test_temporal_smoothing_reduces_flicker_from_an_outlier_frame() -> None:
-    smoothed = _background_brightness(ToneMapConfig(smoothing_frames=8.0))
-    unsmoothed = _background_brightness(ToneMapConfig(smoothing_frames=0.0))
+    smoothed = _background_brightness(ToneMapConfig(method="mulaw", smoothing_frames=8.0))
+    unsmoothed = _background_brightness(ToneMapConfig(method="mulaw", smoothing_frames=0.0))
     baseline = unsmoothed[0]
     assert smoothed[0] == baseline  # the first frame initialises the exposure
     unsmoothed_jump = np.abs(unsmoothed - baseline).max()
@@ -148,3 +149,18 @@ def test_bad_config_is_rejected(kwargs: dict) -> None:
 def test_tonemapper_rejects_non_2d_input() -> None:
     with pytest.raises(ValueError):
         ToneMapper()(np.zeros((2, 3, 4), np.float32))
+
+
+def test_default_exposure_follows_the_absolute_level_and_looks_normal() -> None:
+    """The default operator: a normally exposed capture gets a normal picture (median luma 60-190, the
+    1st-99th percentiles >= 150 levels apart), a dark capture stays dark, and exposure moves slowly."""
+    scene = _texture()
+    normal = ToneMapper()(scene * (0.2 / np.median(scene)))
+    p1, p99 = np.percentile(normal, [1, 99])
+    assert 60 <= np.median(normal) <= 190 and p99 - p1 >= 150
+    dark = ToneMapper()(scene * (1e-3 / np.median(scene)))
+    assert np.median(dark) < 40
+    tone = ToneMapper()
+    steady = [tone(scene * 0.1) for _ in range(10)]
+    flash = tone(scene * 1.0)  # one frame 10x brighter: brighter, but the exposure does not jump to it
+    assert flash.mean() > steady[-1].mean() and tone._log_key < np.log(np.exp(np.mean(np.log(scene + 1e-4))) * 0.5)

@@ -10,13 +10,13 @@ import click
 from rmbvideo.cli import progress_enabled, quiet_option, verbose_option
 from rmbvideo.cli.options import capture_options
 from rmbvideo.io.sinks import SINK_FORMATS
+from rmbvideo.io.tonemap import TONE_METHODS
 from rmbvideo.recon.methods import DEFAULT_METHOD, METHODS
 from rmbvideo.recon.run import run_reconstruction
 from rmbvideo.sensor.readout import ReadoutMode
 
 log = logging.getLogger(__name__)
 
-TONEMAPS = ("mulaw", "reinhard", "drago", "mantiuk")
 
 
 def rmbnet_options(func):
@@ -65,7 +65,7 @@ def rmbnet_options(func):
               show_default=True,
               help="MP4 chroma: auto keeps the exact size (yuv444p for odd sizes, which QuickTime and some "
                    "hardware players cannot open); yuv420p plays everywhere but pads odd sizes by one row/column.")
-@click.option("--tonemap", type=click.Choice(TONEMAPS), default="mulaw", show_default=True,
+@click.option("--tonemap", type=click.Choice(TONE_METHODS), default="exposure", show_default=True,
               help="Tone mapping for mp4/png.")
 @click.option("--exr-dtype", type=click.Choice(["half", "float"]), default="half", show_default=True,
               help="EXR pixel type; half clips values above 65504.")

@@ -20,8 +20,12 @@ from rmbvideo.mulaw import mu_law
 
 log = logging.getLogger(__name__)
 
-ToneMethod = Literal["mulaw", "reinhard", "drago", "mantiuk"]
-TONE_METHODS: tuple[str, ...] = ("mulaw", "reinhard", "drago", "mantiuk")
+ToneMethod = Literal["exposure", "mulaw", "reinhard", "drago", "mantiuk"]
+TONE_METHODS: tuple[str, ...] = ("exposure", "mulaw", "reinhard", "drago", "mantiuk")
+#: "exposure": the log-average light of a frame (smoothed over time) is exposed to this grey ...
+MIDDLE_GREY = 0.18
+#: ... with a gain limited to this range, so a dark capture stays dark and a bright one is not crushed.
+GAIN_RANGE = (0.125, 8.0)
 
 # Frames larger than this are subsampled (with a fixed stride) to estimate the white point.
 _MAX_PERCENTILE_SAMPLES = 1 << 18
@@ -37,7 +41,7 @@ class ToneMapConfig:
     ``gamma`` applies to the OpenCV operators only (the mu-law curve is already perceptual).
     """
 
-    method: ToneMethod = "mulaw"
+    method: ToneMethod = "exposure"
     mu: float = 5000.0
     percentile: float = 99.5
     smoothing_frames: float = 8.0
@@ -67,6 +71,7 @@ class ToneMapper:
     def __init__(self, config: ToneMapConfig | None = None) -> None:
         self.config = config or ToneMapConfig()
         self._log_white: float | None = None
+        self._log_key: float | None = None
         self._operator = _opencv_operator(self.config)
         self.nonfinite_pixels = 0
         self._fallback_logged = False
@@ -92,12 +97,32 @@ class ToneMapper:
             linear = np.where(finite, linear, np.float32(0.0))
         linear = np.maximum(linear, np.float32(0.0))
         self._update_white(linear)
+        if self.config.method == "exposure":
+            return _to_uint8(self._expose(linear))
         normalised = linear / np.float32(self.white)
         if self._operator is None:
             display = mu_law(normalised, self.config.mu)
         else:
             display = self._apply_opencv(normalised)
         return _to_uint8(display)
+
+    def _expose(self, linear: np.ndarray) -> np.ndarray:
+        """The default operator: a camera-like exposure that follows the absolute scene level.
+
+        The frame's log-average light (smoothed over frames in log space, like the white point) is
+        exposed to ``MIDDLE_GREY`` with a gain within ``GAIN_RANGE``; Reinhard's extended curve rolls
+        the highlights off so the smoothed white point reaches 1; BT.709's transfer function encodes
+        the result (the tags the MP4 and PNG outputs carry)."""
+        key = float(np.mean(np.log(linear.astype(np.float64) + 1e-4)))  # log of the log-average light
+        if self._log_key is None or self.config.smoothing_frames == 0:
+            self._log_key = key
+        else:
+            self._log_key += (1.0 - math.exp(-1.0 / self.config.smoothing_frames)) * (key - self._log_key)
+        gain = float(np.clip(MIDDLE_GREY / math.exp(self._log_key), *GAIN_RANGE))
+        white = max(1.0, gain * self.white)
+        x = np.minimum(linear.astype(np.float64) * gain, white)  # at the white point the curve is 1
+        y = x * (1.0 + x / np.float32(white * white)) / (1.0 + x)
+        return np.where(y < 0.018, 4.5 * y, 1.099 * np.power(np.minimum(y, 1.0), 0.45) - 0.099)
 
     def _update_white(self, linear: np.ndarray) -> None:
         """Blend this frame's white point into the running estimate (log-space EMA)."""
@@ -134,8 +159,8 @@ class ToneMapper:
 
 
 def _opencv_operator(config: ToneMapConfig) -> Any:
-    """The OpenCV tone-map object for ``config.method``, or None for the built-in mu-law."""
-    if config.method == "mulaw":
+    """The OpenCV tone-map object for ``config.method``, or None for the built-in operators."""
+    if config.method in ("mulaw", "exposure"):
         return None
     import cv2
 

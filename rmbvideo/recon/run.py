@@ -82,7 +82,7 @@ def reconstruct_frames(path: str | Path, method: str = DEFAULT_METHOD, *, window
 
 def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_METHOD,
                        window: int | None = None, step: int | None = None, fmt: str = "mp4",
-                       fps: float = 30.0, tonemap: str = "mulaw", exr_dtype: str = "half",
+                       fps: float = 30.0, tonemap: str = "exposure", exr_dtype: str = "half",
                        pixel_format: str = "auto",
                        readout: str = "rmb", start_s: float = 0.0, duration_s: float | None = None,
                        chunk_planes: int = 1024, progress: bool = False,
