@@ -11,7 +11,7 @@ from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "rmbvideo"
 #: lower layers first; a package may import only packages at its own position or before it.
-LAYERS = ["errors", "chunks", "mulaw", "sensor", "io", "scenes", "net", "recon", "simulate", "evaluate", "train",
+LAYERS = ["errors", "chunks", "mulaw", "threads", "sensor", "io", "scenes", "net", "recon", "simulate", "evaluate", "train",
           "bench", "batch", "cli"]
 
 
@@ -67,3 +67,16 @@ def test_help_and_info_import_neither_torch_scipy_nor_opencv(tmp_path):
     for args in (["--help"], ["info", str(capture), "--width", "16", "--height", "16"]):
         heavy = _modules_loaded(*args) & {"torch", "scipy", "cv2"}
         assert not heavy, (args, heavy)
+
+
+def test_one_thread_policy(monkeypatch):
+    """Small or busy machines get one thread (threads there wait for each other); idle cores are used."""
+    from rmbvideo import threads
+
+    monkeypatch.setattr(threads, "available_cores", lambda: 2)
+    assert threads.default_threads() == 1
+    monkeypatch.setattr(threads, "available_cores", lambda: 16)
+    monkeypatch.setattr(threads.os, "getloadavg", lambda: (15.6, 0.0, 0.0))
+    assert threads.default_threads() == 1
+    monkeypatch.setattr(threads.os, "getloadavg", lambda: (2.0, 0.0, 0.0))
+    assert threads.default_threads() == threads.MAX_THREADS

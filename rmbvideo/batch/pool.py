@@ -25,15 +25,13 @@ from rmbvideo.batch.jobs import (
 from rmbvideo.batch.report import write_report
 from rmbvideo.batch.runner import make_dir, run_capture_job
 from rmbvideo.errors import OutputError
+from rmbvideo.threads import available_cores
 
 log = logging.getLogger(__name__)
 
 def default_workers() -> int:
     """One worker process per core available to this process."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:
-        return max(1, os.cpu_count() or 1)
+    return available_cores()
 
 
 def limit_threads(threads: int) -> None:

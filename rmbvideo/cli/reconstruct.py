@@ -34,7 +34,8 @@ def rmbnet_options(func):
         click.option("--precision", type=click.Choice(["auto", "fp32", "bf16"]), default="auto",
                      show_default=True, help="Network precision (auto: bf16 autocast on CUDA, fp32 on CPU)."),
         click.option("--threads", type=click.IntRange(min=1), default=None,
-                     help="CPU threads for the network [default: torch's choice; 1 is fastest on a busy machine]."),
+                     help="CPU threads for the network [default: the thread policy: 1 on a busy or 2-core machine, "
+                  "else the idle cores, at most 8]."),
     ]
     for option in reversed(options):
         func = option(func)

@@ -29,8 +29,15 @@ from torch.nn.utils.fusion import fuse_conv_bn_eval
 
 from rmbvideo.chunks import Frame, RmbChunk
 from rmbvideo.errors import InputError
-from rmbvideo.net.model import EncodedFrame, PairCache, RmbNet, window_indices, window_valid
+from rmbvideo.net.model import (
+    EncodedFrame,
+    PairCache,
+    RmbNet,
+    window_indices,
+    window_valid,
+)
 from rmbvideo.recon.prelim import MultiUpsampler, PreliminaryFrames
+from rmbvideo.threads import default_threads
 
 log = logging.getLogger(__name__)
 
@@ -78,8 +85,8 @@ class RmbNetReconstructor:
     """``push(chunk or prelim frames) -> list[Frame]``, ``flush() -> list[Frame]``.
 
     ``precision``: "auto" uses bf16 autocast on CUDA and fp32 on CPU; "bf16"/"fp32" force it.
-    ``threads``: intra-op threads while the network runs (restored afterwards); None keeps torch's
-    setting. One thread is fastest on a busy CPU, where threads wait for each other at every op.
+    ``threads``: intra-op threads while the network runs (restored afterwards); None follows the
+    project's thread policy (``rmbvideo.threads``: one thread on a busy or small machine).
     ``n`` is the readouts per preliminary frame when RmbChunks are pushed (default: the model's N)
     and ``upsampler`` the band upsampler they go through (default: flow-free interpolation; see
     ``rmbvideo.recon.flow.FlowUpsampler``).
@@ -108,7 +115,7 @@ class RmbNetReconstructor:
         self._net = inference_copy(self.model)
         bf16 = precision == "bf16" or (precision == "auto" and self.device.type == "cuda")
         self._autocast = bf16
-        self._threads = threads
+        self._threads = threads if threads is not None else default_threads()
         self.align = align
         self.n = model.config.n if n is None else n
         self._w = model.config.w

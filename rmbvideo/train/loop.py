@@ -30,12 +30,22 @@ from rmbvideo.evaluate.metrics import mu_law_psnr, mu_law_ssim
 from rmbvideo.net.decoder import DecoderState
 from rmbvideo.net.model import RmbNet, window_indices, window_valid
 from rmbvideo.net.weights import ModelCard, default_model_path, load_model, save_model
-from rmbvideo.train.checkpoint import CheckpointState, checkpoint_paths, load_checkpoint, save_checkpoint
+from rmbvideo.scenes.random_scenes import (
+    EVAL_SEED_START,
+    HELD_OUT_PANORAMA,
+    TRAIN_PANORAMAS,
+)
+from rmbvideo.sensor.effects import REALISTIC_EFFECTS
+from rmbvideo.threads import default_threads
+from rmbvideo.train.checkpoint import (
+    CheckpointState,
+    checkpoint_paths,
+    load_checkpoint,
+    save_checkpoint,
+)
 from rmbvideo.train.config import TrainConfig
 from rmbvideo.train.dataset import Sample, SampleCache, SamplePrefetcher
 from rmbvideo.train.loss import LossConfig, reconstruction_loss
-from rmbvideo.scenes.random_scenes import EVAL_SEED_START, HELD_OUT_PANORAMA, TRAIN_PANORAMAS
-from rmbvideo.sensor.effects import REALISTIC_EFFECTS
 
 log = logging.getLogger(__name__)
 
@@ -284,8 +294,8 @@ class Trainer:
     def run(self) -> TrainResult:
         """Train until the step count or the time budget is reached, then save model and card."""
         cfg = self.config
-        if cfg.optim.threads:
-            torch.set_num_threads(cfg.optim.threads)
+        if self.device.type == "cpu":
+            torch.set_num_threads(cfg.optim.threads or default_threads())
         torch.manual_seed(cfg.seed)
         state = CheckpointState(0, 0.0)
         if self.resume:
