@@ -7,7 +7,8 @@ move on their own and occlude each other, and motion up to about a raw pixel per
 
 - the background is a dead-leaves image (occluding random shapes with a power-law size
   distribution, which reproduces natural-image statistics), each leaf flat, graded, striped or
-  noise-textured, optionally under a soft shadow; the camera moves over it with a velocity, an
+  noise-textured, or a crop of a real HDR panorama (natural texture and contrast), optionally under
+  a soft shadow; the camera moves over it with a velocity, an
   acceleration, a zoom rate and a small high-frequency shake;
 - foreground objects are dead-leaves patches of their own with an anti-aliased outline (ellipse,
   rectangle or polygon), each with its own translation, rotation and scaling, composited back to
@@ -29,6 +30,9 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+from rmbvideo.scenes.random_scenes import EVAL_PANORAMAS, EVAL_SEED_START, TRAIN_PANORAMAS
+from rmbvideo.scenes.render import panorama_luminance
 
 #: Sensor conventions a sample can be simulated with.
 CONVENTIONS = ("physical", "spikezoo")
@@ -54,6 +58,7 @@ class VideoSceneRanges:
     object_spin: float = 0.01        # rad per raw plane
     object_zoom_rate: float = 3e-3   # per raw plane, either sign
     light_probability: float = 0.3
+    panorama_probability: float = 0.4  # background from a real HDR panorama instead of dead leaves
     light_radiance: tuple[float, float] = (5.0, 300.0)
     shadow_probability: float = 0.4
     shadow_attenuation: tuple[float, float] = (0.01, 0.3)
@@ -132,6 +137,20 @@ def dead_leaves(rng: np.random.Generator, h: int, w: int, coverage: float, r_min
     return image
 
 
+def _panorama_canvas(rng: np.random.Generator, h: int, w: int, held_out: bool) -> np.ndarray:
+    """An (h, w) crop of a bundled HDR panorama (luminance, median 1) at a random zoom: natural
+    texture and real HDR contrast. Training seeds never draw the held-out panorama."""
+    names = EVAL_PANORAMAS if held_out else TRAIN_PANORAMAS
+    pano = panorama_luminance(str(rng.choice(names)))
+    ph, pw = pano.shape
+    zoom = max(_log_uniform(rng, 0.7, 3.0), h / (0.8 * ph), w / pw)  # canvas pixels per panorama pixel
+    ch, cw = h / zoom, w / zoom
+    x0, y0 = rng.uniform(0, pw - cw), rng.uniform(0.1 * ph, max(0.1 * ph, 0.9 * ph - ch))
+    crop = pano[int(y0): int(np.ceil(y0 + ch)), int(x0): int(np.ceil(x0 + cw))]
+    interpolation = cv2.INTER_AREA if zoom < 1 else cv2.INTER_LINEAR
+    return np.ascontiguousarray(cv2.resize(crop, (w, h), interpolation=interpolation), dtype=np.float32)
+
+
 @dataclass
 class _Layer:
     """A static texture (value, coverage) and its affine pose over time (in raw pixels, raw planes)."""
@@ -179,7 +198,10 @@ class VideoScene:
         velocity = speed * np.array([math.cos(direction), math.sin(direction)])
         canvas_w, canvas_h = 2 * width, 2 * height
         diag = math.hypot(width, height)
-        background = dead_leaves(rng, canvas_h, canvas_w, rng.uniform(*ranges.coverage), 1.0, 0.5 * diag, ranges)
+        if rng.random() < ranges.panorama_probability:
+            background = _panorama_canvas(rng, canvas_h, canvas_w, held_out=seed >= EVAL_SEED_START)
+        else:
+            background = dead_leaves(rng, canvas_h, canvas_w, rng.uniform(*ranges.coverage), 1.0, 0.5 * diag, ranges)
         if rng.random() < ranges.shadow_probability:
             shade = _shape_mask(rng, int(canvas_h * rng.uniform(0.3, 0.8)), int(canvas_w * rng.uniform(0.3, 0.8)))
             full = np.zeros_like(background)
