@@ -11,6 +11,7 @@ import importlib
 import importlib.util
 import logging
 import os
+import signal
 import sys
 
 import click
@@ -29,6 +30,19 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("rmbvideo.cli.bench:bench", "What accuracy costs in time, for every method."),
     "batch": ("rmbvideo.cli.batch:batch", "Convert many captures, unattended and resumable."),
 }
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, raised where the process is, so every output in progress is aborted and
+    removed on the way out (as for Ctrl-C)."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise Terminated(signum)
 
 
 class LazyGroup(click.Group):
@@ -63,14 +77,21 @@ class LazyGroup(click.Group):
         return super().resolve_command(ctx, args)
 
     def invoke(self, ctx: click.Context):
+        previous = {sig: signal.signal(sig, _terminate) for sig in (signal.SIGTERM, signal.SIGHUP)}
         try:
             return super().invoke(ctx)
         except RmbvideoError as exc:
             click.echo(f"rmbvideo: error: {exc}", err=True)
             ctx.exit(2)
+        except Terminated as exc:
+            click.echo(f"rmbvideo: stopped by {signal.Signals(exc.signum).name}; partial output removed", err=True)
+            ctx.exit(128 + exc.signum)
         except KeyboardInterrupt:
-            click.echo("rmbvideo: interrupted", err=True)
+            click.echo("rmbvideo: interrupted; partial output removed", err=True)
             ctx.exit(130)
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
 
 
 def _spec_exists(spec: str) -> bool:

@@ -30,6 +30,8 @@ logger = logging.getLogger(__name__)
 _PAGE_BYTES = mmap.PAGESIZE
 MAX_SIDE = 16384  # larger than any spiking camera; rejects typos such as 4000x2500000
 DEFAULT_RATE_HZ = 20000.0
+#: Plane rates a capture may have: anything outside is a typo (and would make times absurd or infinite).
+MIN_RATE_HZ, MAX_RATE_HZ = 1.0, 1e9
 _WRITE_BLOCK_PLANES = 1024
 
 
@@ -123,8 +125,9 @@ class DatReader:
     ) -> None:
         self.path = Path(path)
         self.geometry = geometry
-        if not (math.isfinite(rate_hz) and rate_hz > 0):
-            raise InputError(f"{self.path}: plane rate must be a positive number of Hz, got {rate_hz}")
+        if not (math.isfinite(rate_hz) and MIN_RATE_HZ <= rate_hz <= MAX_RATE_HZ):
+            raise InputError(f"{self.path}: plane rate must be between {MIN_RATE_HZ:g} and {MAX_RATE_HZ:g} Hz, "
+                             f"got {rate_hz}")
         self.rate_hz = float(rate_hz)
         try:
             if self.path.is_dir():

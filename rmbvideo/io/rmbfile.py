@@ -153,6 +153,10 @@ class RmbFileReader:
             raise InputError(f"{self.mbit}: bad header ({exc})") from None
         if header.get("version") != VERSION or rows not in ("all", "band"):
             raise InputError(f"{self.mbit}: unsupported version or rows ({header.get('version')}, {rows!r})")
+        if not (1 <= self.level <= 255 and 1 <= self.bits <= 8 and self.level < 2 ** self.bits and band >= 1
+                and shift >= 1 and self.width >= 1 and self.height >= 1):
+            raise InputError(f"{self.mbit}: bad header (level {self.level}, bits {self.bits}, band {band}, "
+                             f"shift {shift}, {self.width}x{self.height})")
         self.readout = RmbReadout(ReadoutMode.RMB, band, shift) if rows == "band" else None
         self.rows_per_readout = self.height if self.readout is None else min(band, self.height)
         self.record_bytes = (self.rows_per_readout * self.width * self.bits + 7) // 8
@@ -164,6 +168,11 @@ class RmbFileReader:
             raise InputError(f"{self.mbit}: {records} multi-bit readouts but {self.path.name} has "
                              f"{self.dat.n_planes} planes (truncated capture?)")
         self._records = body[: records * self.record_bytes].reshape(records, self.record_bytes)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Image (height, width) of the stream (native: no binning)."""
+        return self.height, self.width
 
     @property
     def n_readouts(self) -> int:

@@ -8,11 +8,13 @@ in the same folder (all captures of that folder). Keys: ``width``, ``height``, `
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
 from rmbvideo.errors import InputError
+from rmbvideo.io.dat import MAX_RATE_HZ, MIN_RATE_HZ
 
 SIDECAR_KEYS = {"width": int, "height": int, "rate_hz": float, "flip": bool, "header_cols": int}
 
@@ -60,8 +62,17 @@ def read_sidecar(dat_path: Path) -> CaptureInfo:
             value = data[key]
             if kind is bool and not isinstance(value, bool):
                 raise InputError(f"{path}: '{key}' must be true or false")
-            if kind in (int, float) and (isinstance(value, bool) or not isinstance(value, (int, float))):
-                raise InputError(f"{path}: '{key}' must be a number")
+            if kind in (int, float) and (isinstance(value, bool) or not isinstance(value, (int, float))
+                                         or not math.isfinite(value)):
+                raise InputError(f"{path}: '{key}' must be a finite number, not {value!r}")
+            if kind is int and value != int(value):
+                raise InputError(f"{path}: '{key}' must be a whole number, not {value!r}")
+            if key == "rate_hz" and not MIN_RATE_HZ <= value <= MAX_RATE_HZ:
+                raise InputError(f"{path}: 'rate_hz' must be between {MIN_RATE_HZ:g} and {MAX_RATE_HZ:g} Hz, not {value!r}")
+            if key in ("width", "height") and not value >= 1:
+                raise InputError(f"{path}: '{key}' must be at least 1, not {value!r}")
+            if key == "header_cols" and value < 0:
+                raise InputError(f"{path}: 'header_cols' must be >= 0, not {value!r}")
             values[key] = kind(value)
     return CaptureInfo(**values)
 

@@ -171,6 +171,9 @@ def load_model(
             tensors = {key: fh.get_tensor(key) for key in fh.keys()}
     except Exception as exc:  # safetensors raises its own error types for corrupt payloads
         raise ModelError(f"{weights}: refused: corrupt safetensors file ({exc})") from None
+    bad = sorted(key for key, tensor in tensors.items() if tensor.is_floating_point() and not bool(tensor.isfinite().all()))
+    if bad:
+        raise ModelError(f"{weights}: refused: NaN or Inf in {len(bad)} tensors (first: {bad[0]})")
     model = RmbNet(config)
     expected = model.state_dict()
     missing = sorted(set(expected) - set(tensors))

@@ -52,8 +52,15 @@ def prepare_run(input_path: Path, *, method: str = DEFAULT_METHOD, window: int |
     spec = get_method(method)
     options = spec.options(window, step, raw_per_readout=1 if native else 2)
     options.update(spec.select_extra(extra_options or {}))
-    if native and "input_mode" in spec.extra_options:
-        options.setdefault("input_mode", "native")
+    if "input_mode" in spec.extra_options:  # a model trained for the other kind of stream is refused
+        options.setdefault("input_mode", "native" if native else "binned")
+    height, width = reader.shape
+    if not native and spec.input_kind == "rmb":
+        height, width = height // 2, width // 2  # the binned stream
+    needed = spec.needed_size(options)
+    if min(height, width) < needed:
+        raise InputError(f"{input_path}: {method} needs at least {needed}x{needed} pixels at its input; this capture "
+                         f"gives {width}x{height} (check --width/--height/--header-cols)")
     recon = spec.build(**options)
     # A native capture was read out by its sensor already; binned data gets the chosen design.
     rmb_readout = RmbReadout(mode=ReadoutMode(readout)) if recon.input_kind == "rmb" and not native else None
