@@ -91,3 +91,35 @@ def test_sigterm_mid_run_leaves_no_output(tmp_path: Path) -> None:
     assert proc.returncode == 128 + signal.SIGTERM, err
     assert "stopped by SIGTERM" in err and "Traceback" not in err
     assert not out.exists() and not list(tmp_path.glob(".out.*"))
+
+
+def test_batch_workers_die_with_their_parent(tmp_path: Path) -> None:
+    """kill -9 of a batch leaves no worker writing on: workers get SIGTERM when their parent dies."""
+    import os
+
+    ready = tmp_path / "ready"
+    child = ("from rmbvideo.batch.pool import die_with_parent; import time, pathlib; die_with_parent(); "
+             f"pathlib.Path({str(ready)!r}).write_text('x'); time.sleep(120)")
+    parent_code = ("import subprocess, sys, time; "
+                   f"p = subprocess.Popen([sys.executable, '-c', {child!r}]); print(p.pid, flush=True); time.sleep(120)")
+    parent = subprocess.Popen([sys.executable, "-c", parent_code], stdout=subprocess.PIPE, text=True)
+    child_pid = int(parent.stdout.readline())
+    deadline = time.monotonic() + 60
+    while not ready.exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    parent.kill()
+    parent.wait()
+    deadline = time.monotonic() + 20
+    while time.monotonic() < deadline:
+        try:
+            os.kill(child_pid, 0)
+        except ProcessLookupError:
+            break
+        try:  # reap it if it became our zombie (it is the orphan of a dead parent, re-parented)
+            os.waitpid(child_pid, os.WNOHANG)
+        except ChildProcessError:
+            pass
+        time.sleep(0.05)
+    else:
+        os.kill(child_pid, signal.SIGKILL)
+        pytest.fail("the worker outlived its parent")

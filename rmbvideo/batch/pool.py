@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
 import sys
 from collections import Counter, deque
 from collections.abc import Callable, Iterator, Sequence
@@ -32,6 +33,24 @@ log = logging.getLogger(__name__)
 def default_workers() -> int:
     """One worker process per core available to this process."""
     return available_cores()
+
+
+def die_with_parent() -> None:
+    """Linux: this process gets SIGTERM when its parent dies (even by kill -9), so a worker never
+    goes on writing after the batch that started it is gone; elsewhere nothing happens."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, int(signal.SIGTERM), 0, 0, 0)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
+def start_worker(threads: int) -> None:
+    """Initialiser of a batch worker process: dies with the batch, uses ``threads`` threads."""
+    die_with_parent()
+    limit_threads(threads)
 
 
 def limit_threads(threads: int) -> None:
@@ -132,7 +151,7 @@ def _run_in_processes(jobs: Sequence[CaptureJob], workers: int,
 
     while pending:
         with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn"),
-                                 initializer=limit_threads, initargs=(threads,)) as pool:
+                                 initializer=start_worker, initargs=(threads,)) as pool:
             running: dict[Future[CaptureResult], int] = {}
             broken = False
             while (pending or running) and not broken:

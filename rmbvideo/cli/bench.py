@@ -43,8 +43,8 @@ def _stage_table(stages: dict[str, float]) -> str:
               help="Devices for RMB-Net rows (auto: CPU, plus CUDA when available).")
 @click.option("--full-grid", is_flag=True,
               help="Every combination of w, alignment, width and precision (default: one knob at a time).")
-@click.option("--threads", type=click.IntRange(min=1), default=1, show_default=True,
-              help="Torch threads for the network (1 is fastest on a shared CPU).")
+@click.option("--threads", type=click.IntRange(min=1), default=None,
+              help="Torch threads for the network [default: the thread policy of every command, rmbvideo.threads].")
 @click.option("--models", "models_dir", type=click.Path(path_type=Path), default=None,
               help="Folder of trained weights (with ablations/) [default: the shipped models].")
 @click.option("--cache", type=click.Path(path_type=Path), default=None,
@@ -69,6 +69,9 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
     Writes bench.md (table, per-stage breakdown, real-time and memory checks), bench.csv and
     bench.png (PSNR against time, Pareto front marked). `rmbvideo bench decode` measures decoding.
     """
+    from rmbvideo.threads import default_threads
+
+    threads = threads or default_threads()
     if ctx.invoked_subcommand is not None:
         return
     from rmbvideo.bench.configs import ALIGNMENTS, default_configs
