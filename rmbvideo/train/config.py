@@ -31,7 +31,8 @@ class DataConfig:
     ``exposure`` range (electrons per raw readout at median radiance), ``val_count`` held-out
     scenes (seeds from 1,000,000). ``scenes``: "panorama" (pans over the bundled panoramas, ``count``
     cached scenes) or "video" (dead-leaves video scenes, simulated afresh for every step, a fraction
-    ``spikezoo_fraction`` in spikezoo's rate convention, each used by ``reuse`` consecutive steps;
+    ``spikezoo_fraction`` in spikezoo's rate convention, each used by ``reuse`` consecutive steps,
+    simulated by ``workers`` processes;
     ``count`` and ``exposure`` do not apply)."""
 
     mode: str = "binned"
@@ -46,6 +47,7 @@ class DataConfig:
     scenes: str = "panorama"
     spikezoo_fraction: float = 0.0
     reuse: int = 1
+    workers: int = 1
 
 
 @dataclass(frozen=True)
@@ -174,8 +176,8 @@ def load_recipe(path: str | Path) -> TrainConfig:
 def _check_ranges(config: TrainConfig, path: Path) -> None:
     d, o = config.data, config.optim
     problems = []
-    if d.count < 1 or d.val_count < 1 or d.steps < 1 or d.reuse < 1:
-        problems.append("data.count, data.val_count, data.steps and data.reuse must be >= 1")
+    if d.count < 1 or d.val_count < 1 or d.steps < 1 or d.reuse < 1 or d.workers < 1:
+        problems.append("data.count, data.val_count, data.steps, data.reuse and data.workers must be >= 1")
     if not 0 < d.exposure[0] <= d.exposure[1]:
         problems.append("data.exposure must be [low, high] with 0 < low <= high")
     if o.lr <= 0 or o.lr_final <= 0 or o.steps < 1 or o.batch < 1 or o.tbptt < 1:

@@ -209,7 +209,7 @@ def _worker_init() -> None:
 
 
 class SamplePrefetcher:
-    """Simulates the samples of upcoming steps in one worker process while the network trains, so
+    """Simulates the samples of upcoming steps in ``workers`` processes while the network trains, so
     fresh scenes cost no training time when simulation keeps up with the steps.
 
     ``seeds_of(step)`` names a step's seeds; ``get(step)`` returns that batch. Seeds of the next
@@ -217,9 +217,10 @@ class SamplePrefetcher:
     when no upcoming step needs it. Nothing is stored on disk: the scenes never repeat across a run.
     """
 
-    def __init__(self, spec: SampleSpec, seeds_of: Callable[[int], list[int]], depth: int = 3) -> None:
+    def __init__(self, spec: SampleSpec, seeds_of: Callable[[int], list[int]], depth: int = 3,
+                 workers: int = 1) -> None:
         self.spec, self.seeds_of, self.depth = spec, seeds_of, depth
-        self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
+        self._pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
                                          initializer=_worker_init)
         self._pending: dict[int, Future] = {}
 

@@ -248,7 +248,8 @@ class Trainer:
         if config.init and not resume:
             self.warm_start(config.init)
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=config.optim.lr)
-        self._prefetcher = (SamplePrefetcher(config.sample_spec(), self.step_seeds)
+        self._prefetcher = (SamplePrefetcher(config.sample_spec(), self.step_seeds, depth=max(3, config.data.workers),
+                                             workers=config.data.workers)
                             if config.data.scenes == "video" else None)
 
     def warm_start(self, source: str) -> None:
