@@ -6,8 +6,6 @@ import errno
 import json
 import os
 import pickle
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -20,27 +18,8 @@ from rmbvideo.cli import main
 from rmbvideo.io.dat import DatGeometry, write_dat
 from rmbvideo.io.geometry_guess import CONVINCING_SCORE, guess_geometry
 
-GEOM = ("--width", "64", "--height", "48")
+from cli_helpers import GEOM, capture, cli, one_line_error
 
-
-def capture(path: Path, planes: int = 60, seed: int = 0) -> Path:
-    rng = np.random.default_rng(seed)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_dat(path, (rng.random((planes, 48, 64)) < np.linspace(0.05, 0.9, 64)).astype(np.uint8),
-              DatGeometry(64, 48))
-    return path
-
-
-def cli(*args: object) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "rmbvideo", *map(str, args)], capture_output=True, text=True)
-
-
-def one_line_error(proc: subprocess.CompletedProcess, *needles: str) -> None:
-    assert proc.returncode == 2, proc.stderr
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
-    for needle in needles:
-        assert needle in lines[0]
 
 
 def moving_scene(planes: int, height: int, width: int, seed: int = 0) -> np.ndarray:
