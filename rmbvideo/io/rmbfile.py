@@ -149,8 +149,8 @@ class RmbFileReader:
             self.level, self.bits = int(header["level"]), int(header["bits"])
             self.rate_hz, self.flip = float(header["rate_hz"]), bool(header["flip"])
             band, shift, rows = int(header["band"]), int(header["shift"]), header["rows"]
-        except (ValueError, KeyError, TypeError, UnicodeDecodeError) as exc:
-            raise InputError(f"{self.mbit}: bad header ({exc})") from None
+        except (ValueError, KeyError, TypeError, UnicodeDecodeError, RecursionError, OverflowError) as exc:
+            raise InputError(f"{self.mbit}: bad header ({str(exc).splitlines()[0][:200]})") from None
         if header.get("version") != VERSION or rows not in ("all", "band"):
             raise InputError(f"{self.mbit}: unsupported version or rows ({header.get('version')}, {rows!r})")
         if not (1 <= self.level <= 255 and 1 <= self.bits <= 8 and self.level < 2 ** self.bits and band >= 1

@@ -52,8 +52,8 @@ def read_sidecar(dat_path: Path) -> CaptureInfo:
         return CaptureInfo()
     try:
         data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"{path}: not a valid capture sidecar ({exc})") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        raise InputError(f"{path}: not a valid capture sidecar ({str(exc).splitlines()[0][:200]})") from None
     if not isinstance(data, dict):
         raise InputError(f"{path}: a capture sidecar must be a JSON object")
     values: dict[str, Any] = {}

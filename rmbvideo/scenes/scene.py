@@ -149,8 +149,8 @@ def load_scene(path: Path) -> Scene:
         raise InputError(f"{path}: scene file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read scene file ({exc})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{path}: not valid TOML ({exc})") from None
+    except (tomllib.TOMLDecodeError, RecursionError) as exc:
+        raise InputError(f"{path}: not valid TOML ({str(exc).splitlines()[0][:200]})") from None
     return _SceneParser(path).scene(data)
 
 
