@@ -56,27 +56,16 @@ class RmbChunk:
         return self.start + len(self.single)
 
 
-@dataclass
-class DenseChunk:
-    """Consecutive readouts with a multi-bit value in every row.
-
-    ``single``: (T, H, W) uint8 1-bit values as read; ``multi``: (T, H, W) float32 multi-bit values
-    (measured or upsampled, in levels 0..``level``); ``multi_valid``: (T, H) bool, False where the row
-    had no multi-bit sample anywhere in reach (its ``multi`` is 0 and carries no information, e.g.
-    pure-S data). Other fields as in :class:`RmbChunk`. Made by the band upsamplers of ``rmbvideo.recon.prelim``.
-    """
-
-    single: np.ndarray
-    multi: np.ndarray
-    multi_valid: np.ndarray
-    start: int
-    rate_hz: float
-    level: int = 7
-    raw_per_readout: int = 2
+class DenseChunk(RmbChunk):
+    """An ``RmbChunk`` whose multi-bit plane is dense: every row has a value at every readout
+    (measured or upsampled, float32 in levels 0..``level``), made by the band upsamplers of
+    ``rmbvideo.recon.prelim``. ``multi_rows`` (also ``multi_valid``) is False where a row had no
+    multi-bit sample anywhere in reach (its ``multi`` is 0 and carries no information, e.g. pure-S)."""
 
     @property
-    def stop(self) -> int:
-        return self.start + len(self.single)
+    def multi_valid(self) -> np.ndarray:
+        """(T, H) bool: rows with multi-bit evidence."""
+        return self.multi_rows
 
 
 @dataclass

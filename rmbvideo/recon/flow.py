@@ -231,7 +231,7 @@ class FlowUpsampler:
         a, b = self._next_emit - self._buf.start, stop - self._buf.start
         rate_hz, level, raw_per_readout = self._buf.meta
         out = DenseChunk(single=self._buf.single[a:b], multi=np.stack(planes).astype(np.float32),
-                         multi_valid=np.stack(valids), start=self._next_emit, rate_hz=rate_hz,
+                         multi_rows=np.stack(valids), start=self._next_emit, rate_hz=rate_hz,
                          level=level, raw_per_readout=raw_per_readout)
         self._next_emit = stop
         keep_from = min(self._next_emit, (self._cycles[-1].index + 1) * self.cycle)

@@ -165,7 +165,7 @@ class TemporalInterpolation:
                 DenseChunk(
                     single=self._buf.single[sl],
                     multi=dense,
-                    multi_valid=valid,
+                    multi_rows=valid,
                     start=self._buf.start + b0,
                     rate_hz=rate_hz,
                     level=level,
