@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Iterator
 from collections.abc import Sequence as Seq
@@ -77,8 +78,6 @@ def run_rmb(method: str, options: dict, source: Sequence | BinnedChunks) -> dict
 
 def video_scene_of(seq: Sequence) -> VideoScene:
     """The scene a held-out video sequence was simulated from (rebuilt from its seed and kind)."""
-    import json
-
     info = json.loads(seq.description)
     kind = next(k for k in VIDEO_KINDS if k.name == info["kind"])
     height, width = seq.shape
