@@ -121,7 +121,7 @@ class ToneMapper:
         gain = float(np.clip(MIDDLE_GREY / math.exp(self._log_key), *GAIN_RANGE))
         white = max(1.0, gain * self.white)
         x = np.minimum(linear.astype(np.float64) * gain, white)  # at the white point the curve is 1
-        y = x * (1.0 + x / np.float32(white * white)) / (1.0 + x)
+        y = x * (1.0 + x / (white * white)) / (1.0 + x)
         return np.where(y < 0.018, 4.5 * y, 1.099 * np.power(np.minimum(y, 1.0), 0.45) - 0.099)
 
     def _update_white(self, linear: np.ndarray) -> None:
