@@ -45,16 +45,6 @@ def _instrument(network, clock: _StageClock) -> None:
     network.decoder.forward = clock.wrap("decoder/ConvLSTM", network.decoder.forward)
 
 
-class _Keep:
-    """A sink that keeps the frames (for timing tone mapping and encoding on them afterwards)."""
-
-    def __init__(self) -> None:
-        self.frames: list = []
-
-    def write(self, frame) -> None:
-        self.frames.append(frame)
-
-
 def stage_breakdown(network, planes: int = 2000, width: int = 400, height: int = 250,
                     threads: int = 1, precision: str = "fp32", device: str = "cpu") -> dict[str, float]:
     """Milliseconds per output frame of each stage for ``network`` on a random ``width`` x ``height``
@@ -63,7 +53,7 @@ def stage_breakdown(network, planes: int = 2000, width: int = 400, height: int =
     MP4 sink timed on its frames. Keys in pipeline order, plus "total" and "frames"."""
     from rmbvideo.io.sinks import make_sink
     from rmbvideo.io.tonemap import ToneMapper
-    from rmbvideo.recon.pipeline import reconstruct_stream
+    from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
     from rmbvideo.recon.rmbnet import RmbNetReconstructor
     from rmbvideo.sensor.readout import RmbReadout
 
@@ -72,11 +62,11 @@ def stage_breakdown(network, planes: int = 2000, width: int = 400, height: int =
         path = write_random_capture(Path(folder) / "capture.dat", planes, width, height)
         reader = DatReader(path, DatGeometry(width=width, height=height))
         warm = RmbNetReconstructor(network, device=device, precision=precision, threads=threads)
-        reconstruct_stream(reader, warm, _Keep(), stop=40 * network.config.window, readout=RmbReadout())
+        reconstruct_stream(reader, warm, FrameCollector(), stop=40 * network.config.window, readout=RmbReadout())
         engine = RmbNetReconstructor(network, device=device, precision=precision, threads=threads)
         clock = _StageClock()
         _instrument(engine.network, clock)
-        keep = _Keep()
+        keep = FrameCollector()
         summary = reconstruct_stream(reader, engine, keep, chunk_planes=CHUNK_PLANES, readout=RmbReadout())
         del reader
         stages = summary.stages
@@ -89,7 +79,7 @@ def stage_breakdown(network, planes: int = 2000, width: int = 400, height: int =
         result["network other (stacking, caches, output)"] = max(
             0.0, stages["network"] - sum(clock.seconds[p] for p in parts))
         result["sink null (finite check)"] = stages["sink"]
-        out = keep.frames
+        out = list(keep.frames.values())
         tone = ToneMapper()
         began = time.perf_counter()
         for frame in out:

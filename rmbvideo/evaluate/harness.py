@@ -34,7 +34,7 @@ from rmbvideo.chunks import Frame, SpikeChunk
 from rmbvideo.evaluate.heldout import Sequence
 from rmbvideo.evaluate.metrics import mu_law_psnr, mu_law_ssim, pu21_psnr
 from rmbvideo.recon.methods import make_reconstructor
-from rmbvideo.recon.pipeline import reconstruct_stream
+from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
 from rmbvideo.sensor.readout import RmbReadout
 
 log = logging.getLogger(__name__)
@@ -108,16 +108,6 @@ class SinglePlaneSource:
             yield SpikeChunk(planes=self.readout.apply(chunk).single, start=chunk.start, rate_hz=chunk.rate_hz)
 
 
-class _Collect:
-    """A sink that keeps every frame."""
-
-    def __init__(self) -> None:
-        self.frames: list[Frame] = []
-
-    def write(self, frame: Frame) -> None:
-        self.frames.append(frame)
-
-
 def run_frames(spec: MethodSpec, seq: Sequence) -> tuple[list[Frame], float, float | None]:
     """All frames of ``spec`` on ``seq`` (at GT size, finite), wall-clock seconds, network seconds.
 
@@ -125,13 +115,13 @@ def run_frames(spec: MethodSpec, seq: Sequence) -> tuple[list[Frame], float, flo
     (the "read" stage), so rows differ only by what their method does."""
     recon = make_reconstructor(spec.method, **spec.options)
     readout = RmbReadout(mode=spec.readout)
-    sink = _Collect()
+    sink = FrameCollector()
     if spec.raw or recon.input_kind == "rmb":
         summary = reconstruct_stream(seq, recon, sink, chunk_planes=2 * CHUNK_READOUTS,
                                      readout=None if spec.raw else readout)
     else:
         summary = reconstruct_stream(SinglePlaneSource(seq, readout), recon, sink, chunk_planes=CHUNK_READOUTS)
-    frames = sink.frames
+    frames = list(sink.frames.values())
     if spec.raw:
         frames = [Frame(f.index, f.time_s, downsample_2x(f.image, seq.shape)) for f in frames]
     seconds = summary.seconds - summary.stages["read"]

@@ -28,12 +28,11 @@ from typing import Any
 import cv2
 import numpy as np
 
-from rmbvideo.chunks import Frame
 from rmbvideo.errors import InputError
 from rmbvideo.evaluate.metrics import ssim
 from rmbvideo.io.dat import DatGeometry, DatReader
 from rmbvideo.recon.methods import make_reconstructor
-from rmbvideo.recon.pipeline import reconstruct_stream
+from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
 
 log = logging.getLogger(__name__)
@@ -128,27 +127,16 @@ def scaled_psnr(prediction: np.ndarray, reference: np.ndarray) -> float:
     return 10.0 * math.log10(1.0 / max(mse, 1e-12))
 
 
-class _FrameAt:
-    """A sink that keeps one frame's image."""
-
-    def __init__(self, index: int) -> None:
-        self.index, self.image = index, None
-
-    def write(self, frame: Frame) -> None:
-        if frame.index == self.index:
-            self.image = frame.image
-
-
 def reconstruct_frame(stream: RealStream, row: RealRow) -> np.ndarray:
     """The row's frame at the reference plane, at the binned size (raw rows 2x2 area-averaged)."""
     reader = DatReader(stream.capture, stream.geometry)
     recon = make_reconstructor(row.method, **row.options)
-    sink = _FrameAt(stream.frame)
+    sink = FrameCollector(keep=[stream.frame])
     readout = None if row.raw else RmbReadout(mode=ReadoutMode(row.readout))
     reconstruct_stream(reader, recon, sink, readout=readout)
-    if sink.image is None:
+    if stream.frame not in sink.frames:
         raise InputError(f"{stream.capture}: {row.name} produced no frame {stream.frame}")
-    image = np.nan_to_num(sink.image.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+    image = sink.frames[stream.frame].image  # finite and >= 0: the pipeline cleans every frame
     height, width = stream.geometry.height // 2, stream.geometry.image_width // 2
     if image.shape != (height, width):
         image = cv2.resize(image[: 2 * height, : 2 * width], (width, height), interpolation=cv2.INTER_AREA)

@@ -22,7 +22,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from rmbvideo.chunks import Frame
 from rmbvideo.errors import InputError
 from rmbvideo.evaluate.harness import RowResult, downsample_2x
 from rmbvideo.evaluate.metrics import robust_scale
@@ -199,16 +198,6 @@ def write_comparison_png(rows: Seq[RowResult], gt: np.ndarray, frame_index: int,
     return write_png(path, side_by_side(images, gt, (dark, bright)))
 
 
-class _KeepFrames:
-    """A sink that keeps every frame's image in memory (a capture for a figure is short)."""
-
-    def __init__(self) -> None:
-        self.images: dict[int, np.ndarray] = {}
-
-    def write(self, frame: Frame) -> None:
-        self.images[frame.index] = frame.image
-
-
 def real_capture_comparison(path: Path, out_png: Path, model: Path | None = None, device: str = "auto",
                             frame: int | None = None) -> Path:
     """Side-by-side of a real capture: RMB-Net (shipped binned model, or ``model``) vs TFP vs TFI.
@@ -221,7 +210,7 @@ def real_capture_comparison(path: Path, out_png: Path, model: Path | None = None
     """
     from rmbvideo.io.capture import open_capture
     from rmbvideo.recon.methods import make_reconstructor
-    from rmbvideo.recon.pipeline import reconstruct_stream
+    from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
     from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
 
     reader = open_capture(Path(path), width=None, height=None, flip=None, header_cols=None, rate_hz=None)
@@ -233,7 +222,7 @@ def real_capture_comparison(path: Path, out_png: Path, model: Path | None = None
     }
     frames: dict[str, dict[int, np.ndarray]] = {}
     for name, (recon, readout) in runs.items():
-        sink = _KeepFrames()
+        sink = FrameCollector()
         reconstruct_stream(reader, recon, sink, readout=readout)
         frames[name] = sink.images
     common = sorted(set.intersection(*(set(images) for images in frames.values())))

@@ -20,11 +20,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rmbvideo.chunks import Frame, RmbChunk, SpikeChunk
+from rmbvideo.chunks import RmbChunk, SpikeChunk
 from rmbvideo.evaluate.heldout import FRAME_STEP, RAW_RATE_HZ, VIDEO_KINDS, Sequence
 from rmbvideo.evaluate.metrics import mu_law_psnr
 from rmbvideo.recon.methods import make_reconstructor
-from rmbvideo.recon.pipeline import reconstruct_stream
+from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
 from rmbvideo.scenes.render import bin_image
 from rmbvideo.scenes.video import VideoScene
 from rmbvideo.sensor.binning import StreamBinner
@@ -61,17 +61,9 @@ class BinnedChunks:
         return iter(self._chunks)
 
 
-class _Keep:
-    def __init__(self) -> None:
-        self.images: dict[int, np.ndarray] = {}
-
-    def write(self, frame: Frame) -> None:
-        self.images[frame.index] = frame.image
-
-
 def run_rmb(method: str, options: dict, source: Sequence | BinnedChunks) -> dict[int, np.ndarray]:
     """Frames (index -> image) of a method on the RMB stream of ``source`` (through the RMB readout)."""
-    sink = _Keep()
+    sink = FrameCollector()
     reconstruct_stream(source, make_reconstructor(method, **options), sink, readout=RmbReadout())
     return sink.images
 

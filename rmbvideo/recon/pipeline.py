@@ -8,9 +8,11 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from typing import Iterator, Protocol
 
+import numpy as np
 from tqdm import tqdm
 
 from rmbvideo.chunks import Frame, RmbChunk, SpikeChunk, clean_image
@@ -66,6 +68,24 @@ def finite_frame(frame: Frame) -> tuple[Frame, int]:
     if image is frame.image:
         return frame, 0
     return Frame(index=frame.index, time_s=frame.time_s, image=image), count
+
+
+class FrameCollector:
+    """A sink that keeps frames in memory by index (every frame, or only those in ``keep``), for
+    evaluation and figures; a capture of any length with ``keep`` stays bounded."""
+
+    def __init__(self, keep: Collection[int] | None = None) -> None:
+        self.frames: dict[int, Frame] = {}
+        self._keep = None if keep is None else set(keep)
+
+    def write(self, frame: Frame) -> None:
+        if self._keep is None or frame.index in self._keep:
+            self.frames[frame.index] = frame
+
+    @property
+    def images(self) -> dict[int, np.ndarray]:
+        """Index -> image of the kept frames."""
+        return {index: frame.image for index, frame in self.frames.items()}
 
 
 @dataclass
