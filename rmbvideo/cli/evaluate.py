@@ -88,6 +88,10 @@ def _notes(sequences: list, quick: bool, device: str, figure: tuple[str, int]) -
     ])
 
 
+#: the rows the fast/dark figures show: the RMB-input baselines, RMB-Net and the raw-capture methods
+FIGURE_COLUMNS = ("TFW-L", "GC20", "MG20", "RMB-Net", "TFP-41 (raw)", "TFI (raw)")
+
+
 @click.command()
 @click.option("--models", "models_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Folder with rmbnet-binned.safetensors and ablations/*.safetensors [shipped models].")
@@ -112,7 +116,10 @@ def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Pat
     """Score TFW-S/L, TFI, GC20, MG20, RMB-Net, its ablations and the classical methods on the raw
     capture (2x2-averaged) on the held-out synthetic set, and optionally on real-video streams."""
     from rmbvideo.errors import OutputError
+    import numpy as np
+
     from rmbvideo.evaluate.harness import (
+        SATURATION,
         evaluate_rows,
         middle_frame,
         table2_specs,
@@ -140,13 +147,15 @@ def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Pat
     figure_seq = sequences[0]
     figure_frame = figure_seq.scored_frames[len(figure_seq.scored_frames) // 2]
     md, table = write_tables(rows, out_dir, _notes(sequences, quick, resolved, (figure_seq.name, figure_frame)))
-    png = write_comparison_png(rows, figure_seq.gt[figure_frame], figure_frame, out_dir / "evaluation.png")
+    # figures show the ground truth as it is scored: clipped at the sensor's saturation
+    png = write_comparison_png(rows, np.minimum(figure_seq.gt[figure_frame], SATURATION), figure_frame,
+                               out_dir / "evaluation.png")
     written = [md, table, png]
     for seq in sequences:
         kind = json.loads(seq.description).get("kind")
         if kind in ("fast", "dark"):
-            written.append(write_sequence_png(rows, seq.name, seq.gt[middle_frame(seq)],
-                                              out_dir / f"evaluation-{kind}.png"))
+            written.append(write_sequence_png(rows, seq.name, np.minimum(seq.gt[middle_frame(seq)], SATURATION),
+                                              out_dir / f"evaluation-{kind}.png", FIGURE_COLUMNS))
     from rmbvideo.evaluate.video_checks import write_checks
 
     video = [seq for seq in sequences if json.loads(seq.description).get("kind")]

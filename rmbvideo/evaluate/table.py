@@ -255,10 +255,13 @@ if __name__ == "__main__":
     main()
 
 
-def write_sequence_png(rows: Seq[RowResult], name: str, gt: np.ndarray, path: Path) -> Path:
+def write_sequence_png(rows: Seq[RowResult], name: str, gt: np.ndarray, path: Path,
+                       columns: Seq[str] | None = None) -> Path:
     """The figure of sequence ``name``'s middle scored frame (``RowResult.middle_frames``): its ground
-    truth ``gt`` and every row that has the frame; regions picked from the GT."""
+    truth ``gt`` and the rows named in ``columns`` (default: every row with the frame); regions
+    picked from the GT."""
     dark, bright = pick_regions(gt)
     images = {"GT": gt}
-    images.update({row.name: row.middle_frames[name] for row in rows if name in row.middle_frames})
+    images.update({row.name: row.middle_frames[name] for row in rows
+                   if name in row.middle_frames and (columns is None or row.name in columns)})
     return write_png(path, side_by_side(images, gt, (dark, bright)))
