@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import os
 from pathlib import Path
 
 import cv2
@@ -212,6 +213,27 @@ def test_truncated_file_warns_and_keeps_whole_planes(tmp_path: Path, caplog: pyt
     assert (reader.n_planes, reader.trailing_bytes) == (5, 3)
     np.testing.assert_array_equal(reader.read(), planes)
     assert sum(len(c.single) for c in reader.binned_chunks(chunk_planes=2)) == 2
+
+
+def test_file_truncated_while_being_read_is_an_error_not_a_crash(tmp_path: Path) -> None:
+    """A capture cut short under a running reader (still being copied) gives an InputError naming it;
+    a memory map would have killed the process with SIGBUS."""
+    geometry = DatGeometry(400, 250)
+    path = tmp_path / "copying.dat"
+    write_dat(path, random_planes(5, (64, 250, 400)), geometry)
+    reader = DatReader(path, geometry)
+    chunks = reader.binned_chunks(chunk_planes=16)
+    next(chunks)
+    os.truncate(path, 20 * geometry.plane_bytes)
+    with pytest.raises(InputError, match=r"copying\.dat.*shrank while being read"):
+        list(chunks)
+
+
+def test_pipes_are_refused_rather_than_waited_on(tmp_path: Path) -> None:
+    fifo = tmp_path / "stream.dat"
+    os.mkfifo(fifo)
+    with pytest.raises(InputError, match=r"stream\.dat: not a regular file"):
+        DatReader(fifo)
 
 
 # --- real data ------------------------------------------------------------------------------

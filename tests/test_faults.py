@@ -1,7 +1,8 @@
 """Hostile input and faults end in one line and exit 2 (or the signal's code), never a traceback, and
 leave no output behind: sidecars with NaN/Infinity/zero rate, geometries too small for a method,
 absurd rates, .mbit headers that would divide by zero, models with NaN weights or the wrong input
-mode, SIGTERM in the middle of a run."""
+mode, SIGTERM in the middle of a run, absurd scenes, a full disk (injected with RLIMIT_FSIZE), a pipe
+as input, running out of memory (RLIMIT_AS), an interrupted batch, a Dask cluster with no worker."""
 
 from __future__ import annotations
 
@@ -123,3 +124,115 @@ def test_batch_workers_die_with_their_parent(tmp_path: Path) -> None:
     else:
         os.kill(child_pid, signal.SIGKILL)
         pytest.fail("the worker outlived its parent")
+
+
+# --- simulate: absurd scenes and a full disk -------------------------------------------------------
+
+@pytest.mark.parametrize("scene, needle", [
+    ("width = 16384\nheight = 16384", "'width' must be at most"),
+    ("width = 4096\nheight = 4096", "more than this simulator's limit"),
+    ("subsamples = 100000000", "'subsamples' must be at most 64"),
+    ("duration_s = 1e9", "'duration_s' must be at most"),
+    ("rate_hz = 1e-300", "'rate_hz' must be between"),
+    ("[background]\nzoom = 1e-300", "'background.zoom' must be between"),
+    ("[background]\nzoom_rate = 1e6", "'background.zoom_rate' takes the zoom outside"),
+    ("[background]\ncenter = [1e300, 0]", "'background.center' values must be at most"),
+    ("[[objects]]\ngrid = [100000, 100000]\ntexture = 'led'", "'objects[0].grid' values must be at most"),
+])
+def test_absurd_scenes_are_refused_up_front(tmp_path: Path, scene: str, needle: str) -> None:
+    (tmp_path / "absurd.toml").write_text(scene + "\n")
+    one_line_error(cli("simulate", tmp_path / "absurd.toml", "-o", tmp_path / "x.dat"), "absurd.toml", needle)
+    assert list(tmp_path.iterdir()) == [tmp_path / "absurd.toml"]
+
+
+def test_a_capture_longer_than_the_free_disk_is_refused_up_front(tmp_path: Path) -> None:
+    (tmp_path / "long.toml").write_text("duration_s = 3600\nrate_hz = 1e6\n")  # 45 TB
+    one_line_error(cli("simulate", tmp_path / "long.toml", "-o", tmp_path / "x.dat", "-q"), "x.dat", "GB free")
+    assert not (tmp_path / "x.dat").exists()
+
+
+def _file_size_limit(limit: int):
+    """A child process whose writes fail with EFBIG past ``limit`` bytes per file (a full disk, injected)."""
+    import resource
+
+    def apply() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+    return apply
+
+
+@pytest.mark.parametrize("limit", [10_000, 200_000])
+def test_simulate_on_a_full_disk_leaves_neither_capture_nor_ground_truth(tmp_path: Path, limit: int) -> None:
+    """The ground truth fails (10 kB) or the capture does (200 kB): nothing is left either way."""
+    proc = subprocess.run([sys.executable, "-m", "rmbvideo", "simulate", "demo", "-o", str(tmp_path / "x.dat"),
+                           "--duration", "0.01", "--gt", str(tmp_path / "gt"), "-q"], capture_output=True,
+                          text=True, preexec_fn=_file_size_limit(limit))
+    one_line_error(proc, "File too large")
+    assert list(tmp_path.iterdir()) == []
+
+
+# --- capture files: geometry, pipes, memory ------------------------------------------------------
+
+def test_geometry_errors_name_the_file(tmp_path: Path) -> None:
+    dat = capture(tmp_path / "cap.dat")
+    for command in (("info",), ("reconstruct", "-o", tmp_path / "out")):
+        one_line_error(cli(*command[:1], dat, *command[1:], "--width", "9", "--height", "7"),
+                       "cap.dat", "multiple of 8")
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_pipe_as_input_is_refused_not_waited_on(tmp_path: Path) -> None:
+    import os
+
+    os.mkfifo(tmp_path / "live.dat")
+    proc = subprocess.run([sys.executable, "-m", "rmbvideo", "reconstruct", str(tmp_path / "live.dat"), "-o",
+                           str(tmp_path / "out")], capture_output=True, text=True, timeout=60)
+    one_line_error(proc, "live.dat", "not a regular file")
+
+
+def test_running_out_of_memory_is_one_line(tmp_path: Path) -> None:
+    """A geometry the file can hold but memory cannot (one 16384x16384 plane under a 3 GB limit)."""
+    import resource
+
+    big = tmp_path / "big.dat"
+    big.write_bytes(bytes(16384 * 16384 // 8))
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))
+    proc = subprocess.run([sys.executable, "-m", "rmbvideo", "preview", str(big), "--width", "16384", "--height",
+                           "16384", "-o", str(tmp_path / "p.png")], capture_output=True, text=True, preexec_fn=limit)
+    one_line_error(proc, "preview: out of memory")
+    assert not (tmp_path / "p.png").exists()
+
+
+# --- batch: interrupted runs and a cluster without workers ----------------------------------------
+
+def test_interrupted_batch_reports_captures_finished_before_it_as_done(tmp_path: Path) -> None:
+    from rmbvideo.batch.jobs import CaptureJob
+    from rmbvideo.batch.pool import _fill_unfinished
+    from rmbvideo.batch.runner import run_capture_job
+
+    options = {"capture": {"width": 64, "height": 48}, "method": "tfp", "fmt": "png"}
+    jobs = [CaptureJob(capture(tmp_path / "in" / f"{n}.dat", seed=i), tmp_path / "out", n, options)
+            for i, n in enumerate("ab")]
+    assert run_capture_job(jobs[0]).status == "ok"  # finished in a worker; the parent never heard back
+    results = [None, None]
+    _fill_unfinished(jobs, results, "interrupted before it finished")
+    assert results[0].status == "ok" and results[0].frames > 0
+    assert results[1].status == "failed" and "interrupted" in results[1].error
+
+
+def test_dask_batch_without_a_live_worker_fails_within_the_timeout(tmp_path: Path, monkeypatch) -> None:
+    distributed = pytest.importorskip("distributed")
+    from rmbvideo.batch import pool
+    from rmbvideo.batch.jobs import CaptureJob
+
+    monkeypatch.setattr(pool, "DASK_POLL_S", 0.2)
+    monkeypatch.setattr(pool, "DASK_NO_WORKER_S", 2.0)
+    job = CaptureJob(capture(tmp_path / "a.dat"), tmp_path / "out", "a", {"capture": {"width": 64, "height": 48}})
+    results = {}
+    with distributed.LocalCluster(n_workers=0, processes=False, dashboard_address=None) as cluster:
+        began = time.monotonic()
+        pool._run_on_dask([job], cluster.scheduler_address, results.__setitem__)
+    assert time.monotonic() - began < 30
+    assert results[0].status == "failed" and "no live Dask worker" in results[0].error

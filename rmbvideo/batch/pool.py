@@ -6,6 +6,7 @@ import logging
 import os
 import signal
 import sys
+import time
 from collections import Counter, deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -24,11 +25,13 @@ from rmbvideo.batch.jobs import (
     SchedulerError,
 )
 from rmbvideo.batch.report import write_report
-from rmbvideo.batch.runner import make_dir, run_capture_job
+from rmbvideo.batch.runner import finished_result, make_dir, run_capture_job
 from rmbvideo.errors import OutputError
 from rmbvideo.threads import available_cores
 
 log = logging.getLogger(__name__)
+#: A Dask batch polls its tasks this often, and fails what is left after this long with no live worker.
+DASK_POLL_S, DASK_NO_WORKER_S = 2.0, 60.0
 
 def default_workers() -> int:
     """One worker process per core available to this process."""
@@ -121,10 +124,10 @@ def run_batch(jobs: Sequence[CaptureJob], batch_dir: Path, *, workers: int | Non
 
 
 def _fill_unfinished(jobs: Sequence[CaptureJob], results: list[CaptureResult | None], reason: str) -> None:
+    """Results for the jobs not heard back from: done if their output is complete on disk, else failed."""
     for i, job in enumerate(jobs):
         if results[i] is None:
-            results[i] = CaptureResult(str(job.input_path), str(job.output_dir), "failed",
-                                       error=f"{job.input_path}: {reason}")
+            results[i] = finished_result(job) or _failed(job, reason)
 
 
 def _run_in_processes(jobs: Sequence[CaptureJob], workers: int,
@@ -141,9 +144,7 @@ def _run_in_processes(jobs: Sequence[CaptureJob], workers: int,
     def worker_died(i: int) -> None:
         crashes[i] += 1
         if crashes[i] > 1:
-            record(i, CaptureResult(str(jobs[i].input_path), str(jobs[i].output_dir), "failed",
-                                    error=f"{jobs[i].input_path}: worker process died "
-                                          "(killed, out of memory or crashed)"))
+            record(i, _failed(jobs[i], "worker process died (killed, out of memory or crashed)"))
         else:
             log.warning("%s: a worker process died while this capture ran; retrying it alone",
                         jobs[i].input_path)
@@ -179,7 +180,8 @@ def _run_on_dask(jobs: Sequence[CaptureJob], address: str, record: Callable[[int
     Each task limits its math threads to its worker's share of that machine's cores.
     """
     try:
-        from distributed import Client, as_completed
+        from distributed import Client
+        from distributed import wait as dask_wait
     except ImportError:
         raise SchedulerError("--scheduler needs Dask: pip install 'rmbvideo[cluster]'") from None
     try:
@@ -188,19 +190,37 @@ def _run_on_dask(jobs: Sequence[CaptureJob], address: str, record: Callable[[int
         raise SchedulerError(f"{address}: cannot reach the Dask scheduler ({exc})") from None
     with client:
         shares = _dask_thread_shares(client)
-        futures = {client.submit(run_capture_job_on_dask, job, shares, pure=False): i
-                   for i, job in enumerate(jobs)}
+        pending = {client.submit(run_capture_job_on_dask, job, shares, pure=False): i for i, job in enumerate(jobs)}
+        alone_since: float | None = None
         try:
-            for future in as_completed(futures):
-                i = futures[future]
+            while pending:
                 try:
-                    record(i, future.result())
-                except Exception as exc:  # the worker died or the task was lost
-                    record(i, CaptureResult(str(jobs[i].input_path), str(jobs[i].output_dir), "failed",
-                                            error=f"{jobs[i].input_path}: Dask task failed: {exc}"))
+                    done, _ = dask_wait(list(pending), timeout=DASK_POLL_S, return_when="FIRST_COMPLETED")
+                except TimeoutError:
+                    done = set()
+                for future in done:
+                    i = pending.pop(future)
+                    try:
+                        record(i, future.result())
+                    except Exception as exc:  # the worker died or the task was lost
+                        record(i, _failed(jobs[i], f"Dask task failed: {exc}"))
+                if done or client.scheduler_info().get("workers"):
+                    alone_since = None
+                    continue
+                alone_since = alone_since or time.monotonic()
+                if time.monotonic() - alone_since > DASK_NO_WORKER_S:
+                    client.cancel(list(pending))
+                    for i in sorted(pending.values()):
+                        record(i, _failed(jobs[i], f"no live Dask worker at {address} for "
+                                                   f"{DASK_NO_WORKER_S:g} s"))
+                    pending.clear()
         except KeyboardInterrupt:
-            client.cancel(list(futures))
+            client.cancel(list(pending))
             raise
+
+
+def _failed(job: CaptureJob, reason: str) -> CaptureResult:
+    return CaptureResult(str(job.input_path), str(job.output_dir), "failed", error=f"{job.input_path}: {reason}")
 
 
 def _dask_thread_shares(client: Any) -> dict[str, int]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import glob
 import logging
 import os
@@ -20,6 +21,7 @@ from rmbvideo.batch.markers import (
 from rmbvideo.errors import OutputError, RmbvideoError
 
 log = logging.getLogger(__name__)
+_OUTPUT_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS}
 
 def run_capture_job(job: CaptureJob) -> CaptureResult:
     """Convert one capture, or skip it when its output is already complete; never raises for bad input.
@@ -54,8 +56,9 @@ def run_capture_job(job: CaptureJob) -> CaptureResult:
         result.status, result.frames = "ok", summary.frames
     except RmbvideoError as exc:
         result.error = str(exc)
-    except OSError as exc:
-        result.error = f"{exc.filename or job.input_path}: {exc.strerror or exc}"
+    except OSError as exc:  # a write failure (full disk, quota, read-only) is the output's, not the input's
+        blamed = exc.filename or (job.output_dir if exc.errno in _OUTPUT_ERRNOS else job.input_path)
+        result.error = f"{blamed}: {exc.strerror or exc}"
     except Exception as exc:  # a bug in one capture must not stop the batch; keep its traceback in the log
         log.exception("%s: unexpected error", job.input_path)
         result.error = f"{job.input_path}: unexpected error: {type(exc).__name__}: {exc}"
@@ -64,6 +67,26 @@ def run_capture_job(job: CaptureJob) -> CaptureResult:
     if result.status == "failed":
         log.warning("%s", result.error)
     return result
+
+
+def finished_result(job: CaptureJob) -> CaptureResult | None:
+    """An ``ok`` result if ``job``'s output is complete on disk (its marker matches), else None.
+
+    Used when a batch is interrupted: a capture that a worker finished before the parent heard of it
+    is reported as done, not as interrupted."""
+    from rmbvideo.io.capture import open_capture
+
+    try:
+        capture = dict(job.options.get("capture") or {})
+        reader = open_capture(job.input_path, **{k: capture.get(k) for k in
+                                                 ("width", "height", "flip", "header_cols", "rate_hz")})
+        marker = read_marker(job.output_dir, fingerprint_digest(output_fingerprint(job, reader)))
+    except (RmbvideoError, OSError, ValueError):
+        return None
+    if marker is None:
+        return None
+    return CaptureResult(input=str(job.input_path), output=str(job.output_dir), status="ok",
+                         frames=marker.get("frames"))
 
 
 def _remove_leftovers(job: CaptureJob) -> None:

@@ -89,6 +89,11 @@ class LazyGroup(click.Group):
         except KeyboardInterrupt:
             click.echo("rmbvideo: interrupted; partial output removed", err=True)
             ctx.exit(130)
+        except MemoryError:
+            command = ctx.invoked_subcommand or "rmbvideo"
+            click.echo(f"rmbvideo: error: {command}: out of memory for this geometry and these options (or the "
+                       "process's memory limit); partial output removed", err=True)
+            ctx.exit(2)
         finally:
             for sig, handler in previous.items():
                 signal.signal(sig, handler)

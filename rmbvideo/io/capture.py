@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from rmbvideo.errors import InputError
 from rmbvideo.io.dat import DatGeometry, DatReader
 from rmbvideo.io.rmbfile import RmbFileReader, mbit_path
 from rmbvideo.io.sidecar import read_sidecar
@@ -23,10 +24,13 @@ def open_capture(path: Path, width: int | None = None, height: int | None = None
 
     info = read_sidecar(Path(path)).override(width=width, height=height, flip=flip,
                                              header_cols=header_cols, rate_hz=rate_hz)
-    geometry = DatGeometry(
-        width=info.width if info.width is not None else DEFAULT_WIDTH,
-        height=info.height if info.height is not None else DEFAULT_HEIGHT,
-        header_cols=info.header_cols if info.header_cols is not None else 0,
-        flip=info.flip if info.flip is not None else True,
-    )
+    try:
+        geometry = DatGeometry(
+            width=info.width if info.width is not None else DEFAULT_WIDTH,
+            height=info.height if info.height is not None else DEFAULT_HEIGHT,
+            header_cols=info.header_cols if info.header_cols is not None else 0,
+            flip=info.flip if info.flip is not None else True,
+        )
+    except InputError as exc:
+        raise InputError(f"{path}: {exc}") from None
     return DatReader(Path(path), geometry, rate_hz=info.rate_hz or DEFAULT_RATE_HZ)

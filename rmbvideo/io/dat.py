@@ -3,16 +3,15 @@
 A stored plane of W x H pixels is W*H/8 bytes; pixel ``i`` (row-major) is bit ``i & 7`` of byte
 ``i >> 3``, least significant bit first. Stored rows are upside down (image = ``stored[::-1]``)
 unless ``flip=False``. Some cameras store 416-column rows whose last 16 columns are a header;
-``header_cols`` drops them (and the writer fills them with zeros). The reader memory-maps the
-file, so any range is decoded without reading the rest, and its chunk iterators hand the pages they
-have consumed back to the kernel, so resident memory stays flat however long the capture.
+``header_cols`` drops them (and the writer fills them with zeros). The reader reads any range by
+position (``rmbvideo.io.records``), so resident memory is one chunk however long the capture, and a
+file truncated while it is read gives an error, not a crash.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import mmap
 import os
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -23,11 +22,11 @@ import numpy as np
 
 from rmbvideo.chunks import RmbChunk, SpikeChunk
 from rmbvideo.errors import InputError, OutputError
+from rmbvideo.io.records import RecordFile, regular_file_size
 from rmbvideo.sensor.binning import bin_2x2x2, bin_packed, binned_rmb_chunk
 
 logger = logging.getLogger(__name__)
 
-_PAGE_BYTES = mmap.PAGESIZE
 MAX_SIDE = 16384  # larger than any spiking camera; rejects typos such as 4000x2500000
 DEFAULT_RATE_HZ = 20000.0
 #: Plane rates a capture may have: anything outside is a typo (and would make times absurd or infinite).
@@ -129,16 +128,7 @@ class DatReader:
             raise InputError(f"{self.path}: plane rate must be between {MIN_RATE_HZ:g} and {MAX_RATE_HZ:g} Hz, "
                              f"got {rate_hz}")
         self.rate_hz = float(rate_hz)
-        try:
-            if self.path.is_dir():
-                raise InputError(f"{self.path}: is a directory, not a .dat file")
-            size = self.path.stat().st_size
-            with open(self.path, "rb"):
-                pass
-        except FileNotFoundError:
-            raise InputError(f"{self.path}: no such file") from None
-        except OSError as exc:
-            raise InputError(f"{self.path}: cannot read: {exc.strerror or exc}") from None
+        size = regular_file_size(self.path)
         if size == 0:
             raise InputError(f"{self.path}: empty file")
         plane_bytes = geometry.plane_bytes
@@ -156,12 +146,7 @@ class DatReader:
                 self.path, self._trailing_bytes, self._n_planes, geometry.width, geometry.height,
                 _geometry_hint(size),
             )
-        try:
-            with open(self.path, "rb") as file:
-                self._map = mmap.mmap(file.fileno(), self._n_planes * plane_bytes, access=mmap.ACCESS_READ)
-        except (OSError, ValueError) as exc:
-            raise InputError(f"{self.path}: cannot memory-map: {getattr(exc, 'strerror', None) or exc}") from None
-        self._flat = np.frombuffer(self._map, dtype=np.uint8).reshape(self._n_planes, plane_bytes)
+        self._file = RecordFile(self.path, plane_bytes, self._n_planes)
 
     @property
     def n_planes(self) -> int:
@@ -201,25 +186,10 @@ class DatReader:
             raise InputError(f"{self.path}: planes {start}..{stop} are outside the capture's 0..{self._n_planes}")
         return start, stop
 
-    def release_pages(self, start: int, stop: int) -> None:
-        """Tell the kernel the mapped pages of planes ``start..stop`` are not needed any more.
-
-        Pages are released from the one holding plane ``start`` up to, not including, the one holding
-        plane ``stop``'s first byte, so consecutive calls over consecutive ranges release every page
-        once. Correctness never depends on it: a page read again is faulted back in from the file.
-        """
-        if not hasattr(mmap, "MADV_DONTNEED"):
-            return
-        plane_bytes = self.geometry.plane_bytes
-        begin = start * plane_bytes // _PAGE_BYTES * _PAGE_BYTES
-        end = stop * plane_bytes // _PAGE_BYTES * _PAGE_BYTES
-        if end > begin:
-            self._map.madvise(mmap.MADV_DONTNEED, begin, end - begin)
-
     def read(self, start: int = 0, stop: int | None = None) -> np.ndarray:
         """Planes ``start..stop-1`` as (T, H, image_width) uint8 0/1 in image orientation."""
         start, stop = self._range(start, stop)
-        return unpack_planes(self._flat[start:stop], self.geometry)
+        return unpack_planes(self._file.read(start, stop), self.geometry)
 
     def chunks(self, chunk_planes: int = 1024, start: int = 0, stop: int | None = None) -> Iterator[SpikeChunk]:
         """Consecutive ``SpikeChunk``s of at most ``chunk_planes`` planes covering ``start..stop``."""
@@ -229,21 +199,18 @@ class DatReader:
         for s in range(start, stop, chunk_planes):
             e = min(s + chunk_planes, stop)
             yield SpikeChunk(planes=self.read(s, e), start=s, rate_hz=self.rate_hz)
-            self.release_pages(s, e)
 
     def packed_chunks(self, chunk_planes: int = 1024, start: int = 0, stop: int | None = None) -> Iterator[PackedChunk]:
         """Consecutive ``PackedChunk``s of at most ``chunk_planes`` planes covering ``start..stop``.
 
-        ``data`` is a read-only view of the memory map (no copy, no decoding); it stays valid, but
-        the pages behind it are released once the next chunk is asked for.
+        ``data`` is the stored bytes, read-only and not decoded.
         """
         if chunk_planes < 1:
             raise ValueError(f"chunk_planes must be >= 1, got {chunk_planes}")
         start, stop = self._range(start, stop)
         for s in range(start, stop, chunk_planes):
             e = min(s + chunk_planes, stop)
-            yield PackedChunk(data=self._flat[s:e], start=s, rate_hz=self.rate_hz, geometry=self.geometry)
-            self.release_pages(s, e)
+            yield PackedChunk(data=self._file.read(s, e), start=s, rate_hz=self.rate_hz, geometry=self.geometry)
 
     def read_binned(self, start: int = 0, stop: int | None = None) -> RmbChunk:
         """2x2x2-binned readouts of raw planes ``start..stop`` as a pure-M ``RmbChunk``.
@@ -257,7 +224,7 @@ class DatReader:
         stop -= (stop - start) % 2
         g = self.geometry
         if g.byte_aligned:
-            packed = self._flat[start:stop].reshape(stop - start, g.height, g.width // 8)
+            packed = self._file.read(start, stop).reshape(stop - start, g.height, g.width // 8)
             single, multi = bin_packed(packed, g.image_width, g.flip)
         else:
             single, multi = bin_2x2x2(self.read(start, stop))
@@ -274,14 +241,13 @@ class DatReader:
         for s in range(start, stop, chunk_planes):
             e = min(s + chunk_planes, stop)
             yield self.read_binned(s, e)
-            self.release_pages(s, e)
 
     def mean_firing_rate(self, max_planes: int = 64) -> float:
         """Spikes per pixel per plane, estimated from up to ``max_planes`` evenly spaced planes."""
         if max_planes < 1:
             raise ValueError(f"max_planes must be >= 1, got {max_planes}")
         picks = np.unique(np.linspace(0, self._n_planes - 1, min(max_planes, self._n_planes)).round().astype(np.int64))
-        return float(unpack_planes(self._flat[picks], self.geometry).mean())
+        return float(unpack_planes(self._file.take(picks), self.geometry).mean())
 
 
 class DatWriter:

@@ -15,7 +15,8 @@ holds the multi-bit values:
   ``t`` the rows ``(t * shift + j) mod height`` for ``j = 0 .. band-1`` in that order
   (``rmbvideo.sensor.readout.RmbReadout.band_rows``).
 
-Both files are written atomically; the reader memory-maps both, so memory stays bounded.
+Both files are written atomically; the reader reads both by position, a chunk at a time, so memory
+stays bounded (``rmbvideo.io.records``).
 """
 
 from __future__ import annotations
@@ -33,9 +34,11 @@ from rmbvideo.chunks import RmbChunk
 from rmbvideo.errors import InputError
 from rmbvideo.io.atomic import commit, output_error, remove_quietly, temp_path_for
 from rmbvideo.io.dat import DatGeometry, DatReader, DatWriter
+from rmbvideo.io.records import RecordFile, regular_file_size
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
 
 MAGIC = b"RMBMBIT1"
+_MAX_HEADER_BYTES = 1 << 16  # a header is ~200 bytes; a larger length field is corruption
 VERSION = 1
 
 
@@ -134,17 +137,20 @@ class RmbFileReader:
     def __init__(self, path: Path) -> None:
         self.path = Path(path)
         self.mbit = mbit_path(self.path)
+        if not self.mbit.exists():
+            raise InputError(f"{self.mbit}: no such file (multi-bit sidecar of {self.path.name})")
+        size = regular_file_size(self.mbit)
         try:
-            raw = np.memmap(self.mbit, dtype=np.uint8, mode="r")
-        except FileNotFoundError:
-            raise InputError(f"{self.mbit}: no such file (multi-bit sidecar of {self.path.name})") from None
-        except (OSError, ValueError) as exc:
-            raise InputError(f"{self.mbit}: cannot read ({exc})") from None
-        if len(raw) < 12 or bytes(raw[:8]) != MAGIC:
-            raise InputError(f"{self.mbit}: not an rmbvideo multi-bit file (bad magic)")
-        (length,) = struct.unpack("<I", bytes(raw[8:12]))
+            with open(self.mbit, "rb") as file:
+                start = file.read(12)
+                if len(start) < 12 or start[:8] != MAGIC:
+                    raise InputError(f"{self.mbit}: not an rmbvideo multi-bit file (bad magic)")
+                (length,) = struct.unpack("<I", start[8:12])
+                header_bytes = file.read(min(length, _MAX_HEADER_BYTES))
+        except OSError as exc:
+            raise InputError(f"{self.mbit}: cannot read ({exc.strerror or exc})") from None
         try:
-            header = json.loads(bytes(raw[12:12 + length]).decode("utf-8"))
+            header = json.loads(header_bytes.decode("utf-8"))
             self.width, self.height = int(header["width"]), int(header["height"])
             self.level, self.bits = int(header["level"]), int(header["bits"])
             self.rate_hz, self.flip = float(header["rate_hz"]), bool(header["flip"])
@@ -160,14 +166,13 @@ class RmbFileReader:
         self.readout = RmbReadout(ReadoutMode.RMB, band, shift) if rows == "band" else None
         self.rows_per_readout = self.height if self.readout is None else min(band, self.height)
         self.record_bytes = (self.rows_per_readout * self.width * self.bits + 7) // 8
-        body = raw[12 + length:]
         self.dat = DatReader(self.path, DatGeometry(width=self.width, height=self.height, flip=self.flip),
                              rate_hz=self.rate_hz)
-        records = len(body) // self.record_bytes
+        records = max(size - 12 - length, 0) // self.record_bytes
         if records != self.dat.n_planes:
             raise InputError(f"{self.mbit}: {records} multi-bit readouts but {self.path.name} has "
                              f"{self.dat.n_planes} planes (truncated capture?)")
-        self._records = body[: records * self.record_bytes].reshape(records, self.record_bytes)
+        self._records = RecordFile(self.mbit, self.record_bytes, records, offset=12 + length)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -176,7 +181,7 @@ class RmbFileReader:
 
     @property
     def n_readouts(self) -> int:
-        return len(self._records)
+        return self._records.count
 
     # The pipeline's source interface: raw 1-bit planes via the .dat, the RMB stream natively.
     @property
@@ -222,7 +227,7 @@ class RmbFileReader:
             last = min(first + chunk_readouts, stop)
             single = self.dat.read(first, last)
             count = last - first
-            values = _unpack(np.asarray(self._records[first:last]), self.rows_per_readout * self.width,
+            values = _unpack(self._records.read(first, last), self.rows_per_readout * self.width,
                              self.bits).reshape(count, self.rows_per_readout, self.width)
             multi = np.zeros((count, self.height, self.width), dtype=np.uint8)
             if self.readout is None:

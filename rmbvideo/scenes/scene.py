@@ -33,11 +33,20 @@ from pathlib import Path
 from typing import Any
 
 from rmbvideo.errors import InputError
+from rmbvideo.io.dat import MAX_RATE_HZ, MIN_RATE_HZ
 from rmbvideo.sensor.effects import EFFECTS
 from rmbvideo.sensor.emission import READOUT_KINDS, ReadoutSpec
 from rmbvideo.sensor.params import SensorParams
 
 BUNDLED_PACKAGE = "rmbvideo.scenes"
+# Limits that keep a typo from hanging the simulator or exhausting memory; each is far beyond any real use.
+MAX_SIDE = 8192
+MAX_PIXELS = 2048 * 2048  # larger than any spiking camera (1000 x 1000 is the largest we know)
+MAX_DURATION_S = 3600.0
+MAX_SUBSAMPLES = 64
+MAX_ZOOM = 1000.0  # zoom(t) must stay within [1 / MAX_ZOOM, MAX_ZOOM] over the whole scene
+MAX_COORDINATE = 1e6  # px or px/s: positions, sizes, velocities, rectangles
+MAX_GRID = 256
 TEXTURES = ("checker", "uniform", "led")
 SHAPES = ("rect", "ellipse")
 
@@ -164,7 +173,7 @@ class _SceneParser:
         return InputError(f"{self.path}: '{key}' {problem}")
 
     def number(self, table: dict, key: str, prefix: str, default: float, *, minimum: float | None = None,
-               positive: bool = False) -> float:
+               positive: bool = False, maximum: float | None = None) -> float:
         value = table.get(key, default)
         name = f"{prefix}{key}"
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
@@ -173,20 +182,28 @@ class _SceneParser:
             raise self.fail(name, f"must be > 0, not {value!r}")
         if minimum is not None and value < minimum:
             raise self.fail(name, f"must be >= {minimum}, not {value!r}")
+        if maximum is not None and abs(value) > maximum:
+            raise self.fail(name, f"must be at most {maximum:g} in magnitude, not {value!r}")
         return float(value)
 
-    def integer(self, table: dict, key: str, prefix: str, default: int, minimum: int) -> int:
+    def integer(self, table: dict, key: str, prefix: str, default: int, minimum: int,
+                maximum: int | None = None) -> int:
         value = table.get(key, default)
         if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
             raise self.fail(f"{prefix}{key}", f"must be an integer >= {minimum}, not {value!r}")
+        if maximum is not None and value > maximum:
+            raise self.fail(f"{prefix}{key}", f"must be at most {maximum} (limit of this simulator), not {value!r}")
         return value
 
-    def vector(self, table: dict, key: str, prefix: str, default: tuple, length: int) -> tuple:
+    def vector(self, table: dict, key: str, prefix: str, default: tuple, length: int,
+               maximum: float = MAX_COORDINATE) -> tuple:
         value = table.get(key, default)
         if (not isinstance(value, (list, tuple)) or len(value) != length
                 or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
                        for v in value)):
             raise self.fail(f"{prefix}{key}", f"must be a list of {length} numbers, not {value!r}")
+        if any(abs(v) > maximum for v in value):
+            raise self.fail(f"{prefix}{key}", f"values must be at most {maximum:g} in magnitude, not {value!r}")
         return tuple(float(v) for v in value)
 
     def table(self, data: dict, key: str) -> dict:
@@ -220,30 +237,51 @@ class _SceneParser:
             if effect not in EFFECTS:
                 raise self.fail("effects", f"names unknown effect {effect!r} (known: {', '.join(EFFECTS)})")
         readout = self.readout(self.table(data, "readout"))
-        width = self.integer(data, "width", "", 400, 8)
-        height = self.integer(data, "height", "", 250, 2)
+        width = self.integer(data, "width", "", 400, 8, MAX_SIDE)
+        height = self.integer(data, "height", "", 250, 2, MAX_SIDE)
+        if width * height > MAX_PIXELS:
+            raise self.fail("width", f"x 'height' = {width * height} pixels is more than this simulator's limit "
+                                     f"of {MAX_PIXELS} (larger than any spiking camera)")
         if readout.kind == "binned" and (width % 2 or height % 2):
             raise self.fail("width", "and 'height' must be even for the binned readout")
         sensor, correlation = self.sensor(self.table(data, "sensor"), readout)
+        duration = self.number(data, "duration_s", "", 0.1, positive=True, maximum=MAX_DURATION_S)
+        background = self.background(self.table(data, "background"))
+        end_zoom = math.log(background.zoom) + background.zoom_rate * duration
+        if abs(end_zoom) > math.log(MAX_ZOOM):
+            raise self.fail("background.zoom_rate", f"takes the zoom outside [{1 / MAX_ZOOM:g}, {MAX_ZOOM:g}] "
+                                                    f"within duration_s = {duration:g}")
         return Scene(
             name=self.path.stem,
             description=description,
             width=width,
             height=height,
-            rate_hz=self.number(data, "rate_hz", "", 20000.0, positive=True),
-            duration_s=self.number(data, "duration_s", "", 0.1, positive=True),
+            rate_hz=self.rate(data),
+            duration_s=duration,
             exposure=self.number(data, "exposure", "", 15.0, minimum=0.0),
             seed=self.integer(data, "seed", "", 0, 0),
             effects=tuple(dict.fromkeys(effects)),
-            subsamples=self.integer(data, "subsamples", "", 1, 1),
+            subsamples=self.integer(data, "subsamples", "", 1, 1, MAX_SUBSAMPLES),
             readout=readout,
             sensor=sensor,
             dark_correlation_px=correlation,
-            background=self.background(self.table(data, "background")),
+            background=background,
             objects=tuple(self.scene_object(t, i) for i, t in enumerate(self.tables(data, "objects"))),
             dark_regions=tuple(self.dark_region(t, i) for i, t in enumerate(self.tables(data, "dark_regions"))),
             source=self.path,
         )
+
+    def rate(self, data: dict) -> float:
+        rate = self.number(data, "rate_hz", "", 20000.0, positive=True)
+        if not MIN_RATE_HZ <= rate <= MAX_RATE_HZ:
+            raise self.fail("rate_hz", f"must be between {MIN_RATE_HZ:g} and {MAX_RATE_HZ:g} Hz, not {rate!r}")
+        return rate
+
+    def zoom(self, table: dict) -> float:
+        zoom = self.number(table, "zoom", "background.", 1.0, positive=True)
+        if not 1 / MAX_ZOOM <= zoom <= MAX_ZOOM:
+            raise self.fail("background.zoom", f"must be between {1 / MAX_ZOOM:g} and {MAX_ZOOM:g}, not {zoom!r}")
+        return zoom
 
     def readout(self, table: dict) -> ReadoutSpec:
         self.check_keys(table, {"type", "level", "band", "shift"}, "readout.")
@@ -279,7 +317,7 @@ class _SceneParser:
             gain=self.number(table, "gain", "background.", 1.0, minimum=0.0),
             center=self.vector(table, "center", "background.", (512.0, 256.0), 2),
             velocity=self.vector(table, "velocity", "background.", (0.0, 0.0), 2),
-            zoom=self.number(table, "zoom", "background.", 1.0, positive=True),
+            zoom=self.zoom(table),
             zoom_rate=self.number(table, "zoom_rate", "background.", 0.0),
         )
 
@@ -298,7 +336,7 @@ class _SceneParser:
         crop = self.vector(table, "crop", prefix, (0, 0, 1, 1), 4) if "crop" in table else None
         if crop is not None and (crop[2] <= 0 or crop[3] <= 0):
             raise self.fail(prefix + "crop", "width and height must be positive")
-        grid = self.vector(table, "grid", prefix, (4, 3), 2)
+        grid = self.vector(table, "grid", prefix, (4, 3), 2, maximum=MAX_GRID)
         if min(grid) < 1 or any(g != int(g) for g in grid):
             raise self.fail(prefix + "grid", "must be two positive integers")
         return SceneObject(

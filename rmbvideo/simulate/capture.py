@@ -6,6 +6,7 @@ pixel responds): ``CaptureSimulator`` for TOML scenes, ``capture_planes`` for vi
 from __future__ import annotations
 
 import logging
+from contextlib import ExitStack
 
 from collections.abc import Iterator
 from pathlib import Path
@@ -13,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from rmbvideo.chunks import RmbChunk, SpikeChunk
+from rmbvideo.errors import OptionError, OutputError
 from rmbvideo.io.dat import DatGeometry, DatWriter
 from rmbvideo.io.rmbfile import RmbFileWriter
 from rmbvideo.scenes.render import SceneRenderer
@@ -23,6 +25,9 @@ from rmbvideo.sensor.emission import RateIntegrateFire, SpikeEmitter
 from rmbvideo.sensor.params import SensorParams
 
 log = logging.getLogger(__name__)
+#: Pixel-readouts simulated per chunk at most (the simulator holds a few float arrays of this size):
+#: ``--chunk`` is lowered for large sensors so memory stays ~1 GB whatever the geometry.
+CHUNK_PIXEL_READOUTS = 1 << 24
 
 
 class CaptureSimulator:
@@ -116,6 +121,35 @@ def open_writer(output: Path, scene: Scene) -> DatWriter | RmbFileWriter:
     return DatWriter(output, DatGeometry(width=scene.width, height=scene.height, flip=True))
 
 
+def capture_bytes(scene: Scene, readouts: int) -> int:
+    """Bytes of the capture files ``simulate`` writes for ``readouts`` raw readouts of ``scene``."""
+    pixels = scene.width * scene.height
+    plane = (pixels + 7) // 8
+    bits = scene.readout.level.bit_length()
+    multi = 0
+    if scene.readout.kind == "Lbit":
+        multi = (pixels * bits + 7) // 8
+    elif scene.readout.kind == "rmb":
+        multi = (min(scene.readout.band, scene.height) * scene.width * bits + 7) // 8
+    return readouts * (plane + multi)
+
+
+def check_free_space(output: Path, needed: int) -> None:
+    """``OutputError`` up front when the output's file system cannot hold ``needed`` bytes."""
+    import shutil
+
+    folder = output.resolve().parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    try:
+        free = shutil.disk_usage(folder).free
+    except OSError:
+        return
+    if needed > free:
+        raise OutputError(f"{output}: the capture needs {needed / 1e9:.3g} GB but {folder} has {free / 1e9:.3g} GB "
+                          "free; shorten it with --duration")
+
+
 def simulate_capture(scene: Scene, output: Path, *, duration_s: float | None = None, gt_dir: Path | None = None,
                      gt_step: int = 20, chunk_readouts: int = 64, progress: bool = False) -> CaptureSimulator:
     """Simulate ``scene`` into ``output`` (``.dat``, ``.mbit`` for multi-bit readouts, and the
@@ -123,7 +157,7 @@ def simulate_capture(scene: Scene, output: Path, *, duration_s: float | None = N
     (``rmbvideo.simulate.ground_truth``). Returns the simulator (its renderer gives exact frames)."""
     from tqdm import tqdm
 
-    from rmbvideo.errors import OptionError
+    from rmbvideo.io.atomic import staged_folder
     from rmbvideo.io.sidecar import CaptureInfo, write_sidecar
     from rmbvideo.simulate.ground_truth import write_ground_truth
 
@@ -134,20 +168,32 @@ def simulate_capture(scene: Scene, output: Path, *, duration_s: float | None = N
              ", ".join(scene.effects) or "none (deterministic)")
     if simulator.total_readouts == 0:
         raise OptionError(f"--duration {duration_s} s is shorter than one readout")
-    bar = tqdm(total=simulator.total_readouts, unit="readout", disable=not progress)
-    with bar, open_writer(Path(output), scene) as writer:
-        for chunk in simulator.chunks(chunk_readouts):
-            writer.write(chunk.planes if not readout.is_multibit else chunk)
-            bar.update(len(chunk.planes) if not readout.is_multibit else len(chunk.single))
-    extra = {"readout": readout.kind, "scene": scene.name}
-    if readout.is_multibit:
-        extra.update(level=readout.level)
-    if readout.kind == "rmb":
-        extra.update(band=readout.band, shift=readout.shift)
-    write_sidecar(Path(output), CaptureInfo(width=scene.width, height=scene.height, rate_hz=scene.rate_hz,
-                                            flip=True, header_cols=0), **extra)
+    check_free_space(Path(output), capture_bytes(scene, simulator.total_readouts))
+    chunk_readouts = max(1, min(chunk_readouts, CHUNK_PIXEL_READOUTS // (scene.width * scene.height)))
+    with ExitStack() as stack:
+        # Ground truth first, into a staging folder committed last: a failure anywhere leaves neither a
+        # capture without its ground truth nor a half-written ground-truth folder.
+        gt_staging = None
+        if gt_dir is not None:
+            gt_dir = Path(gt_dir)
+            gt_staging = stack.enter_context(staged_folder(gt_dir, overwrite=(gt_dir / "index.csv").is_file()))
+            try:
+                frames = write_ground_truth(simulator, gt_staging, gt_step)
+            except OutputError as exc:  # name the folder the user gave, not the staging folder
+                raise OutputError(str(exc).replace(str(gt_staging), str(gt_dir))) from None
+        bar = stack.enter_context(tqdm(total=simulator.total_readouts, unit="readout", disable=not progress))
+        with open_writer(Path(output), scene) as writer:
+            for chunk in simulator.chunks(chunk_readouts):
+                writer.write(chunk.planes if not readout.is_multibit else chunk)
+                bar.update(len(chunk.planes) if not readout.is_multibit else len(chunk.single))
+        extra = {"readout": readout.kind, "scene": scene.name}
+        if readout.is_multibit:
+            extra.update(level=readout.level)
+        if readout.kind == "rmb":
+            extra.update(band=readout.band, shift=readout.shift)
+        write_sidecar(Path(output), CaptureInfo(width=scene.width, height=scene.height, rate_hz=scene.rate_hz,
+                                                flip=True, header_cols=0), **extra)
     log.info("wrote %s (%d readouts)", output, simulator.total_readouts)
     if gt_dir is not None:
-        frames = write_ground_truth(simulator, Path(gt_dir), gt_step)
         log.info("wrote %d ground-truth frames to %s", frames, gt_dir)
     return simulator
