@@ -16,3 +16,14 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip("../shared/data is not present (development data only)")
     return SHARED_DATA
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption("--soak", type=int, default=0, metavar="N",
+                     help="also run N random signal injections per fault-matrix cell (long; off in CI)")
+
+
+@pytest.fixture
+def soak(request: pytest.FixtureRequest) -> int:
+    """Extra random trials asked for with ``--soak N`` (0 by default)."""
+    return request.config.getoption("--soak")

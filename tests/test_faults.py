@@ -236,3 +236,14 @@ def test_dask_batch_without_a_live_worker_fails_within_the_timeout(tmp_path: Pat
         pool._run_on_dask([job], cluster.scheduler_address, results.__setitem__)
     assert time.monotonic() - began < 30
     assert results[0].status == "failed" and "no live Dask worker" in results[0].error
+
+
+@pytest.mark.parametrize("fmt", ["mp4", "exr"])
+def test_reconstruct_on_a_full_disk_is_one_line_and_leaves_nothing(tmp_path: Path, fmt: str) -> None:
+    dat = capture(tmp_path / "in" / "cap.dat", planes=4000)
+    proc = subprocess.run([sys.executable, "-m", "rmbvideo", "reconstruct", str(dat), "-o", str(tmp_path / "out"),
+                           *GEOM, "--method", "tfp", "--format", fmt, "-q"], capture_output=True, text=True,
+                          preexec_fn=_file_size_limit(20_000 if fmt == "mp4" else 1_000))
+    one_line_error(proc, str(tmp_path / "out"))
+    assert ".partial-" not in proc.stderr and "ffmpeg version" not in proc.stderr
+    assert list(tmp_path.iterdir()) == [tmp_path / "in"]

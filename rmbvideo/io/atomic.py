@@ -162,4 +162,6 @@ def staged_folder(final: Path, overwrite: bool = False) -> Iterator[Path]:
         shutil.rmtree(staging, ignore_errors=True)
         if isinstance(exc, OSError) and is_environment_error(exc):
             raise output_error(final, exc) from exc
+        if isinstance(exc, OutputError) and str(staging) in str(exc):  # name the folder the user gave
+            raise OutputError(str(exc).replace(str(staging), str(final))) from exc
         raise

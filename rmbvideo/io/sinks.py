@@ -366,7 +366,7 @@ class Mp4Sink(FrameSink):
             )
             self._encoder.send(None)
         except (RuntimeError, OSError) as exc:
-            raise OutputError(f"{self.path}: cannot start ffmpeg: {exc}") from exc
+            raise OutputError(f"{self.path}: cannot start ffmpeg: {ffmpeg_reason(exc)}") from exc
 
     def _commit(self) -> None:
         import imageio_ffmpeg
@@ -380,7 +380,8 @@ class Mp4Sink(FrameSink):
         try:
             encoded, _ = imageio_ffmpeg.count_frames_and_secs(str(self._temp))
         except (RuntimeError, OSError) as exc:
-            raise OutputError(f"{self.path}: ffmpeg did not produce a readable video ({exc})") from exc
+            raise OutputError(f"{self.path}: ffmpeg did not produce a readable video ({ffmpeg_reason(exc)}; "
+                              "disk full or a write error?)") from exc
         if encoded != self.frames_written:
             raise OutputError(f"{self.path}: ffmpeg wrote {encoded} of {self.frames_written} frames")
         commit(self._temp, self.path)
@@ -471,6 +472,12 @@ def make_sink(fmt: SinkFormat, outdir: Path, *, tonemap: ToneMapConfig | None = 
             raise output_error(outdir, exc) from exc
         raise
     return SINKS[fmt](outdir, settings)
+
+
+def ffmpeg_reason(exc: BaseException) -> str:
+    """The last line of an ffmpeg failure: its reason without the version banner."""
+    lines = [line.strip(" )") for line in str(exc).splitlines() if line.strip(" )")]
+    return lines[-1] if lines else type(exc).__name__
 
 
 def write_frames(frames: Iterable[Frame], outdir: Path, fmt: SinkFormat = "mp4", **options: Any) -> int:
