@@ -79,6 +79,18 @@ def test_models_with_nan_weights_or_the_wrong_input_mode_are_refused(tmp_path: P
     assert not (tmp_path / "out").exists()
 
 
+def test_a_card_that_contradicts_its_weights_is_refused(tmp_path: Path) -> None:
+    """w changes no tensor shape, so only the architecture stored inside the weights can catch a card
+    edited to say w = 1 for w = 3 weights."""
+    path = save_model(tmp_path / "m.safetensors", RmbNet(RmbNetConfig(w=3, width=0.25)), ModelCard(name="m"))
+    load_model(path)
+    card = json.loads(path.with_suffix(".json").read_text())
+    card["architecture"]["w"] = 1
+    path.with_suffix(".json").write_text(json.dumps(card))
+    with pytest.raises(ModelError, match=r"contradicts the weights' own \(w\)"):
+        load_model(path)
+
+
 def test_sigterm_mid_run_leaves_no_output(tmp_path: Path) -> None:
     dat = capture(tmp_path / "cap.dat", planes=40000)
     out = tmp_path / "out"

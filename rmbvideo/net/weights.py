@@ -95,7 +95,7 @@ def save_model(path: str | os.PathLike[str], model: RmbNet, card: ModelCard) -> 
         **asdict(card),
     }
     with atomic_path(weights) as temp:
-        save_file(tensors, str(temp), metadata={"format": CARD_FORMAT})
+        save_file(tensors, str(temp), metadata={"format": CARD_FORMAT, "architecture": _architecture_text(model.config)})
     atomic_write_text(card_path, json.dumps(document, indent=2) + "\n")
     return weights
 
@@ -124,6 +124,11 @@ def _read_card(card_path: Path) -> tuple[RmbNetConfig, ModelCard]:
     except (TypeError, ValueError) as exc:
         raise ModelError(f"{card_path}: invalid architecture: {exc}") from None
     return config, card
+
+
+def _architecture_text(config: RmbNetConfig) -> str:
+    """The architecture as stored inside the weights, so a card that contradicts them is caught."""
+    return json.dumps(config.to_dict(), sort_keys=True)
 
 
 def _check_safetensors_header(weights: Path) -> None:
@@ -169,8 +174,17 @@ def load_model(
     try:
         with safe_open(str(weights), framework="pt", device="cpu") as fh:
             tensors = {key: fh.get_tensor(key) for key in fh.keys()}
+            stored = (fh.metadata() or {}).get("architecture")
     except Exception as exc:  # safetensors raises its own error types for corrupt payloads
         raise ModelError(f"{weights}: refused: corrupt safetensors file ({exc})") from None
+    if stored is not None and stored != _architecture_text(config):
+        try:
+            saved = json.loads(stored)
+            differs = sorted(k for k in set(saved) | set(config.to_dict()) if saved.get(k) != config.to_dict().get(k))
+        except (ValueError, AttributeError):
+            differs = ["(unreadable)"]
+        raise ModelError(f"{weights}: refused: the card's architecture contradicts the weights' own "
+                         f"({', '.join(f'{k}' for k in differs[:4])})")
     bad = sorted(key for key, tensor in tensors.items() if tensor.is_floating_point() and not bool(tensor.isfinite().all()))
     if bad:
         raise ModelError(f"{weights}: refused: NaN or Inf in {len(bad)} tensors (first: {bad[0]})")
