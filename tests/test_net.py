@@ -149,5 +149,25 @@ def test_pooled_windows_config_and_head_inputs():
     i_m = torch.full((1, 3, 16, 16), 28.0)
     with torch.inference_mode():
         frames = model.encode(i_s[0], i_m[0], range(3))
-        inputs = model._head_inputs(frames, [True, True, True])
+        inputs = model._head_inputs(frames, [True, True, True], 0.0)
     torch.testing.assert_close(inputs[:, 2:], inputs[:, :2])
+
+
+def test_convention_input_is_one_head_plane_that_changes_the_output():
+    assert "convention_input" not in RmbNetConfig().to_dict()  # older cards stay as they were written
+    cfg = RmbNetConfig(w=1, width=0.25, convention_input=True)
+    assert RmbNetConfig.from_dict(cfg.to_dict()) == cfg
+    torch.manual_seed(0)
+    model = RmbNet(cfg).eval()
+    assert model.decoder.head[0][0].in_channels == cfg.channels[0] + 3
+    i_s, i_m = torch.rand(2, 3, 16, 16) * 10, torch.rand(2, 3, 16, 16) * 70
+    with torch.inference_mode():
+        frames = model.encode(i_s.transpose(0, 1).flatten(0, 1), i_m.transpose(0, 1).flatten(0, 1), range(3))
+        planes = model._head_inputs(frames, [True] * 3, torch.tensor([0.0, 1.0]))[:, -1]
+        assert torch.equal(planes[0], torch.zeros_like(planes[0])) and torch.equal(planes[1], torch.ones_like(planes[1]))
+        camera, _ = model.forward_sequence(i_s, i_m, convention=0.0)
+        simulated, _ = model.forward_sequence(i_s, i_m, convention=1.0)
+        mixed, _ = model.forward_sequence(i_s, i_m, convention=torch.tensor([0.0, 1.0]))
+    assert not torch.allclose(camera, simulated)
+    torch.testing.assert_close(mixed[0], camera[0])
+    torch.testing.assert_close(mixed[1], simulated[1])

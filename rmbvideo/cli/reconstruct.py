@@ -13,6 +13,7 @@ from rmbvideo.io.sinks import SINK_FORMATS
 from rmbvideo.io.tonemap import TONE_METHODS
 from rmbvideo.recon.methods import DEFAULT_METHOD, METHODS
 from rmbvideo.recon.run import run_reconstruction
+from rmbvideo.sensor.conventions import CONVENTIONS
 from rmbvideo.sensor.readout import ReadoutMode
 
 log = logging.getLogger(__name__)
@@ -36,6 +37,9 @@ def rmbnet_options(func):
         click.option("--threads", type=click.IntRange(min=1), default=None,
                      help="CPU threads for the network [default: the thread policy: 1 on a busy or 2-core machine, "
                   "else the idle cores, at most 8]."),
+        click.option("--convention", type=click.Choice(list(CONVENTIONS)), default="physical", show_default=True,
+                     help="What made the spikes: physical (a camera: pixels reset at a spike) or spikezoo (streams "
+                          "simulated in the accumulate-and-subtract rate convention, e.g. spikezoo's REDS)."),
     ]
     for option in reversed(options):
         func = option(func)
@@ -72,6 +76,9 @@ def rmbnet_options(func):
               help="EXR pixel type; half clips values above 65504.")
 @click.option("--readout", type=click.Choice([m.value for m in ReadoutMode]), default="rmb",
               show_default=True, help="Readout design applied to the binned stream (rmbnet, tfw, gc20, mg20).")
+@click.option("--resolution", type=click.Choice(["binned", "full"]), default="binned", show_default=True,
+              help="Output size of methods on the binned stream from a real 1-bit capture: binned (half the camera's), "
+                   "or full (the camera's, with the raw stream's detail added where its spike counts resolve it).")
 @capture_options
 @click.option("--start", "start_s", type=click.FloatRange(min=0), default=0.0, show_default=True,
               help="Start time in seconds from the beginning of the capture.")
@@ -85,18 +92,20 @@ def rmbnet_options(func):
 @quiet_option
 @verbose_option
 def reconstruct(input_path: Path, outdir: Path, method: str, window, step, fmt: str, fps: float,
-                pixel_format: str, tonemap: str, exr_dtype: str, readout: str, width, height, flip, header_cols, rate_hz,
+                pixel_format: str, tonemap: str, exr_dtype: str, readout: str, resolution: str, width, height, flip,
+                header_cols, rate_hz,
                 start_s: float, duration_s, chunk_planes: int, model, align: str, device: str,
-                upsampling: str, precision: str, threads, overwrite: bool, nits_per_unit, quiet: bool) -> None:
+                upsampling: str, precision: str, threads, convention: str, overwrite: bool, nits_per_unit,
+                quiet: bool) -> None:
     """Reconstruct a .dat capture INPUT into frames in OUTDIR."""
     extra = dict(model=model, align=align, device=device, upsampling=upsampling, precision=precision,
-                 threads=threads)
+                 threads=threads, convention=convention)
     summary = run_reconstruction(
         input_path, outdir, method=method, window=window, step=step, fmt=fmt, fps=fps,
         pixel_format=pixel_format, tonemap=tonemap, exr_dtype=exr_dtype, readout=readout, start_s=start_s,
         duration_s=duration_s, chunk_planes=chunk_planes, progress=progress_enabled(quiet),
         capture=dict(width=width, height=height, flip=flip, header_cols=header_cols, rate_hz=rate_hz),
-        extra_options=extra, overwrite=overwrite, nits_per_unit=nits_per_unit,
+        extra_options=extra, overwrite=overwrite, nits_per_unit=nits_per_unit, resolution=resolution,
     )
     if not quiet:
         click.echo(f"{summary.frames} frames from {summary.planes} planes in {summary.seconds:.2f} s "

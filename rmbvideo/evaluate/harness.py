@@ -20,6 +20,7 @@ simulation or the unpacking of the cached arrays), over every frame the method e
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 from collections.abc import Iterable, Iterator
@@ -108,12 +109,23 @@ class SinglePlaneSource:
             yield SpikeChunk(planes=self.readout.apply(chunk).single, start=chunk.start, rate_hz=chunk.rate_hz)
 
 
+def sequence_convention(seq: Sequence) -> str:
+    """The sensor convention that made ``seq`` (its description says; panorama pans are physical)."""
+    try:
+        return str(json.loads(seq.description or "{}").get("convention", "physical"))
+    except ValueError:
+        return "physical"
+
+
 def run_frames(spec: MethodSpec, seq: Sequence) -> tuple[list[Frame], float, float | None]:
     """All frames of ``spec`` on ``seq`` (at GT size, finite), wall-clock seconds, network seconds.
 
     One streaming run (``reconstruct_stream``); its time leaves out reading the cached arrays
     (the "read" stage), so rows differ only by what their method does."""
-    recon = make_reconstructor(spec.method, **spec.options)
+    options = dict(spec.options)
+    if spec.method == "rmbnet":
+        options.setdefault("convention", sequence_convention(seq))
+    recon = make_reconstructor(spec.method, **options)
     readout = RmbReadout(mode=spec.readout)
     sink = FrameCollector()
     if spec.raw or recon.input_kind == "rmb":

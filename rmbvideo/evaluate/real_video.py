@@ -40,6 +40,8 @@ log = logging.getLogger(__name__)
 RAW_STEP = 20  # raw planes per output frame (N = 10 binned readouts)
 TFP_WINDOWS = (20, 41, 80, 140)
 BEST_RAW = "best classical on the raw capture"
+#: The spikezoo format's streams are simulated in its rate convention (``rmbvideo.sensor.conventions``).
+CONVENTION = "spikezoo"
 _KEY = re.compile(r"key_id(\d+)")
 
 
@@ -170,7 +172,7 @@ def real_video_rows(model: Path | None = None, device: str = "cpu", threads: int
         RealRow("GC20", "gc20", {}),
         RealRow("MG20", "mg20", {}),
         RealRow("RMB-Net", "rmbnet", {"model": model, "device": device, "input_mode": "binned",
-                                       "threads": threads}),
+                                       "threads": threads, "convention": CONVENTION}),
         *(RealRow(f"TFP-{window} (raw, 2x2-avg)", "tfp", {"window": window, "step": RAW_STEP}, raw=True)
           for window in TFP_WINDOWS),
         RealRow("TFI (raw, 2x2-avg)", "tfi", {"step": RAW_STEP}, raw=True),

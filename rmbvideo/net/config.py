@@ -10,6 +10,8 @@ from dataclasses import asdict, dataclass, fields
 from typing import Any
 
 INPUT_MODES = ("binned", "native")
+#: Readout designs a model can be trained on (``rmbvideo.sensor.readout.ReadoutMode`` values).
+READOUTS = ("rmb", "pure-s", "pure-m", "full-m")
 
 
 @dataclass(frozen=True)
@@ -20,6 +22,11 @@ class RmbNetConfig:
     the graph is the same, the weights are not interchangeable. ``input_mu``: mu of the mu-law
     that compresses the normalised inputs I_s/N and I_m/(level*N) before the encoders (HDR range).
     ``pooled_windows``: odd window lengths (3..2w+1) whose mean input rates the head also sees.
+    ``readout``: the readout design of the training data (binned input: the design reconstruct applies
+    to the binned stream for this model, unless told otherwise).
+    ``convention_input``: the head also sees which sensor convention made the stream (a constant
+    plane: 0 a real camera's reset-to-zero pixel, 1 the accumulate-and-subtract rate convention of
+    simulators such as spikezoo's), because the same spikes mean different intensities under the two.
     ``output_mu``/``output_max``: the decoder predicts the mu-law domain T(G) (the training loss
     domain, mu = 5000) through a softplus, capped at ``output_max`` so the inverse cannot overflow.
     """
@@ -40,6 +47,8 @@ class RmbNetConfig:
     output_mu: float = 5000.0
     output_max: float = 2.0
     pooled_windows: tuple[int, ...] = ()
+    convention_input: bool = False
+    readout: str = "rmb"
 
     def __post_init__(self) -> None:
         if not 0 <= self.w <= 3:
@@ -50,6 +59,8 @@ class RmbNetConfig:
             raise ValueError("n and level must be >= 1")
         if self.input_mode not in INPUT_MODES:
             raise ValueError(f"input_mode must be one of {INPUT_MODES}, got {self.input_mode!r}")
+        if self.readout not in READOUTS:
+            raise ValueError(f"readout must be one of {READOUTS}, got {self.readout!r}")
         if len(self.base_channels) != 3:
             raise ValueError("base_channels must name three encoder blocks")
         object.__setattr__(self, "base_channels", tuple(int(c) for c in self.base_channels))
@@ -69,12 +80,17 @@ class RmbNetConfig:
         return tuple(max(1, round(c * self.width)) for c in self.base_channels)  # type: ignore[return-value]
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dictionary (tuples become lists; no ``pooled_windows`` key when there are none)."""
+        """JSON-ready dictionary (tuples become lists; no ``pooled_windows`` key when there are none, no
+        ``convention_input`` key when it is off, no ``readout`` key for the RMB design)."""
         out = asdict(self)
         out["base_channels"] = list(self.base_channels)
         out["pooled_windows"] = list(self.pooled_windows)
         if not self.pooled_windows:  # cards written before pooled inputs existed stay as they are
             del out["pooled_windows"]
+        if not self.convention_input:  # likewise for the convention input and the readout
+            del out["convention_input"]
+        if self.readout == "rmb":
+            del out["readout"]
         return out
 
     @classmethod

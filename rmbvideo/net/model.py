@@ -21,6 +21,9 @@ Choices where the paper and supplement are silent:
 - Pooled inputs (``config.pooled_windows``): the head also sees the reference pixel's mean rates
   over the central 3, 5 or 7 frames of the window (the classical TFW estimates, mu-law compressed),
   so it can pick per pixel between low noise (static regions) and the reference alone (motion).
+- Convention input (``config.convention_input``): one more constant head channel, 0 for a real
+  camera's pixel (reset to zero at a spike) and 1 for the rate convention of simulators that keep the
+  charge above threshold (spikezoo): the same rates mean different intensities near saturation.
 """
 
 from __future__ import annotations
@@ -101,7 +104,8 @@ class RmbNet(nn.Module):
             )
         else:
             self.time_fusion = TemporalMean()
-        self.decoder = Decoder(channels, config.lstm_kernel, input_channels=2 + 2 * len(config.pooled_windows))
+        self.decoder = Decoder(channels, config.lstm_kernel,
+                               input_channels=2 + 2 * len(config.pooled_windows) + int(config.convention_input))
 
     def normalise_inputs(self, i_s: torch.Tensor, i_m: torch.Tensor) -> torch.Tensor:
         """(B,H,W) preliminary sums -> (B,2,H,W) rates I_s/N and I_m/(level N), clipped to [0, 1]."""
@@ -187,26 +191,34 @@ class RmbNet(nn.Module):
         f_m = torch.stack([k.f_m[scale] for k in window])
         return self.xba[scale].fuse(f_s, f_m, logits, valid)
 
-    def _head_inputs(self, window: Sequence[EncodedFrame], valid: Sequence[bool]) -> torch.Tensor:
+    def _head_inputs(self, window: Sequence[EncodedFrame], valid: Sequence[bool],
+                     convention: torch.Tensor | float) -> torch.Tensor:
         """The reference's compressed inputs plus its mean rates over each pooled window (valid
-        frames only), mu-law compressed: (B, 2 + 2 len(pooled_windows), Hp, Wp)."""
+        frames only), mu-law compressed, plus the convention plane when the config has it:
+        (B, 2 + 2 len(pooled_windows) [+ 1], Hp, Wp)."""
         w = self.config.w
-        parts = [window[w].inputs]
+        inputs = window[w].inputs
+        parts = [inputs]
         for size in self.config.pooled_windows:
             half = size // 2
             chosen = [window[j].rates for j in range(w - half, w + half + 1) if valid[j]]
             parts.append(mu_law(torch.stack(chosen).mean(dim=0), self.config.input_mu))
+        if self.config.convention_input:
+            code = torch.as_tensor(convention, dtype=inputs.dtype, device=inputs.device).reshape(-1, 1, 1, 1)
+            parts.append(code.expand(inputs.shape[0], 1, *inputs.shape[2:]))
         return torch.cat(parts, dim=1) if len(parts) > 1 else parts[0]
 
     def step(
         self, window: Sequence[EncodedFrame], state: DecoderState | None, cache: PairCache | None = None,
-        valid: Sequence[bool] | None = None,
+        valid: Sequence[bool] | None = None, convention: torch.Tensor | float = 0.0,
     ) -> tuple[torch.Tensor, DecoderState]:
         """One output step for the window of 2w+1 encoded frames centred on the reference.
 
         Returns t = T(G) in the mu-law domain, (B,1,H,W) at the unpadded size, and the new state.
         ``cache`` holds XBA pair logits reused across overlapping windows (the caller evicts).
         ``valid`` marks the positions that hold real frames (default: all; see ``window_valid``).
+        ``convention``: 0 (a camera) or 1 (the rate convention), a scalar or one per batch item; used
+        only when ``config.convention_input``.
         """
         if len(window) != self.config.window:
             raise ValueError(f"window has {len(window)} frames, the model needs {self.config.window}")
@@ -220,7 +232,7 @@ class RmbNet(nn.Module):
         f_ms_coarse = self._bit_fused(2, window, window, cache, mask)
         reference.append(f_ms_coarse[self.config.w])
         fused = self.time_fusion(f_ms_coarse, mask)
-        z, state = self.decoder(fused, reference, self._head_inputs(window, valid), state)
+        z, state = self.decoder(fused, reference, self._head_inputs(window, valid, convention), state)
         t = F.softplus(z.float()).clamp(max=self.config.output_max)
         h, w = ref.size
         return t[..., :h, :w], state
@@ -235,6 +247,7 @@ class RmbNet(nn.Module):
         i_m: torch.Tensor,
         state: DecoderState | None = None,
         linear: bool = True,
+        convention: torch.Tensor | float = 0.0,
     ) -> tuple[torch.Tensor, DecoderState | None]:
         """Reconstruct a whole sequence (B,K,H,W) of preliminary sums -> (B,K,H,W) and final state.
 
@@ -247,7 +260,7 @@ class RmbNet(nn.Module):
         outputs = []
         for i in range(count):
             window = [frames[j] for j in window_indices(i, self.config.w, count)]
-            t, state = self.step(window, state, valid=window_valid(i, self.config.w, count))
+            t, state = self.step(window, state, valid=window_valid(i, self.config.w, count), convention=convention)
             outputs.append(t[:, 0])
         out = torch.stack(outputs, dim=1)
         return (self.to_linear(out) if linear else out), state

@@ -177,14 +177,6 @@ def load_model(
             stored = (fh.metadata() or {}).get("architecture")
     except Exception as exc:  # safetensors raises its own error types for corrupt payloads
         raise ModelError(f"{weights}: refused: corrupt safetensors file ({exc})") from None
-    if stored is not None and stored != _architecture_text(config):
-        try:
-            saved = json.loads(stored)
-            differs = sorted(k for k in set(saved) | set(config.to_dict()) if saved.get(k) != config.to_dict().get(k))
-        except (ValueError, AttributeError):
-            differs = ["(unreadable)"]
-        raise ModelError(f"{weights}: refused: the card's architecture contradicts the weights' own "
-                         f"({', '.join(f'{k}' for k in differs[:4])})")
     bad = sorted(key for key, tensor in tensors.items() if tensor.is_floating_point() and not bool(tensor.isfinite().all()))
     if bad:
         raise ModelError(f"{weights}: refused: NaN or Inf in {len(bad)} tensors (first: {bad[0]})")
@@ -204,6 +196,14 @@ def load_model(
                         f"card/code {tuple(expected[k].shape)}")
     if problems:
         raise ModelError(f"{weights}: weights do not match the model card: {'; '.join(problems)}")
+    if stored is not None and stored != _architecture_text(config):
+        try:
+            saved = json.loads(stored)
+            differs = sorted(k for k in set(saved) | set(config.to_dict()) if saved.get(k) != config.to_dict().get(k))
+        except (ValueError, AttributeError):
+            differs = ["(unreadable)"]
+        raise ModelError(f"{weights}: refused: the card's architecture contradicts the weights' own "
+                         f"({', '.join(f'{k}' for k in differs[:4])})")
     model.load_state_dict(tensors)
     log.debug("loaded %s (%s, input mode %s)", weights, card.name, config.input_mode)
     return model.to(device).eval(), card

@@ -37,6 +37,7 @@ from rmbvideo.net.model import (
     window_valid,
 )
 from rmbvideo.recon.prelim import MultiUpsampler, PreliminaryFrames
+from rmbvideo.sensor.conventions import CONVENTIONS
 from rmbvideo.threads import default_threads
 
 log = logging.getLogger(__name__)
@@ -103,6 +104,7 @@ class RmbNetReconstructor:
         n: int | None = None,
         upsampler: MultiUpsampler | None = None,
         threads: int | None = None,
+        convention: str = "physical",
     ) -> None:
         if threads is not None and threads < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
@@ -110,6 +112,9 @@ class RmbNetReconstructor:
             raise ValueError(f"align must be one of {ALIGN_METHODS}, got {align!r}")
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
+        if convention not in CONVENTIONS:
+            raise ValueError(f"convention must be one of {CONVENTIONS}, got {convention!r}")
+        self._convention = float(CONVENTIONS.index(convention))
         self.device = resolve_device(device)
         self.model = model.to(self.device).eval()
         self._net = inference_copy(self.model)
@@ -244,7 +249,8 @@ class RmbNetReconstructor:
 
     def _emit(self, i: int, count: int | None) -> Frame:
         cache = self._pair_cache if self.align == "none" else None
-        t, state = self._net.step(self._window(i, count), self._state, cache, valid=window_valid(i, self._w, count))
+        t, state = self._net.step(self._window(i, count), self._state, cache, valid=window_valid(i, self._w, count),
+                                  convention=self._convention)
         if not bool(torch.isfinite(t).all()):
             self.nonfinite_frames += 1
             log.warning("RMB-Net produced NaN/Inf in frame %d; replaced by 0 and reset the recurrent state", i)
@@ -274,11 +280,15 @@ def make_rmbnet(
     upsampling: str = "interp",
     threads: int | None = None,
     w: int | None = None,
+    convention: str = "physical",
 ) -> RmbNetReconstructor:
     """Pipeline factory for method "rmbnet": ``model`` is a .safetensors path; ``upsampling`` is
     "interp" (flow-free band interpolation) or a flow method ("dis", "farneback", "tvl1").
     Without ``model`` the shipped weights for ``input_mode`` (default "binned") are used, the one
-    with window half-width ``w`` when it is given; a ``model`` whose ``w`` differs is refused."""
+    with window half-width ``w`` when it is given; a ``model`` whose ``w`` differs is refused.
+    ``convention``: the sensor convention that made the stream (``CONVENTIONS``: "physical" for a
+    camera, "spikezoo" for streams simulated in the rate convention); models without the
+    convention input ignore it."""
     from rmbvideo.errors import ModelError
     from rmbvideo.net.weights import default_model_path, shipped_model_with_window
     from rmbvideo.recon.flow import FlowUpsampler
@@ -289,7 +299,7 @@ def make_rmbnet(
     upsampler = None if upsampling == "interp" else FlowUpsampler(method=upsampling)
     recon = RmbNetReconstructor.from_file(
         model, device=device, input_mode=input_mode, align=align, precision=precision, upsampler=upsampler,
-        threads=threads,
+        threads=threads, convention=convention,
     )
     if w is not None and recon.network.config.w != w:
         raise ModelError(f"{model}: the model's window half-width is w = {recon.network.config.w}, not {w}")

@@ -17,9 +17,13 @@ from rmbvideo.io.dat import DatReader
 from rmbvideo.io.rmbfile import RmbFileReader
 from rmbvideo.io.sinks import make_sink
 from rmbvideo.io.tonemap import ToneMapConfig
+from rmbvideo.recon.full_resolution import FullResolution
 from rmbvideo.recon.methods import DEFAULT_METHOD, get_method
 from rmbvideo.recon.pipeline import RunSummary, iter_frames, reconstruct_stream
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
+
+
+RESOLUTIONS = ("binned", "full")
 
 
 @dataclass
@@ -37,10 +41,15 @@ class PreparedRun:
 def prepare_run(input_path: Path, *, method: str = DEFAULT_METHOD, window: int | None = None,
                 step: int | None = None, readout: str = "rmb", start_s: float = 0.0,
                 duration_s: float | None = None, capture: dict | None = None,
-                extra_options: dict[str, Any] | None = None) -> PreparedRun:
+                extra_options: dict[str, Any] | None = None, resolution: str = "binned") -> PreparedRun:
     """Open ``input_path`` (options over sidecar over defaults) and build ``method`` for it, as
     ``rmbvideo reconstruct`` does; ``extra_options`` are further method options, of which the method
-    takes those it declares (``Method.extra_options``). Bad input raises before anything runs."""
+    takes those it declares (``Method.extra_options``). ``resolution="full"`` gives a method on the
+    binned stream the camera's full resolution with the raw stream's detail
+    (``rmbvideo.recon.full_resolution``); methods on raw spikes and native captures have it already.
+    Bad input raises before anything runs."""
+    if resolution not in RESOLUTIONS:
+        raise OptionError(f"--resolution: must be one of {', '.join(RESOLUTIONS)}, not {resolution!r}")
     reader = open_capture(Path(input_path), **(capture or {}))
     start = reader.plane_index(start_s)
     stop = reader.n_planes if duration_s is None else min(reader.n_planes, start + reader.plane_index(duration_s))
@@ -64,6 +73,8 @@ def prepare_run(input_path: Path, *, method: str = DEFAULT_METHOD, window: int |
     recon = spec.build(**options)
     # A native capture was read out by its sensor already; binned data gets the chosen design.
     rmb_readout = RmbReadout(mode=ReadoutMode(readout)) if recon.input_kind == "rmb" and not native else None
+    if resolution == "full" and rmb_readout is not None:
+        recon, rmb_readout = FullResolution(recon, rmb_readout, step=step), None
     return PreparedRun(reader, recon, start, stop, step, rmb_readout)
 
 
@@ -72,7 +83,7 @@ def reconstruct_frames(path: str | Path, method: str = DEFAULT_METHOD, *, window
                        duration_s: float | None = None, chunk_planes: int = 1024, progress: bool = False,
                        width: int | None = None, height: int | None = None, flip: bool | None = None,
                        header_cols: int | None = None, rate_hz: float | None = None,
-                       **options: Any) -> Iterator[Frame]:
+                       resolution: str = "binned", **options: Any) -> Iterator[Frame]:
     """The frames of capture ``path`` (``.index``, ``.time_s``, ``.image``: linear float32, finite,
     >= 0) reconstructed with ``method``, with the defaults and sidecar handling of ``rmbvideo
     reconstruct``, streaming in bounded memory. ``options`` go to the method (e.g. RMB-Net's ``model``,
@@ -81,7 +92,7 @@ def reconstruct_frames(path: str | Path, method: str = DEFAULT_METHOD, *, window
     if unknown:
         raise OptionError(f"method {method} takes no option {', '.join(unknown)}")
     run = prepare_run(Path(path), method=method, window=window, step=step, readout=readout, start_s=start_s,
-                      duration_s=duration_s, extra_options=options,
+                      duration_s=duration_s, extra_options=options, resolution=resolution,
                       capture=dict(width=width, height=height, flip=flip, header_cols=header_cols, rate_hz=rate_hz))
     return iter_frames(run.reader, run.method, start=run.start, stop=run.stop, chunk_planes=chunk_planes,
                        progress=progress, readout=run.readout, expected_frames=(run.stop - run.start) // run.step)
@@ -94,7 +105,8 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
                        readout: str = "rmb", start_s: float = 0.0, duration_s: float | None = None,
                        chunk_planes: int = 1024, progress: bool = False,
                        capture: dict | None = None, extra_options: dict[str, Any] | None = None,
-                       overwrite: bool = False, nits_per_unit: float | None = None) -> RunSummary:
+                       overwrite: bool = False, nits_per_unit: float | None = None,
+                       resolution: str = "binned") -> RunSummary:
     """Reconstruct ``input_path`` into ``outdir`` with ``method`` (see ``prepare_run``).
 
     The input is opened and checked before anything is created. The outputs are written into a
@@ -103,7 +115,7 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
     refused unless ``overwrite``, and a run that produces no frame is an ``InputError``.
     """
     run = prepare_run(input_path, method=method, window=window, step=step, readout=readout, start_s=start_s,
-                      duration_s=duration_s, capture=capture, extra_options=extra_options)
+                      duration_s=duration_s, capture=capture, extra_options=extra_options, resolution=resolution)
     reader = run.reader
     sink_options = dict(fps=fps, tonemap=ToneMapConfig(method=tonemap), exr_dtype=exr_dtype,
                         mp4_pixel_format=pixel_format, capture_rate_hz=reader.rate_hz,

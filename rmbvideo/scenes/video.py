@@ -33,9 +33,8 @@ import numpy as np
 
 from rmbvideo.scenes.random_scenes import EVAL_PANORAMAS, EVAL_SEED_START, TRAIN_PANORAMAS
 from rmbvideo.scenes.render import panorama_luminance
+from rmbvideo.sensor.conventions import CONVENTIONS
 
-#: Sensor conventions a sample can be simulated with.
-CONVENTIONS = ("physical", "spikezoo")
 #: spikezoo's REDS streams fire at about this fraction of the 8-bit intensity per plane.
 SPIKEZOO_RATE = 0.6
 _SMALL_LEAF = 10  # leaves smaller than this (raw px) are flat ellipses drawn without anti-aliasing

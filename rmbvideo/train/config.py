@@ -154,12 +154,13 @@ def load_recipe(path: str | Path) -> TrainConfig:
         if not isinstance(table, dict):
             raise InputError(f"{path}: {key} must be a table ([{key}])")
         tables[key] = table
-    if {"input_mode", "n"} & set(tables["model"]):
-        raise InputError(f"{path}: [model] input_mode and n are set by [data] mode and n")
+    if {"input_mode", "n", "readout"} & set(tables["model"]):
+        raise InputError(f"{path}: [model] input_mode, n and readout are set by [data] mode, n and readout")
     try:
         data_config = DataConfig(**_typed(DataConfig, tables["data"], "data", path))
         model_values = _typed(RmbNetConfig, tables["model"], "model", path)
-        model = RmbNetConfig(**model_values, input_mode=data_config.mode, n=data_config.n)
+        model = RmbNetConfig(**model_values, input_mode=data_config.mode, n=data_config.n,
+                             readout=data_config.readout)
         optim = OptimConfig(**_typed(OptimConfig, tables["optim"], "optim", path))
         loss = LossConfig(**_typed(LossConfig, tables["loss"], "loss", path))
         config = TrainConfig(name=name, seed=seed, minutes=float(minutes),

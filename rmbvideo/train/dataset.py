@@ -34,6 +34,7 @@ from rmbvideo.io.atomic import atomic_path, atomic_write_text
 from rmbvideo.recon.prelim import PrelimFrame, PreliminaryFrames
 from rmbvideo.scenes.render import SceneRenderer, bin_image, ground_truth
 from rmbvideo.sensor.binning import StreamBinner
+from rmbvideo.sensor.conventions import CONVENTIONS
 from rmbvideo.sensor.emission import ReadoutSpec
 from rmbvideo.simulate.capture import CaptureSimulator, capture_planes
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
@@ -112,13 +113,15 @@ class SampleSpec:
 @dataclass
 class Sample:
     """F consecutive preliminary frames and their ground truth: ``i_s``, ``i_m``, ``gt`` (F, H, W)
-    float32, ``m_valid`` (F, H) bool (rows with multi-bit evidence), ``times_s`` (F,) float64."""
+    float32, ``m_valid`` (F, H) bool (rows with multi-bit evidence), ``times_s`` (F,) float64,
+    ``convention``: the index in ``CONVENTIONS`` of the sensor convention that made the spikes."""
 
     i_s: np.ndarray
     i_m: np.ndarray
     gt: np.ndarray
     m_valid: np.ndarray
     times_s: np.ndarray
+    convention: float = 0.0
 
 
 def _scene_for(spec: SampleSpec, seed: int):
@@ -201,6 +204,7 @@ def _simulate_video_sample(spec: SampleSpec, seed: int) -> Sample:
         gt=np.nan_to_num(gt, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32),
         m_valid=np.stack([f.m_valid for f in kept]),
         times_s=np.array([f.time_s for f in kept], dtype=np.float64),
+        convention=float(CONVENTIONS.index(scene.convention)),
     )
 
 

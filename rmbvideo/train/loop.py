@@ -55,11 +55,12 @@ LOG_COLUMNS = ("step", "elapsed_s", "lr", "loss", "l2", "ssim", "edge", "val_mu_
 
 @dataclass
 class Batch:
-    """Samples stacked on a device: ``i_s``, ``i_m``, ``gt`` (B, F, H, W) float32."""
+    """Samples stacked on a device: ``i_s``, ``i_m``, ``gt`` (B, F, H, W) float32, ``convention`` (B,)."""
 
     i_s: torch.Tensor
     i_m: torch.Tensor
     gt: torch.Tensor
+    convention: torch.Tensor
 
     @classmethod
     def from_samples(cls, samples: list[Sample], device: torch.device, flips: list[bool] | None = None) -> "Batch":
@@ -71,7 +72,8 @@ class Batch:
             arrays = [getattr(s, name)[..., ::-1] if f else getattr(s, name) for s, f in zip(samples, flips)]
             return torch.from_numpy(np.ascontiguousarray(np.stack(arrays), dtype=np.float32)).to(device)
 
-        return cls(stack("i_s"), stack("i_m"), stack("gt"))
+        convention = torch.tensor([float(s.convention) for s in samples], dtype=torch.float32, device=device)
+        return cls(stack("i_s"), stack("i_m"), stack("gt"), convention)
 
 
 @dataclass(frozen=True)
@@ -132,7 +134,7 @@ def segment_losses(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossCon
         parts = {"loss": 0.0, "l2": 0.0, "ssim": 0.0, "edge": 0.0}
         for i in range(first, last + 1):
             window = [frames[j - lo] for j in window_indices(i, w, count)]
-            t, state = model.step(window, state, cache, valid=window_valid(i, w, count))
+            t, state = model.step(window, state, cache, valid=window_valid(i, w, count), convention=batch.convention)
             loss, step_parts = reconstruction_loss(t[:, 0], batch.gt[:, i], loss_config)
             segment_loss = segment_loss + loss
             parts["loss"] += float(loss.detach())
@@ -185,7 +187,7 @@ def validate(model: RmbNet, samples: list[Sample], quanta: int | None, saturatio
         state = None
         for i in output_range(count, w, edges):
             window = [frames[j] for j in window_indices(i, w, count)]
-            t, state = model.step(window, state, valid=window_valid(i, w, count))
+            t, state = model.step(window, state, valid=window_valid(i, w, count), convention=batch.convention)
             pred = model.to_linear(t)[0, 0].float().cpu().numpy()
             gt = np.clip(sample.gt[i], 0.0, saturation)
             psnr.append(mu_law_psnr(pred, gt))

@@ -1,0 +1,9 @@
+"""The sensor conventions a spike stream can come from.
+
+"physical": a real camera's pixel (``emission.SpikeEmitter``: charge reset to zero at a spike, the
+camera's noise). "spikezoo": the rate convention of simulators such as spikezoo's
+(``emission.RateIntegrateFire``: accumulate and subtract, no noise). The same spikes mean different
+intensities under the two, so a network is told which one made a stream (its index here).
+"""
+
+CONVENTIONS = ("physical", "spikezoo")
