@@ -109,10 +109,14 @@ FIGURE_COLUMNS = ("TFW-L", "GC20", "MG20", "RMB-Net", "TFP-41 (raw)", "TFI (raw)
 @click.option("--real-video", "real_video", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Also score every method on a folder of real-video spike streams with reference frames "
                    "(NAME.dat + NAME.png, spikezoo's format): real_video.md and real_video.png.")
+@click.option("--full-resolution", is_flag=True,
+              help="Also score --resolution full against TFP and TFI at the camera's full resolution "
+                   "(full_resolution.md/png; the real-video streams too when given).")
 @quiet_option
 @verbose_option
 def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Path | None, device: str,
-             as_json: bool, real_path: Path | None, real_video: Path | None, quiet: bool) -> None:
+             as_json: bool, real_path: Path | None, real_video: Path | None, full_resolution: bool,
+             quiet: bool) -> None:
     """Score TFW-S/L, TFI, GC20, MG20, RMB-Net, its ablations and the classical methods on the raw
     capture (2x2-averaged) on the held-out synthetic set, and optionally on real-video streams."""
     from rmbvideo.errors import OutputError
@@ -163,6 +167,12 @@ def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Pat
                                                 "device": resolved, "threads": 1}, video, quick)
     if real_video is not None:
         written += _real_video(real_video, models_dir / "rmbnet-binned.safetensors", resolved, out_dir)
+    if full_resolution:
+        from rmbvideo.evaluate.full_resolution import write_full_resolution
+        from rmbvideo.evaluate.real_video import find_streams
+
+        streams = find_streams(real_video) if real_video is not None else []
+        written += write_full_resolution(out_dir, sequences, streams, models_dir / "rmbnet-binned.safetensors")
     if real_path is not None:
         model = models_dir / "rmbnet-binned.safetensors"
         written.append(real_capture_comparison(real_path, out_dir / "real_comparison.png", model, resolved))

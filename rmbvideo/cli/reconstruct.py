@@ -74,8 +74,9 @@ def rmbnet_options(func):
               help="Tone mapping for mp4/png.")
 @click.option("--exr-dtype", type=click.Choice(["half", "float"]), default="half", show_default=True,
               help="EXR pixel type; half clips values above 65504.")
-@click.option("--readout", type=click.Choice([m.value for m in ReadoutMode]), default="rmb",
-              show_default=True, help="Readout design applied to the binned stream (rmbnet, tfw, gc20, mg20).")
+@click.option("--readout", type=click.Choice([m.value for m in ReadoutMode]), default=None,
+              help="Readout design applied to the binned stream (rmbnet, tfw, gc20, mg20) [default: the one the "
+                   "RMB-Net model was trained on; rmb for the other methods].")
 @click.option("--resolution", type=click.Choice(["binned", "full"]), default="binned", show_default=True,
               help="Output size of methods on the binned stream from a real 1-bit capture: binned (half the camera's), "
                    "or full (the camera's, with the raw stream's detail added where its spike counts resolve it).")

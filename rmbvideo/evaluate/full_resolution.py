@@ -23,10 +23,17 @@ from typing import Any
 import cv2
 import numpy as np
 
-from rmbvideo.evaluate.harness import SATURATION, downsample_2x
+from rmbvideo.evaluate.harness import SATURATION, downsample_2x, sequence_convention
 from rmbvideo.evaluate.heldout import RAW_RATE_HZ, VIDEO_KINDS, Sequence
 from rmbvideo.evaluate.metrics import mu_law_psnr, mu_law_ssim, ssim
-from rmbvideo.evaluate.real_video import RAW_STEP, TFP_WINDOWS, RealStream, least_squares_gain, scaled_psnr
+from rmbvideo.evaluate.real_video import (
+    CONVENTION,
+    RAW_STEP,
+    TFP_WINDOWS,
+    RealStream,
+    least_squares_gain,
+    scaled_psnr,
+)
 from rmbvideo.io.dat import DatReader
 from rmbvideo.recon.full_resolution import FullResolution, upsample
 from rmbvideo.recon.methods import make_reconstructor
@@ -51,18 +58,22 @@ class FullRow:
     kind: str = "raw"
 
 
-def full_rows(model: Path | None = None, threads: int | None = 1, convention: str = "physical") -> list[FullRow]:
+def full_rows(model: Path | None = None, threads: int | None = 1) -> list[FullRow]:
     """RMB-Net at full and at binned resolution, TFP at every window and TFI on the raw capture."""
-    rmbnet = {"model": model, "input_mode": "binned", "threads": threads, "convention": convention}
+    rmbnet = {"model": model, "input_mode": "binned", "threads": threads}
     return [FullRow(FULL, "rmbnet", rmbnet, "full"), FullRow(BINNED_UP, "rmbnet", rmbnet, "binned-up"),
             *(FullRow(f"TFP-{w}", "tfp", {"window": w, "step": RAW_STEP}) for w in TFP_WINDOWS),
             FullRow("TFI", "tfi", {"step": RAW_STEP})]
 
 
-def run_row(row: FullRow, source: Any, keep: list[int] | None = None) -> tuple[dict[int, np.ndarray], float, int]:
-    """Frames (index -> full-resolution image) of ``row`` on ``source``, seconds, frames emitted."""
-    recon = make_reconstructor(row.method, **row.options)
-    readout = RmbReadout(mode=ReadoutMode.RMB)
+def run_row(row: FullRow, source: Any, keep: list[int] | None = None,
+            convention: str = "physical") -> tuple[dict[int, np.ndarray], float, int]:
+    """Frames (index -> full-resolution image) of ``row`` on ``source`` (a stream made in ``convention``),
+    seconds, frames emitted. RMB-Net reads the binned stream through the readout its model was trained on."""
+    options = {**row.options, "convention": convention} if row.method == "rmbnet" else row.options
+    recon = make_reconstructor(row.method, **options)
+    network = getattr(recon, "network", None)
+    readout = RmbReadout(mode=ReadoutMode(network.config.readout if network is not None else "rmb"))
     if row.kind == "full":
         recon, readout = FullResolution(recon, readout, step=RAW_STEP), None
     elif row.kind == "raw":
@@ -121,7 +132,7 @@ def score_sequences(sequences: Seq[Sequence], rows: Seq[FullRow], scores: FullSc
         binned_truth = {i: np.minimum(seq.gt[i], SATURATION) for i in truth}
         psnr, ssim_ = {}, {}
         for row in rows:
-            frames, seconds, emitted = run_row(row, seq)
+            frames, seconds, emitted = run_row(row, seq, convention=sequence_convention(seq))
             missing = sorted(set(truth) - set(frames))
             if missing:
                 raise ValueError(f"{row.name} on {seq.name}: no frame {missing[0]}")
@@ -145,7 +156,8 @@ def score_streams(streams: Seq[RealStream], rows: Seq[FullRow], scores: FullScor
         reference = cv2.imread(str(stream.reference), cv2.IMREAD_GRAYSCALE).astype(np.float32) / 255.0
         psnr, ssim_, pictures = {}, {}, {"reference": reference}
         for row in rows:
-            frames, _, _ = run_row(row, DatReader(stream.capture, stream.geometry), keep=[stream.frame])
+            frames, _, _ = run_row(row, DatReader(stream.capture, stream.geometry), keep=[stream.frame],
+                                   convention=CONVENTION)
             image = frames[stream.frame][: reference.shape[0], : reference.shape[1]]
             scaled = (least_squares_gain(image, reference) * image).astype(np.float32)
             psnr[row.name] = scaled_psnr(image, reference)
@@ -178,6 +190,25 @@ def markdown(scores: FullScores, synthetic: Seq[str], real: Seq[str]) -> str:
     for name, (full_avg, binned) in scores.binned_check.items():
         lines.append(f"| {name} | {full_avg:.2f} | {binned:.2f} | {full_avg - binned:+.2f} |")
     return "\n".join(lines) + "\n"
+
+
+def write_full_resolution(out_dir: Path, sequences: Seq[Sequence], streams: Seq[RealStream], model: Path,
+                          threads: int | None = 1) -> list[Path]:
+    """Score everything, write ``full_resolution.md`` and ``full_resolution.png``; returns the paths."""
+    from rmbvideo.io.atomic import atomic_write_text
+
+    scores = FullScores()
+    rows = full_rows(model, threads)
+    score_sequences(sequences, rows, scores)
+    score_streams(streams, rows, scores)
+    md = out_dir / "full_resolution.md"
+    atomic_write_text(md, markdown(scores, [s.name for s in sequences], [s.name for s in streams]))
+    written = [md]
+    if streams:
+        png = out_dir / "full_resolution.png"
+        comparison_picture(scores, png, [FULL, BINNED_UP, "TFP-20", "TFI"])
+        written.append(png)
+    return written
 
 
 def comparison_picture(scores: FullScores, path: Path, rows: Seq[str]) -> None:

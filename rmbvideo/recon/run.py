@@ -39,12 +39,13 @@ class PreparedRun:
 
 
 def prepare_run(input_path: Path, *, method: str = DEFAULT_METHOD, window: int | None = None,
-                step: int | None = None, readout: str = "rmb", start_s: float = 0.0,
+                step: int | None = None, readout: str | None = None, start_s: float = 0.0,
                 duration_s: float | None = None, capture: dict | None = None,
                 extra_options: dict[str, Any] | None = None, resolution: str = "binned") -> PreparedRun:
     """Open ``input_path`` (options over sidecar over defaults) and build ``method`` for it, as
     ``rmbvideo reconstruct`` does; ``extra_options`` are further method options, of which the method
-    takes those it declares (``Method.extra_options``). ``resolution="full"`` gives a method on the
+    takes those it declares (``Method.extra_options``). ``readout``: the design applied to the binned
+    stream (default: the one RMB-Net's model was trained on, else "rmb"). ``resolution="full"`` gives a method on the
     binned stream the camera's full resolution with the raw stream's detail
     (``rmbvideo.recon.full_resolution``); methods on raw spikes and native captures have it already.
     Bad input raises before anything runs."""
@@ -72,6 +73,9 @@ def prepare_run(input_path: Path, *, method: str = DEFAULT_METHOD, window: int |
                          f"gives {width}x{height} (check --width/--height/--header-cols)")
     recon = spec.build(**options)
     # A native capture was read out by its sensor already; binned data gets the chosen design.
+    if readout is None:  # a model knows the readout design it was trained on
+        network = getattr(recon, "network", None)
+        readout = getattr(getattr(network, "config", None), "readout", "rmb")
     rmb_readout = RmbReadout(mode=ReadoutMode(readout)) if recon.input_kind == "rmb" and not native else None
     if resolution == "full" and rmb_readout is not None:
         recon, rmb_readout = FullResolution(recon, rmb_readout, step=step), None
@@ -79,7 +83,7 @@ def prepare_run(input_path: Path, *, method: str = DEFAULT_METHOD, window: int |
 
 
 def reconstruct_frames(path: str | Path, method: str = DEFAULT_METHOD, *, window: int | None = None,
-                       step: int | None = None, readout: str = "rmb", start_s: float = 0.0,
+                       step: int | None = None, readout: str | None = None, start_s: float = 0.0,
                        duration_s: float | None = None, chunk_planes: int = 1024, progress: bool = False,
                        width: int | None = None, height: int | None = None, flip: bool | None = None,
                        header_cols: int | None = None, rate_hz: float | None = None,
@@ -102,7 +106,7 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
                        window: int | None = None, step: int | None = None, fmt: str = "mp4",
                        fps: float = 30.0, tonemap: str = "exposure", exr_dtype: str = "half",
                        pixel_format: str = "auto",
-                       readout: str = "rmb", start_s: float = 0.0, duration_s: float | None = None,
+                       readout: str | None = None, start_s: float = 0.0, duration_s: float | None = None,
                        chunk_planes: int = 1024, progress: bool = False,
                        capture: dict | None = None, extra_options: dict[str, Any] | None = None,
                        overwrite: bool = False, nits_per_unit: float | None = None,
