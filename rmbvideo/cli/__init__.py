@@ -41,8 +41,20 @@ class Terminated(KeyboardInterrupt):
         self.signum = signum
 
 
+#: Signals received by this process, in order: an exception that a signal's own exception turned into
+#: (a C extension's import fails with ImportError when the signal lands inside it) is still reported as
+#: that signal.
+_received: list[int] = []
+
+
 def _terminate(signum: int, frame: object) -> None:
+    _received.append(signum)
     raise Terminated(signum)
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    _received.append(signum)
+    raise KeyboardInterrupt
 
 
 class LazyGroup(click.Group):
@@ -78,8 +90,17 @@ class LazyGroup(click.Group):
 
     def invoke(self, ctx: click.Context):
         previous = {sig: signal.signal(sig, _terminate) for sig in (signal.SIGTERM, signal.SIGHUP)}
+        if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            previous[signal.SIGINT] = signal.signal(signal.SIGINT, _interrupt)
         try:
-            return super().invoke(ctx)
+            try:
+                return super().invoke(ctx)
+            except (RmbvideoError, KeyboardInterrupt, MemoryError):
+                raise
+            except Exception:
+                if _received:  # the signal's exception was turned into another one on its way up
+                    raise (KeyboardInterrupt() if _received[0] == signal.SIGINT else Terminated(_received[0])) from None
+                raise
         except RmbvideoError as exc:
             click.echo(f"rmbvideo: error: {exc}", err=True)
             ctx.exit(2)
