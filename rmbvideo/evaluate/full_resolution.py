@@ -38,6 +38,7 @@ from rmbvideo.io.dat import DatReader
 from rmbvideo.recon.full_resolution import FullResolution, upsample
 from rmbvideo.recon.methods import make_reconstructor
 from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
+from rmbvideo.recon.run import trained_readout
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
 
 log = logging.getLogger(__name__)
@@ -72,8 +73,7 @@ def run_row(row: FullRow, source: Any, keep: list[int] | None = None,
     seconds, frames emitted. RMB-Net reads the binned stream through the readout its model was trained on."""
     options = {**row.options, "convention": convention} if row.method == "rmbnet" else row.options
     recon = make_reconstructor(row.method, **options)
-    network = getattr(recon, "network", None)
-    readout = RmbReadout(mode=ReadoutMode(network.config.readout if network is not None else "rmb"))
+    readout = RmbReadout(mode=ReadoutMode(trained_readout(recon)))
     if row.kind == "full":
         recon, readout = FullResolution(recon, readout, step=RAW_STEP), None
     elif row.kind == "raw":

@@ -42,6 +42,7 @@ TFP_WINDOWS = (20, 41, 80, 140)
 BEST_RAW = "best classical on the raw capture"
 #: The spikezoo format's streams are simulated in its rate convention (``rmbvideo.sensor.conventions``).
 CONVENTION = "spikezoo"
+RMB_ROW = "RMB-Net, RMB readout"
 _KEY = re.compile(r"key_id(\d+)")
 
 
@@ -165,18 +166,28 @@ def score_stream(stream: RealStream, rows: Iterable[RealRow]) -> dict[str, RealS
 
 
 def real_video_rows(model: Path | None = None, device: str = "cpu", threads: int | None = 1) -> list[RealRow]:
-    """The real-video table: RMB-input baselines, RMB-Net, and the raw-capture classical methods."""
-    return [
-        RealRow("TFW-S", "tfw", {"window": 10, "step": 10}),
-        RealRow("TFW-L", "tfw", {"window": 70, "step": 10}),
-        RealRow("GC20", "gc20", {}),
-        RealRow("MG20", "mg20", {}),
-        RealRow("RMB-Net", "rmbnet", {"model": model, "device": device, "input_mode": "binned",
-                                       "threads": threads, "convention": CONVENTION}),
-        *(RealRow(f"TFP-{window} (raw, 2x2-avg)", "tfp", {"window": window, "step": RAW_STEP}, raw=True)
-          for window in TFP_WINDOWS),
-        RealRow("TFI (raw, 2x2-avg)", "tfi", {"step": RAW_STEP}, raw=True),
+    """The real-video table: the baselines and RMB-Net on the model's input (the binned stream through
+    the readout it was trained on), RMB-Net on the RMB readout when the model reads another and
+    ``rmbnet-binned-rmb`` sits beside it, and the raw-capture classical methods."""
+    from rmbvideo.net.weights import default_model_path, model_readout
+
+    model = Path(model) if model is not None else default_model_path("binned")
+    readout = model_readout(model)
+    options = {"device": device, "input_mode": "binned", "threads": threads, "convention": CONVENTION}
+    rows = [
+        RealRow("TFW-S", "tfw", {"window": 10, "step": 10}, readout=readout),
+        RealRow("TFW-L", "tfw", {"window": 70, "step": 10}, readout=readout),
+        RealRow("GC20", "gc20", {}, readout=readout),
+        RealRow("MG20", "mg20", {}, readout=readout),
+        RealRow("RMB-Net", "rmbnet", {"model": model, **options}, readout=readout),
     ]
+    rmb_model = model.with_name("rmbnet-binned-rmb.safetensors")
+    if readout != "rmb" and rmb_model.is_file():
+        rows.append(RealRow(RMB_ROW, "rmbnet", {"model": rmb_model, **options}, readout="rmb"))
+    rows += [RealRow(f"TFP-{window} (raw, 2x2-avg)", "tfp", {"window": window, "step": RAW_STEP}, raw=True)
+             for window in TFP_WINDOWS]
+    rows.append(RealRow("TFI (raw, 2x2-avg)", "tfi", {"step": RAW_STEP}, raw=True))
+    return rows
 
 
 def evaluate_streams(streams: Sequence[RealStream], rows: Sequence[RealRow]) -> dict[str, dict[str, RealScore]]:

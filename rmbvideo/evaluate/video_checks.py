@@ -21,17 +21,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from rmbvideo.chunks import RmbChunk, SpikeChunk
+from rmbvideo.evaluate.harness import sequence_convention
 from rmbvideo.evaluate.heldout import FRAME_STEP, RAW_RATE_HZ, VIDEO_KINDS, Sequence
 from rmbvideo.evaluate.metrics import mu_law_psnr
 from rmbvideo.recon.methods import make_reconstructor
 from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
+from rmbvideo.recon.run import trained_readout
 from rmbvideo.scenes.render import bin_image
 from rmbvideo.scenes.video import VideoScene
 from rmbvideo.sensor.binning import StreamBinner
 from rmbvideo.sensor.effects import REALISTIC_EFFECTS
 from rmbvideo.sensor.emission import SpikeEmitter
 from rmbvideo.sensor.params import SensorParams
-from rmbvideo.sensor.readout import RmbReadout
+from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
 
 DARK_LEVELS = (1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.3, 1.0)
 TIME_OFFSETS_MS = tuple(np.round(np.arange(-1.0, 1.0001, 0.05), 3))
@@ -62,9 +64,13 @@ class BinnedChunks:
 
 
 def run_rmb(method: str, options: dict, source: Sequence | BinnedChunks) -> dict[int, np.ndarray]:
-    """Frames (index -> image) of a method on the RMB stream of ``source`` (through the RMB readout)."""
+    """Frames (index -> image) of a method on the binned stream of ``source``, through the readout its
+    model was trained on (RMB for methods without a model); a held-out sequence's own convention."""
+    if method == "rmbnet" and isinstance(source, Sequence):
+        options = {**options, "convention": sequence_convention(source)}
+    recon = make_reconstructor(method, **options)
     sink = FrameCollector()
-    reconstruct_stream(source, make_reconstructor(method, **options), sink, readout=RmbReadout())
+    reconstruct_stream(source, recon, sink, readout=RmbReadout(mode=ReadoutMode(trained_readout(recon))))
     return sink.images
 
 

@@ -36,19 +36,36 @@ MODELS_DIR = Path(__file__).resolve().parents[1] / "models"
 DEFAULT_MODELS = {"binned": "rmbnet-binned", "native": "rmbnet-native"}
 
 
-def default_model_path(input_mode: str = "binned") -> Path:
-    """The shipped weights for ``input_mode`` ("binned" for real cameras, "native" RMB sensors)."""
+def default_model_path(input_mode: str = "binned", readout: str | None = None) -> Path:
+    """The shipped weights for ``input_mode`` ("binned" for real cameras, "native" RMB sensors); with
+    ``readout``, the shipped model trained on that readout design (``rmbnet-binned-<readout>``) when the
+    default one was trained on another (else the default, with a warning)."""
     if input_mode not in DEFAULT_MODELS:
         raise ModelError(f"no shipped model for input mode {input_mode!r} (known: {sorted(DEFAULT_MODELS)})")
     path = MODELS_DIR / f"{DEFAULT_MODELS[input_mode]}.safetensors"
+    if readout is not None and input_mode == "binned" and model_readout(path) != readout:
+        specific = MODELS_DIR / f"{DEFAULT_MODELS[input_mode]}-{readout}.safetensors"
+        if specific.is_file():
+            return specific
+        log.warning("no shipped model for the %s readout; the default model was trained on %s", readout,
+                    model_readout(path))
     if not path.is_file():
         raise ModelError(f"{path}: shipped model not found; reinstall rmbvideo or pass --model")
     return path
 
 
+def model_readout(weights: Path) -> str:
+    """The readout design the model at ``weights`` was trained on, from its card ("rmb" if unsaid)."""
+    try:
+        card = json.loads(Path(weights).with_suffix(".json").read_text())
+        return str(card.get("architecture", {}).get("readout", "rmb"))
+    except (OSError, ValueError, AttributeError):
+        return "rmb"
+
+
 def shipped_model_with_window(input_mode: str, w: int) -> Path:
-    """A shipped full model (XBA and XTA on, RMB readout) for ``input_mode`` whose window half-width
-    is ``w``: the default model first, then the ablation models in ``models/ablations``."""
+    """A shipped full model (XBA and XTA on, the default model's readout) for ``input_mode`` whose window
+    half-width is ``w``: the default model first, then the ablation models in ``models/ablations``."""
     candidates = [default_model_path(input_mode)] + sorted((MODELS_DIR / "ablations").glob("*.safetensors"))
     for weights in candidates:
         try:
@@ -57,7 +74,7 @@ def shipped_model_with_window(input_mode: str, w: int) -> Path:
             continue
         arch = card.get("architecture", {}) if isinstance(card, dict) else {}
         if (arch.get("w") == w and arch.get("input_mode") == input_mode and arch.get("use_xba")
-                and arch.get("use_xta") and "rmb" in str(card.get("data", {}).get("readout", "rmb"))):
+                and arch.get("use_xta") and arch.get("readout", "rmb") == model_readout(candidates[0])):
             return weights
     raise ModelError(f"no shipped {input_mode} model with w = {w}; train one (rmbvideo train) and pass --model")
 

@@ -281,6 +281,7 @@ def make_rmbnet(
     threads: int | None = None,
     w: int | None = None,
     convention: str = "physical",
+    readout: str | None = None,
 ) -> RmbNetReconstructor:
     """Pipeline factory for method "rmbnet": ``model`` is a .safetensors path; ``upsampling`` is
     "interp" (flow-free band interpolation) or a flow method ("dis", "farneback", "tvl1").
@@ -288,14 +289,15 @@ def make_rmbnet(
     with window half-width ``w`` when it is given; a ``model`` whose ``w`` differs is refused.
     ``convention``: the sensor convention that made the stream (``CONVENTIONS``: "physical" for a
     camera, "spikezoo" for streams simulated in the rate convention); models without the
-    convention input ignore it."""
+    convention input ignore it. ``readout``: without ``model``, the shipped model trained on that
+    readout design (the default model's when None)."""
     from rmbvideo.errors import ModelError
     from rmbvideo.net.weights import default_model_path, shipped_model_with_window
     from rmbvideo.recon.flow import FlowUpsampler
 
     if model is None:
         mode = input_mode or "binned"
-        model = default_model_path(mode) if w is None else shipped_model_with_window(mode, w)
+        model = default_model_path(mode, readout) if w is None else shipped_model_with_window(mode, w)
     upsampler = None if upsampling == "interp" else FlowUpsampler(method=upsampling)
     recon = RmbNetReconstructor.from_file(
         model, device=device, input_mode=input_mode, align=align, precision=precision, upsampler=upsampler,

@@ -64,6 +64,8 @@ def prepare_run(input_path: Path, *, method: str = DEFAULT_METHOD, window: int |
     options.update(spec.select_extra(extra_options or {}))
     if "input_mode" in spec.extra_options:  # a model trained for the other kind of stream is refused
         options.setdefault("input_mode", "native" if native else "binned")
+    if "readout" in spec.extra_options and readout is not None and not native:
+        options.setdefault("readout", readout)  # the shipped model for that readout design
     height, width = reader.shape
     if not native and spec.input_kind == "rmb":
         height, width = height // 2, width // 2  # the binned stream
@@ -73,13 +75,17 @@ def prepare_run(input_path: Path, *, method: str = DEFAULT_METHOD, window: int |
                          f"gives {width}x{height} (check --width/--height/--header-cols)")
     recon = spec.build(**options)
     # A native capture was read out by its sensor already; binned data gets the chosen design.
-    if readout is None:  # a model knows the readout design it was trained on
-        network = getattr(recon, "network", None)
-        readout = getattr(getattr(network, "config", None), "readout", "rmb")
+    readout = readout or trained_readout(recon)
     rmb_readout = RmbReadout(mode=ReadoutMode(readout)) if recon.input_kind == "rmb" and not native else None
     if resolution == "full" and rmb_readout is not None:
         recon, rmb_readout = FullResolution(recon, rmb_readout, step=step), None
     return PreparedRun(reader, recon, start, stop, step, rmb_readout)
+
+
+def trained_readout(recon: Any) -> str:
+    """The readout design a reconstructor's model was trained on ("rmb" for methods without a model)."""
+    network = getattr(recon, "network", None)
+    return str(getattr(getattr(network, "config", None), "readout", "rmb"))
 
 
 def reconstruct_frames(path: str | Path, method: str = DEFAULT_METHOD, *, window: int | None = None,
