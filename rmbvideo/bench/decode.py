@@ -97,7 +97,7 @@ def bench_decode(n_planes: int = 20000, seed: int = 0) -> dict:
         plain = _timed(lambda: _plain(reader, min(n_planes, 4096)))
         loop = _timed(lambda: _per_plane_loop(path, geometry, min(n_planes, 4096)))
         firing_rate = reader.mean_firing_rate()
-        del reader  # close the file before the folder is removed
+        reader.close()  # before the folder is removed
     return {
         "width": geometry.width,
         "height": geometry.height,

@@ -3,8 +3,9 @@
 End to end means what ``rmbvideo reconstruct --format null`` does: each sequence's raw 1-bit planes
 are written once as a ``.dat`` capture and streamed through decode, 2x2x2 binning, the method and a
 sink (one that keeps the scored frames). As in the evaluation harness (``rmbvideo.evaluate.harness``),
-methods on the binned stream read it through the RMB readout design, frames of methods on raw planes
-(TFI) are 2x2 area-averaged to the ground-truth size, and scores are per-sequence means of mu-law
+methods on the binned stream read it through the readout design of the default model (RMB-Net rows:
+their own model's), frames of methods on raw planes (TFI) are 2x2 area-averaged to the ground-truth
+size, and scores are per-sequence means of mu-law
 PSNR/SSIM (a row: the mean over sequences). For RMB-Net the network alone (the streaming engine on
 precomputed preliminary frames, window alignment included) is timed separately.
 """
@@ -26,8 +27,10 @@ from rmbvideo.chunks import Frame
 from rmbvideo.evaluate.heldout import Sequence
 from rmbvideo.evaluate.harness import downsample_2x, score_frames
 from rmbvideo.io.dat import DatGeometry, DatReader, DatWriter
+from rmbvideo.net.weights import model_readout
 from rmbvideo.recon.methods import make_reconstructor
 from rmbvideo.recon.pipeline import reconstruct_stream
+from rmbvideo.recon.run import trained_readout
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
 
 log = logging.getLogger(__name__)
@@ -140,7 +143,8 @@ def run_config(config: BenchConfig, sequences: list[Sequence], workdir: Path, mo
         scored = {i: sequence.frame_time(i) for i in sequence.scored_frames}
         sink = _KeepFrames(scored)
         recon = _make(config, network, threads)
-        readout = RmbReadout(mode=ReadoutMode("rmb")) if recon.input_kind == "rmb" else None
+        design = trained_readout(recon) if config.is_rmbnet else model_readout(models_dir / "rmbnet-binned.safetensors")
+        readout = RmbReadout(mode=ReadoutMode(design)) if recon.input_kind == "rmb" else None
         with PeakRss() as rss:
             summary = reconstruct_stream(reader, recon, sink, chunk_planes=CHUNK_PLANES, readout=readout)
             _sync(config.device)

@@ -55,19 +55,20 @@ def stage_breakdown(network, planes: int = 2000, width: int = 400, height: int =
     from rmbvideo.io.tonemap import ToneMapper
     from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
     from rmbvideo.recon.rmbnet import RmbNetReconstructor
-    from rmbvideo.sensor.readout import RmbReadout
+    from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
 
     result: dict[str, float] = {}
     with tempfile.TemporaryDirectory(prefix="rmbvideo-stages-") as folder:
         path = write_random_capture(Path(folder) / "capture.dat", planes, width, height)
         reader = DatReader(path, DatGeometry(width=width, height=height))
         warm = RmbNetReconstructor(network, device=device, precision=precision, threads=threads)
-        reconstruct_stream(reader, warm, FrameCollector(), stop=40 * network.config.window, readout=RmbReadout())
+        readout = RmbReadout(mode=ReadoutMode(network.config.readout))
+        reconstruct_stream(reader, warm, FrameCollector(), stop=40 * network.config.window, readout=readout)
         engine = RmbNetReconstructor(network, device=device, precision=precision, threads=threads)
         clock = _StageClock()
         _instrument(engine.network, clock)
         keep = FrameCollector()
-        summary = reconstruct_stream(reader, engine, keep, chunk_planes=CHUNK_PLANES, readout=RmbReadout())
+        summary = reconstruct_stream(reader, engine, keep, chunk_planes=CHUNK_PLANES, readout=readout)
         del reader
         stages = summary.stages
         result["decode + binning"] = stages["read"]

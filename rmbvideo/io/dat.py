@@ -148,6 +148,10 @@ class DatReader:
             )
         self._file = RecordFile(self.path, plane_bytes, self._n_planes)
 
+    def close(self) -> None:
+        """Close the file (reading after this is an error)."""
+        self._file.close()
+
     @property
     def n_planes(self) -> int:
         """Whole planes in the file."""
