@@ -193,7 +193,7 @@ class DatReader:
     def read(self, start: int = 0, stop: int | None = None) -> np.ndarray:
         """Planes ``start..stop-1`` as (T, H, image_width) uint8 0/1 in image orientation."""
         start, stop = self._range(start, stop)
-        return unpack_planes(self._file.read(start, stop), self.geometry)
+        return unpack_planes(self._file.read(start, stop, scratch=True), self.geometry)
 
     def chunks(self, chunk_planes: int = 1024, start: int = 0, stop: int | None = None) -> Iterator[SpikeChunk]:
         """Consecutive ``SpikeChunk``s of at most ``chunk_planes`` planes covering ``start..stop``."""
@@ -228,7 +228,7 @@ class DatReader:
         stop -= (stop - start) % 2
         g = self.geometry
         if g.byte_aligned:
-            packed = self._file.read(start, stop).reshape(stop - start, g.height, g.width // 8)
+            packed = self._file.read(start, stop, scratch=True).reshape(stop - start, g.height, g.width // 8)
             single, multi = bin_packed(packed, g.image_width, g.flip)
         else:
             single, multi = bin_2x2x2(self.read(start, stop))

@@ -40,14 +40,25 @@ class RecordFile:
         self.record_bytes = record_bytes
         self.count = count
         self.offset = offset
+        self._scratch: np.ndarray | None = None
         try:
             self._file = open(path, "rb", buffering=0)
         except OSError as exc:
             raise InputError(f"{path}: cannot read: {exc.strerror or exc}") from None
 
-    def read(self, start: int, stop: int) -> np.ndarray:
-        """Records ``start..stop`` as a read-only (stop - start, record_bytes) uint8 array."""
-        out = np.empty((stop - start, self.record_bytes), dtype=np.uint8)
+    def read(self, start: int, stop: int, scratch: bool = False) -> np.ndarray:
+        """Records ``start..stop`` as a read-only (stop - start, record_bytes) uint8 array.
+
+        ``scratch``: read into a buffer reused by the next scratch read (no fresh pages to fault in per
+        chunk); only for callers done with the data before they read again."""
+        count = stop - start
+        if scratch:
+            if self._scratch is None or len(self._scratch) < count:
+                self._scratch = np.empty((count, self.record_bytes), dtype=np.uint8)
+            out = self._scratch[:count]
+            out.flags.writeable = True
+        else:
+            out = np.empty((count, self.record_bytes), dtype=np.uint8)
         view = memoryview(out).cast("B")
         done = 0
         try:
