@@ -115,3 +115,15 @@ def test_cli_help_and_decode():
     result = runner.invoke(main, ["bench", "decode", "--planes", "64", "--json"])
     assert result.exit_code == 0, result.output
     assert json.loads(result.output)["bit_exact"] is True
+
+
+def test_bench_simulate_reports_both_rates_on_the_same_work() -> None:
+    from rmbvideo.bench.simulate import bench_simulate, reference_emission, summary
+
+    result = bench_simulate("demo", 0.002)
+    assert result["readouts"] == 40 and result["width"] * result["height"] == 320 * 200
+    assert result["simulator_pixel_readouts_per_s"] > 0 and result["reference_pixel_readouts_per_s"] > 0
+    assert "simulator / reference" in summary(result)
+    # the reference is a real emitter: its firing rate follows the expected charge
+    rates = reference_emission(np.array([[1.0, 30.0, 300.0]]), 400, 105.0) / 400
+    assert rates[0, 0] < 0.02 < rates[0, 1] < rates[0, 2] <= 1.0

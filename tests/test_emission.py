@@ -172,3 +172,36 @@ def test_a_new_effect_is_one_class_and_one_registry_line(monkeypatch) -> None:
     base = SpikeEmitter(2, 2, SensorParams(), [], seed=0).emit(photo).sum()
     doubled = SpikeEmitter(2, 2, SensorParams(), ["double_threshold"], seed=0).emit(photo).sum()
     assert base == 2 * doubled  # 30 e- per readout: fires every 7 readouts instead of every 4 (Q_r = 105)
+
+
+@pytest.mark.parametrize("effects", [("shot_noise",),
+                                     ("shot_noise", "threshold_mismatch", "readout_rounding", "reset_noise")])
+@pytest.mark.parametrize("fraction", [0.02, 0.3, 0.9])
+def test_photon_arrivals_have_the_statistics_of_per_readout_counts(effects, fraction: float) -> None:
+    """The arrival emitter (one Gamma draw per spike) against the per-readout Poisson emitter: the same
+    mean rate and the same spread of spike counts per pixel, from the dark end to a spike almost every
+    readout; fixed-pattern thresholds come out the same pixel by pixel."""
+    from rmbvideo.sensor.emission import ArrivalSpikeEmitter
+
+    params = SensorParams()
+    shape, readouts = (48, 48), 300
+    photo = np.full(shape, fraction * params.q_r)
+    counts = []
+    for kind, seed in ((SpikeEmitter, 3), (ArrivalSpikeEmitter, 4)):
+        emitter = kind(*shape, params, effects, seed)
+        counts.append(sum(emitter.emit_one(photo, 1).astype(np.int64) for _ in range(readouts)))
+    slow, fast = (c.astype(np.float64) for c in counts)
+    standard_error = np.sqrt(slow.var() / slow.size + fast.var() / fast.size)
+    assert abs(fast.mean() - slow.mean()) < 4 * standard_error + 1e-9, (slow.mean(), fast.mean())
+    assert 0.8 < (fast.var() + 1e-9) / (slow.var() + 1e-9) < 1.25, (slow.var(), fast.var())
+
+
+def test_the_simulator_uses_photon_arrivals_only_where_they_are_exact() -> None:
+    from rmbvideo.sensor.emission import ARRIVAL_EFFECTS, arrivals_apply
+    from rmbvideo.sensor.effects import REALISTIC_EFFECTS
+
+    assert arrivals_apply(("shot_noise", "threshold_mismatch", "readout_rounding"), 1)
+    assert not arrivals_apply(("shot_noise",), 7)  # multi-bit values need the charge
+    assert not arrivals_apply(("threshold_mismatch",), 1)  # no shot noise: deterministic, per readout
+    assert not arrivals_apply(REALISTIC_EFFECTS, 1)  # dark current and thermal noise act every readout
+    assert "dark_current" not in ARRIVAL_EFFECTS and "thermal_noise" not in ARRIVAL_EFFECTS

@@ -148,3 +148,16 @@ def decode(planes: int, as_json: bool) -> None:
 
     result = bench_decode(planes)
     click.echo(json.dumps(result, indent=2) if as_json else _summary(result))
+
+
+@bench.command("simulate")
+@click.option("--scene", "scene_name", default="demo", show_default=True, help="Bundled scene name or TOML file.")
+@click.option("--duration", "duration_s", type=click.FloatRange(min=0, min_open=True), default=0.02,
+              show_default=True, help="Seconds of the scene to simulate.")
+@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
+def simulate(scene_name: str, duration_s: float, as_json: bool) -> None:
+    """Simulator pixel-readouts/s against a numpy Poisson-per-pixel-per-readout reference (one core)."""
+    from rmbvideo.bench.simulate import bench_simulate, summary
+
+    result = bench_simulate(scene_name, duration_s)
+    click.echo(json.dumps(result, indent=2) if as_json else summary(result))

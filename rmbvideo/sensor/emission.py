@@ -19,6 +19,10 @@ Readouts (``ReadoutSpec.kind``):
 
 For ``Lbit`` and ``rmb`` the single-bit plane of an ``RmbChunk`` is ``S == L`` where a row was read
 multi-bit (the charge reached the threshold), and the single-bit value elsewhere.
+
+Single-bit readouts whose only noise is shot noise plus fixed or per-reset threshold deviations are
+simulated by photon arrival (``ArrivalSpikeEmitter``: one Gamma draw per spike, the same statistics,
+several times faster than a Poisson draw per pixel per readout); the others per readout.
 """
 
 from __future__ import annotations
@@ -139,6 +143,63 @@ class SpikeEmitter:
         for t in range(len(photo_expected)):
             out[t] = self.emit_one(photo_expected[t], level)
         return out
+
+
+#: Effects ``ArrivalSpikeEmitter`` reproduces exactly (shot noise is required): the others change the
+#: charge or the threshold at every readout, so they need ``SpikeEmitter``'s per-readout charge.
+ARRIVAL_EFFECTS = frozenset({"shot_noise", "threshold_mismatch", "readout_rounding", "reset_noise",
+                             "rolling_readout"})
+
+
+def arrivals_apply(effects: Sequence[str], level: int) -> bool:
+    """Whether ``ArrivalSpikeEmitter`` can stand in for ``SpikeEmitter`` (1-bit, shot noise, and only
+    effects it reproduces)."""
+    return level == 1 and "shot_noise" in effects and set(effects) <= ARRIVAL_EFFECTS
+
+
+class ArrivalSpikeEmitter:
+    """1-bit pixels with Poisson shot noise, simulated by photon arrival instead of per-readout counts.
+
+    Photons arrive as a Poisson process, so a pixel whose threshold needs m electrons (ceil of the
+    threshold) fires at the first readout where its expected charge since the last reset reaches the
+    m-th arrival, a Gamma(m, 1) draw; the reset then discards the charge, as in ``SpikeEmitter``. One
+    Gamma draw per spike instead of one Poisson draw per pixel per readout: the same statistics for the
+    effects in ``ARRIVAL_EFFECTS`` (threshold offsets and rounding set m; reset noise redraws it at each
+    reset), a different random stream.
+    """
+
+    def __init__(self, height: int, width: int, params: SensorParams, effects: Sequence[str], seed: int,
+                 dark_correlation_px: float = 1.5) -> None:
+        if not arrivals_apply(effects, 1):
+            raise ValueError(f"photon arrivals need shot noise and only {sorted(ARRIVAL_EFFECTS)}, got {list(effects)}")
+        self._pixels = SpikeEmitter(height, width, params, effects, seed, dark_correlation_px)
+        self._rng = np.random.default_rng([seed, 0xA771])
+        # Electrons to fire: fixed unless reset noise redraws the threshold at every reset.
+        self._electrons = None if "reset_noise" in effects else self._threshold_electrons()
+        self._expected = np.zeros((height, width), dtype=np.float64)
+        self._target = np.empty((height, width), dtype=np.float64)
+        everyone = np.ones((height, width), dtype=bool)
+        self._target[everyone] = self._arrival(everyone)
+
+    def _threshold_electrons(self) -> np.ndarray:
+        """Photons needed to fire, per pixel: the threshold's charge rounded up (charge is whole electrons)."""
+        return np.ceil(np.broadcast_to(self._pixels._threshold(), self._pixels.shape) - 1e-9)
+
+    def _arrival(self, which: np.ndarray) -> np.ndarray:
+        """Expected charge at which the threshold's m-th photon arrives, for the pixels in ``which``."""
+        electrons = self._electrons if self._electrons is not None else self._threshold_electrons()
+        return self._rng.gamma(electrons[which])
+
+    def emit_one(self, photo_expected: np.ndarray, row_level: np.ndarray | int = 1) -> np.ndarray:
+        """One readout of ``photo_expected`` (H, W) mean photo-electrons -> (H, W) uint8 0/1."""
+        self._expected += photo_expected
+        fired = self._expected >= self._target
+        if fired.any():
+            self._expected[fired] = 0.0
+            for effect in self._pixels._hooks["after_readout"]:
+                effect.after_readout(fired)
+            self._target[fired] = self._arrival(fired)
+        return fired.astype(np.uint8)
 
 
 class RateIntegrateFire:
