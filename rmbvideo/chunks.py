@@ -13,6 +13,8 @@ Conventions shared by all stages:
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -81,8 +83,10 @@ def clean_image(image: np.ndarray) -> tuple[np.ndarray, int]:
     """``image`` as a ``Frame`` must be (float32, finite, >= 0): NaN/Inf become 0, negatives 0;
     also returns how many pixels were not finite. Returns the input itself when it is clean."""
     image = np.asarray(image, dtype=np.float32)
+    # Fast path, two reductions and no temporaries: max and min propagate NaN, so a finite max and a
+    # min >= 0 mean every value is finite and >= 0.
+    if image.size == 0 or (math.isfinite(float(image.max())) and float(image.min()) >= 0):
+        return image, 0
     bad = ~np.isfinite(image)
     count = int(bad.sum())
-    if count == 0 and image.min(initial=0.0) >= 0:
-        return image, 0
     return np.where(bad, np.float32(0.0), np.maximum(image, np.float32(0.0))).astype(np.float32), count

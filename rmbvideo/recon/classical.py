@@ -112,13 +112,47 @@ def _word_dtype(plane_bytes: int) -> np.dtype:
                 if plane_bytes % np.dtype(t).itemsize == 0)
 
 
+def _ripple_add(a: list[np.ndarray], b: list[np.ndarray]) -> list[np.ndarray]:
+    """Bit-sliced ``a + b`` (LSB first, any widths; the result is one bit wider than the wider)."""
+    out, carry = [], None
+    for k in range(max(len(a), len(b))):
+        x = a[k] if k < len(a) else None
+        y = b[k] if k < len(b) else None
+        if x is None or y is None:
+            z = x if x is not None else y
+            out.append(z if carry is None else z ^ carry)
+            carry = None if carry is None else z & carry
+            continue
+        partial = x ^ y
+        out.append(partial if carry is None else partial ^ carry)
+        carry = x & y if carry is None else (x & y) | (carry & partial)
+    if carry is not None:
+        out.append(carry)
+    return out
+
+
+def _bit_sliced_sum(planes: np.ndarray) -> list[np.ndarray]:
+    """Bit-sliced count (LSB first) of the packed planes ``(m, words)``: a tree of adders over
+    contiguous halves, each level adding many pairs of counts in one vectorised operation per bit."""
+    bits, leftovers = [planes], []
+    while len(bits[0]) > 1:
+        n = len(bits[0])
+        half = n // 2
+        if n % 2:
+            leftovers.append([bit[n - 1:] for bit in bits])
+        bits = _ripple_add([bit[:half] for bit in bits], [bit[half:2 * half] for bit in bits])
+    for extra in leftovers:
+        bits = _ripple_add(bits, extra)
+    return [bit[0] for bit in bits]
+
+
 class _BitSlicedTotals:
     """Running total of packed 1-bit planes as a bit-sliced ("vertical") counter modulo ``2**bits``.
 
     Counter bit ``k`` of every pixel sits in word array ``k`` at the pixel's stored bit position, so
-    adding a plane is a ripple of AND/XOR over ``plane_bytes`` and nothing is unpacked per plane.
-    With ``2**bits > window`` every window difference is exact. Planes first go into a small pending
-    counter that is only as wide as its count needs; it is folded into the total at each snapshot.
+    adding planes is AND/XOR over ``plane_bytes`` and nothing is unpacked per plane. With
+    ``2**bits > window`` every window difference is exact. The planes between two window events are
+    counted together (``_bit_sliced_sum``) and added to the total with one ripple-carry adder.
     Differences stay bit-sliced (small) until :meth:`decode` turns one into counts per pixel.
     """
 
@@ -128,36 +162,19 @@ class _BitSlicedTotals:
         self._bits = window.bit_length()
         words = geometry.plane_bytes // self._word.itemsize
         self._total = np.zeros((self._bits, words), dtype=self._word)
-        self._pending: list[np.ndarray] = []  # bit-sliced count of planes not yet in _total, LSB first
-        self._pending_count = 0
         self._count_dtype = next(np.dtype(t) for t in (np.uint8, np.uint16, np.uint32, np.uint64)
                                  if self._bits <= 8 * np.dtype(t).itemsize)
 
     def add(self, channels: Sequence[np.ndarray], a: int, b: int) -> None:
-        for plane in channels[0][a:b].view(self._word):
-            self._add_plane(plane)
+        if b > a:
+            self._add_count(_bit_sliced_sum(channels[0][a:b].view(self._word))[: self._bits])
 
-    def _add_plane(self, plane: np.ndarray) -> None:
-        count = self._pending_count + 1
-        grows = len(self._pending) < self._bits and count >> len(self._pending)
-        carry = plane
-        for k, bit in enumerate(self._pending):
-            if k == len(self._pending) - 1 and not grows:
-                np.bitwise_xor(bit, carry, out=bit)  # top bit: its carry is beyond the modulus
-                break
-            next_carry = np.bitwise_and(bit, carry)
-            np.bitwise_xor(bit, carry, out=bit)
-            carry = next_carry
-        if grows:
-            self._pending.append(carry.copy() if carry is plane else carry)
-        self._pending_count = count
-
-    def _fold_pending(self) -> None:
-        """Add the pending counter into the total (a ripple-carry adder, modulo ``2**bits``)."""
+    def _add_count(self, addends: list[np.ndarray]) -> None:
+        """Add a bit-sliced count into the total (a ripple-carry adder, modulo ``2**bits``)."""
         carry: np.ndarray | None = None
         for k in range(self._bits):
             bit = self._total[k]
-            addend = self._pending[k] if k < len(self._pending) else None
+            addend = addends[k] if k < len(addends) else None
             if addend is None and carry is None:
                 break
             last = k == self._bits - 1
@@ -170,15 +187,11 @@ class _BitSlicedTotals:
                 next_carry = None if last else bit & addend
             np.bitwise_xor(bit, addend, out=bit)
             carry = next_carry
-        self._pending.clear()
-        self._pending_count = 0
 
     def snapshot(self) -> np.ndarray:
-        self._fold_pending()
         return self._total.copy()
 
     def since(self, snapshot: np.ndarray) -> list[np.ndarray]:
-        self._fold_pending()
         return [self._subtract(self._total, snapshot)]
 
     def _subtract(self, minuend: np.ndarray, subtrahend: np.ndarray) -> np.ndarray:
