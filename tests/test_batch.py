@@ -180,11 +180,11 @@ def test_parallel_processes_give_the_same_outputs(tmp_path: Path) -> None:
     assert run("batch", tmp_path / "in", "-o", parallel, *GEOM, *EXR, "--jobs", "2", "-q").exit_code == 0
     assert {c["status"] for c in report(parallel).values()} == {"ok"}
     # Workers run the network with fewer threads than a lone process on a many-core machine: the
-    # float32 sums come in another order, so frames agree to float32 rounding, not bit for bit.
+    # float32 sums come in another order, so frames agree to rounding (one half-float step: EXR is half), not bit for bit.
     for k in range(3):
         for frame in sorted((serial / f"c{k}").glob("*.exr")):
             np.testing.assert_allclose(read_exr(frame)[0], read_exr(parallel / f"c{k}" / frame.name)[0],
-                                       rtol=1e-4, atol=1e-6)
+                                       rtol=2e-3, atol=1e-6)
 
 
 def test_a_second_batch_into_the_same_folder_is_refused(tmp_path: Path) -> None:
