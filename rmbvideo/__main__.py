@@ -1,10 +1,16 @@
-"""``python -m rmbvideo`` runs the command-line interface."""
+"""``python -m rmbvideo`` and the ``rmbvideo`` command: the command-line interface."""
 
 import sys
 
-try:
-    from rmbvideo.cli import main
-except KeyboardInterrupt:  # Ctrl-C while starting up: nothing was written yet
-    sys.exit(130)
 
-main()
+def run() -> None:
+    """Start the CLI; Ctrl-C while it is still importing exits 130 quietly (nothing was written yet)."""
+    try:
+        from rmbvideo.cli import main
+    except KeyboardInterrupt:
+        sys.exit(130)
+    main()
+
+
+if __name__ == "__main__":
+    run()
