@@ -70,10 +70,12 @@ def _notes(sequences: list, quick: bool, device: str, figure: tuple[str, int]) -
         f"- Frames: one per {FRAME_STEP} binned readouts; ground truth = linear radiance at the frame's centre. "
         f"Scored: the {scored} frames whose +-{seq.edge_readouts}-readout neighbourhood lies inside their sequence "
         "(same frames for every method).",
-        "- Input: the binned stream through the RMB readout (band 4, shift 2) for every row, except "
-        "Pure-S/Pure-M/Full-M (their readout design), TFI (the 1-bit plane of that RMB stream) and the '(raw)' "
-        "rows: TFP and TFI on the raw full-resolution capture, 2x2 area-averaged to the ground-truth size. "
-        "'best classical on the raw capture' takes, per sequence, the best of those raw rows.",
+        "- Input: the binned stream through the default model's readout design (the one it was trained on: "
+        "every bin count for the shipped model) for the baselines and RMB-Net; 'RMB-Net, RMB readout' and the "
+        "ablations through their own design (RMB band 4 / shift 2, Pure-S, Pure-M, Full-M); TFI gets the 1-bit "
+        "plane of that stream; the '(raw)' rows are TFP and TFI on the raw full-resolution capture, 2x2 "
+        "area-averaged to the ground-truth size. 'best classical on the raw capture' takes, per sequence, the "
+        "best of those raw rows. RMB-Net is told each sequence's sensor convention (spikezoo-fast: spikezoo's).",
         "- Metrics: PSNR and SSIM of mu-law tone-mapped frames (mu = 5000) after dividing by the ground truth's "
         "99.9th percentile; PU21 PSNR replaces HDR-VDP-3/HDR-VQM (MATLAB only). Per-sequence means, then the "
         "mean over sequences.",

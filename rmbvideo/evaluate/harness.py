@@ -1,10 +1,10 @@
 """Run any reconstruction method on a held-out sequence, match its frames to ground truth, score, time.
 
-Input: every method on the RMB stream gets the sequence's binned pure-M stream passed through the
-row's readout design (``RmbReadout(mode=...)``; "rmb" for the baselines and RMB-Net, the ablation
-designs for the pure-S/pure-M/full-M rows). Methods on 1-bit planes (TFI) get the 1-bit plane of
-that same RMB stream (the kept pixel of every bin, at the binned rate), so every row sees the same
-input, as in the paper's Table 2. Frame i is centred at binned readout 10i + 5 (raw plane 20i + 10).
+Input: every method on the binned stream gets the sequence's binned pure-M stream passed through the
+row's readout design (``RmbReadout(mode=...)``; the default model's design for the baselines and
+RMB-Net, "rmb" for the RMB-readout row, the ablation designs for the pure-S/pure-M/full-M rows).
+Methods on 1-bit planes (TFI) get the 1-bit plane of that same stream (the kept pixel of every bin,
+at the binned rate), so every baseline sees the default's input, as in the paper's Table 2. Frame i is centred at binned readout 10i + 5 (raw plane 20i + 10).
 
 Ground truth is clipped at the sensor's saturation (1: one spike per raw readout interval, the most
 any 1-bit or binned readout can report) before scoring: radiance above it is invisible to every

@@ -203,7 +203,7 @@ def real_capture_comparison(path: Path, out_png: Path, model: Path | None = None
     """Side-by-side of a real capture: RMB-Net (shipped binned model, or ``model``) vs TFP vs TFI.
 
     The capture's geometry comes from its sidecar, else the 400x250 defaults. RMB-Net runs on the
-    2x2x2-binned stream with the RMB readout; TFP (41 planes) and TFI run on the raw planes, and their
+    2x2x2-binned stream through the readout its model was trained on; TFP (41 planes) and TFI run on the raw planes, and their
     frames are 2x2 area-averaged to RMB-Net's size. ``frame`` defaults to the middle frame all three
     produce. Regions are picked on the TFP frame; each column is tone-mapped to its own robust maximum
     (there is no ground truth, and the methods' linear units agree only roughly).
@@ -211,12 +211,13 @@ def real_capture_comparison(path: Path, out_png: Path, model: Path | None = None
     from rmbvideo.io.capture import open_capture
     from rmbvideo.recon.methods import make_reconstructor
     from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
+    from rmbvideo.recon.run import trained_readout
     from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
 
     reader = open_capture(Path(path), width=None, height=None, flip=None, header_cols=None, rate_hz=None)
+    rmbnet = make_reconstructor("rmbnet", model=model, device=device, input_mode="binned")
     runs = {
-        "RMB-Net": (make_reconstructor("rmbnet", model=model, device=device, input_mode="binned"),
-                    RmbReadout(mode=ReadoutMode.RMB)),
+        "RMB-Net": (rmbnet, RmbReadout(mode=ReadoutMode(trained_readout(rmbnet)))),
         "TFP": (make_reconstructor("tfp", window=41, step=20), None),
         "TFI": (make_reconstructor("tfi", step=20), None),
     }
