@@ -64,8 +64,9 @@ def model_readout(weights: Path) -> str:
 
 
 def shipped_model_with_window(input_mode: str, w: int) -> Path:
-    """A shipped full model (XBA and XTA on, the default model's readout) for ``input_mode`` whose window
-    half-width is ``w``: the default model first, then the ablation models in ``models/ablations``."""
+    """A shipped full model (XBA and XTA on; the default model's readout or RMB's, and reconstruct reads
+    through the one it was trained on) for ``input_mode`` whose window half-width is ``w``: the default
+    model first, then the ablation models in ``models/ablations``."""
     candidates = [default_model_path(input_mode)] + sorted((MODELS_DIR / "ablations").glob("*.safetensors"))
     for weights in candidates:
         try:
@@ -74,7 +75,7 @@ def shipped_model_with_window(input_mode: str, w: int) -> Path:
             continue
         arch = card.get("architecture", {}) if isinstance(card, dict) else {}
         if (arch.get("w") == w and arch.get("input_mode") == input_mode and arch.get("use_xba")
-                and arch.get("use_xta") and arch.get("readout", "rmb") == model_readout(candidates[0])):
+                and arch.get("use_xta") and arch.get("readout", "rmb") in ("rmb", model_readout(candidates[0]))):
             return weights
     raise ModelError(f"no shipped {input_mode} model with w = {w}; train one (rmbvideo train) and pass --model")
 
