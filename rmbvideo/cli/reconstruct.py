@@ -12,7 +12,7 @@ from rmbvideo.cli.options import capture_options
 from rmbvideo.io.sinks import SINK_FORMATS
 from rmbvideo.io.tonemap import TONE_METHODS
 from rmbvideo.recon.methods import DEFAULT_METHOD, METHODS
-from rmbvideo.recon.run import run_reconstruction
+from rmbvideo.recon.run import RESOLUTIONS, run_reconstruction
 from rmbvideo.sensor.conventions import CONVENTIONS
 from rmbvideo.sensor.readout import ReadoutMode
 
@@ -77,7 +77,7 @@ def rmbnet_options(func):
 @click.option("--readout", type=click.Choice([m.value for m in ReadoutMode]), default=None,
               help="Readout design applied to the binned stream (rmbnet, tfw, gc20, mg20) [default: the one the "
                    "RMB-Net model was trained on; rmb for the other methods].")
-@click.option("--resolution", type=click.Choice(["binned", "full"]), default="binned", show_default=True,
+@click.option("--resolution", type=click.Choice(RESOLUTIONS), default="binned", show_default=True,
               help="Output size of methods on the binned stream from a real 1-bit capture: binned (half the camera's), "
                    "or full (the camera's, with the raw stream's detail added where its spike counts resolve it).")
 @capture_options
