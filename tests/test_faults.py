@@ -259,3 +259,24 @@ def test_reconstruct_on_a_full_disk_is_one_line_and_leaves_nothing(tmp_path: Pat
     one_line_error(proc, str(tmp_path / "out"))
     assert ".partial-" not in proc.stderr and "ffmpeg version" not in proc.stderr
     assert list(tmp_path.iterdir()) == [tmp_path / "in"]
+
+
+def test_a_signal_waits_until_an_output_swap_is_done() -> None:
+    """staged_folder swaps outputs with the command's signal exceptions held back (found by the fault
+    matrix: a SIGHUP between the renames left the previous output aside)."""
+    import os
+
+    from rmbvideo.cli import Terminated, _terminate
+    from rmbvideo.io.atomic import signals_deferred
+
+    previous = signal.signal(signal.SIGHUP, _terminate)
+    reached_the_end = False
+    try:
+        with pytest.raises(Terminated):
+            with signals_deferred():
+                os.kill(os.getpid(), signal.SIGHUP)
+                time.sleep(0.05)
+                reached_the_end = True
+        assert reached_the_end
+    finally:
+        signal.signal(signal.SIGHUP, previous)

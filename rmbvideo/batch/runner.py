@@ -19,6 +19,7 @@ from rmbvideo.batch.markers import (
     write_marker,
 )
 from rmbvideo.errors import OutputError, RmbvideoError
+from rmbvideo.io.atomic import signals_deferred
 
 log = logging.getLogger(__name__)
 _OUTPUT_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS}
@@ -105,17 +106,24 @@ def make_dir(path: Path) -> None:
 
 
 def _install(work: Path, final: Path) -> None:
-    """Rename the finished ``work`` folder onto ``final``, moving an older ``final`` aside first."""
+    """Rename the finished ``work`` folder onto ``final``, moving an older ``final`` aside first (with the
+    command's signals held back, so a Ctrl-C cannot leave the older output aside)."""
     try:
-        if final.exists() or final.is_symlink():
-            old = final.with_name(f".{final.name}.old-{os.getpid()}-{secrets.token_hex(4)}")
-            os.replace(final, old)
-            os.replace(work, final)
-            if old.is_dir() and not old.is_symlink():
-                shutil.rmtree(old, ignore_errors=True)
-            else:
-                old.unlink(missing_ok=True)
-        else:
-            os.replace(work, final)
+        with signals_deferred():
+            _swap(work, final)
     except OSError as exc:
         raise OutputError(f"{final}: cannot move the finished output into place: {exc.strerror or exc}") from exc
+
+
+def _swap(work: Path, final: Path) -> None:
+    """``work`` becomes ``final``; an older ``final`` is moved aside, then removed."""
+    if final.exists() or final.is_symlink():
+        old = final.with_name(f".{final.name}.old-{os.getpid()}-{secrets.token_hex(4)}")
+        os.replace(final, old)
+        os.replace(work, final)
+        if old.is_dir() and not old.is_symlink():
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            old.unlink(missing_ok=True)
+    else:
+        os.replace(work, final)

@@ -17,6 +17,7 @@ import sys
 import click
 
 from rmbvideo.errors import RmbvideoError
+from rmbvideo.io.atomic import raise_or_defer
 
 # name -> ("module:attribute" of the click command, one line for ``rmbvideo --help``)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -49,12 +50,12 @@ _received: list[int] = []
 
 def _terminate(signum: int, frame: object) -> None:
     _received.append(signum)
-    raise Terminated(signum)
+    raise_or_defer(Terminated(signum))
 
 
 def _interrupt(signum: int, frame: object) -> None:
     _received.append(signum)
-    raise KeyboardInterrupt
+    raise_or_defer(KeyboardInterrupt())
 
 
 class LazyGroup(click.Group):

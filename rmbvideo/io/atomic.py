@@ -129,6 +129,31 @@ def remove_stale_staging(final: Path) -> None:
                 shutil.rmtree(path, ignore_errors=True)
 
 
+_deferred: list[BaseException] | None = None  # exceptions of signals held back by signals_deferred
+
+
+@contextmanager
+def signals_deferred() -> Iterator[None]:
+    """Hold the exceptions of the command's signal handlers (``raise_or_defer``) back until the block is
+    done, then raise the first: a step that swaps outputs is never cut in half."""
+    global _deferred
+    outer, _deferred = _deferred, []
+    try:
+        yield
+    finally:
+        held, _deferred = _deferred, outer
+        if held:
+            raise held[0]
+
+
+def raise_or_defer(exc: BaseException) -> None:
+    """For signal handlers: raise ``exc`` now, or at the end of the ``signals_deferred`` block running."""
+    if _deferred is not None:
+        _deferred.append(exc)
+        return
+    raise exc
+
+
 @contextmanager
 def staged_folder(final: Path, overwrite: bool = False) -> Iterator[Path]:
     """A fresh hidden folder beside ``final`` to write a whole output into; when the block ends
@@ -154,10 +179,11 @@ def staged_folder(final: Path, overwrite: bool = False) -> Iterator[Path]:
     try:
         yield staging
         old = final.with_name(f".{final.name}.old-{token}")
-        if final.exists():
-            os.rename(final, old)
-        os.rename(staging, final)
-        shutil.rmtree(old, ignore_errors=True)
+        with signals_deferred():  # a signal now would leave the old output aside, or half removed
+            if final.exists():
+                os.rename(final, old)
+            os.rename(staging, final)
+            shutil.rmtree(old, ignore_errors=True)
     except BaseException as exc:
         shutil.rmtree(staging, ignore_errors=True)
         if isinstance(exc, OSError) and is_environment_error(exc):
