@@ -266,7 +266,7 @@ def test_a_signal_waits_until_an_output_swap_is_done() -> None:
     matrix: a SIGHUP between the renames left the previous output aside)."""
     import os
 
-    from rmbvideo.cli import Terminated, _terminate
+    from rmbvideo.cli import Terminated, _received, _terminate
     from rmbvideo.io.atomic import signals_deferred
 
     previous = signal.signal(signal.SIGHUP, _terminate)
@@ -280,3 +280,4 @@ def test_a_signal_waits_until_an_output_swap_is_done() -> None:
         assert reached_the_end
     finally:
         signal.signal(signal.SIGHUP, previous)
+        _received.clear()
