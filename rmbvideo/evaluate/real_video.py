@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 
 from rmbvideo.errors import InputError
+from rmbvideo.evaluate.harness import RMB_ROW
 from rmbvideo.evaluate.metrics import ssim
 from rmbvideo.io.dat import DatGeometry, DatReader
 from rmbvideo.recon.methods import make_reconstructor
@@ -42,7 +43,6 @@ TFP_WINDOWS = (20, 41, 80, 140)
 BEST_RAW = "best classical on the raw capture"
 #: The spikezoo format's streams are simulated in its rate convention (``rmbvideo.sensor.conventions``).
 CONVENTION = "spikezoo"
-RMB_ROW = "RMB-Net, RMB readout"
 _KEY = re.compile(r"key_id(\d+)")
 
 
