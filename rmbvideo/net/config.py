@@ -27,6 +27,9 @@ class RmbNetConfig:
     ``convention_input``: the head also sees which sensor convention made the stream (a constant
     plane: 0 a real camera's reset-to-zero pixel, 1 the accumulate-and-subtract rate convention of
     simulators such as spikezoo's), because the same spikes mean different intensities under the two.
+    ``blend``: the output is a per-pixel softmax blend of the network's own estimate and the exact
+    box-filter intensities of the reference frame and each pooled window (``rmbvideo.net.blend``);
+    needs every bin count (binned input, pure-M readout).
     ``output_mu``/``output_max``: the decoder predicts the mu-law domain T(G) (the training loss
     domain, mu = 5000) through a softplus, capped at ``output_max`` so the inverse cannot overflow.
     """
@@ -49,6 +52,7 @@ class RmbNetConfig:
     pooled_windows: tuple[int, ...] = ()
     convention_input: bool = False
     readout: str = "rmb"
+    blend: bool = False
 
     def __post_init__(self) -> None:
         if not 0 <= self.w <= 3:
@@ -68,6 +72,8 @@ class RmbNetConfig:
         for size in self.pooled_windows:
             if size % 2 == 0 or not 3 <= size <= self.window:
                 raise ValueError(f"pooled_windows must be odd lengths in 3..{self.window}, got {size}")
+        if self.blend and (self.input_mode != "binned" or self.readout != "pure-m"):
+            raise ValueError("blend needs every bin count: input_mode \"binned\" and readout \"pure-m\"")
 
     @property
     def window(self) -> int:
@@ -81,7 +87,8 @@ class RmbNetConfig:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary (tuples become lists; no ``pooled_windows`` key when there are none, no
-        ``convention_input`` key when it is off, no ``readout`` key for the RMB design)."""
+        ``convention_input`` key when it is off, no ``readout`` key for the RMB design, no ``blend`` key
+        when it is off)."""
         out = asdict(self)
         out["base_channels"] = list(self.base_channels)
         out["pooled_windows"] = list(self.pooled_windows)
@@ -91,6 +98,8 @@ class RmbNetConfig:
             del out["convention_input"]
         if self.readout == "rmb":
             del out["readout"]
+        if not self.blend:
+            del out["blend"]
         return out
 
     @classmethod

@@ -17,7 +17,7 @@ def _conv_relu(in_channels: int, out_channels: int) -> nn.Sequential:
 
 
 class Decoder(nn.Module):
-    """Upsampling decoder; ``forward`` returns the raw head output z (B,1,H,W) and the new state.
+    """Upsampling decoder; ``forward`` returns the raw head output z (B,``outputs``,H,W) and the new state.
 
     Per scale s (1/8, then 1/4, then 1/2): fuse the upsampled coarser result with the reference
     F_ms(i) at s (at 1/8 with F_bar_ms(i)), run the ConvLSTM of s. At full resolution the
@@ -25,7 +25,8 @@ class Decoder(nn.Module):
     lost by pooling can come back.
     """
 
-    def __init__(self, channels: tuple[int, int, int], lstm_kernel: int, input_channels: int = 2) -> None:
+    def __init__(self, channels: tuple[int, int, int], lstm_kernel: int, input_channels: int = 2,
+                 outputs: int = 1) -> None:
         super().__init__()
         c1, c2, c3 = channels
         self.lstm3 = ConvLSTMCell(2 * c3, c3, lstm_kernel)
@@ -36,7 +37,7 @@ class Decoder(nn.Module):
         self.fuse1 = _conv_relu(2 * c1, c1)
         self.lstm1 = ConvLSTMCell(c1, c1, lstm_kernel)
         self.up1 = _conv_relu(c1, c1)
-        self.head = nn.Sequential(_conv_relu(c1 + input_channels, c1), nn.Conv2d(c1, 1, 3, padding=1))
+        self.head = nn.Sequential(_conv_relu(c1 + input_channels, c1), nn.Conv2d(c1, outputs, 3, padding=1))
 
     def forward(
         self,

@@ -24,6 +24,8 @@ Choices where the paper and supplement are silent:
 - Convention input (``config.convention_input``): one more constant head channel, 0 for a real
   camera's pixel (reset to zero at a spike) and 1 for the rate convention of simulators that keep the
   charge above threshold (spikezoo): the same rates mean different intensities near saturation.
+- Blend output (``config.blend``): the head also predicts softmax weights over its own estimate and
+  exact box-filter intensities (``rmbvideo.net.blend``); the output is their linear blend.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from rmbvideo.net.attention import CrossBitAttention, CrossTimeAttention, PlainBitFusion, TemporalMean
+from rmbvideo.net.blend import OWN_LOGIT_INIT, blend, box_candidates, candidate_count
 from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.decoder import Decoder, DecoderState
 from rmbvideo.net.encoder import Encoder
@@ -104,8 +107,16 @@ class RmbNet(nn.Module):
             )
         else:
             self.time_fusion = TemporalMean()
+        outputs = 2 + candidate_count(config.pooled_windows) if config.blend else 1
         self.decoder = Decoder(channels, config.lstm_kernel,
-                               input_channels=2 + 2 * len(config.pooled_windows) + int(config.convention_input))
+                               input_channels=2 + 2 * len(config.pooled_windows) + int(config.convention_input),
+                               outputs=outputs)
+        if config.blend:  # start from the network's own estimate (weight ~0.98), whatever the input
+            last = self.decoder.head[-1]
+            with torch.no_grad():
+                last.weight[1:].zero_()
+                last.bias[1:].zero_()
+                last.bias[1] = OWN_LOGIT_INIT
 
     def normalise_inputs(self, i_s: torch.Tensor, i_m: torch.Tensor) -> torch.Tensor:
         """(B,H,W) preliminary sums -> (B,2,H,W) rates I_s/N and I_m/(level N), clipped to [0, 1]."""
@@ -233,7 +244,13 @@ class RmbNet(nn.Module):
         reference.append(f_ms_coarse[self.config.w])
         fused = self.time_fusion(f_ms_coarse, mask)
         z, state = self.decoder(fused, reference, self._head_inputs(window, valid, convention), state)
-        t = F.softplus(z.float()).clamp(max=self.config.output_max)
+        t = F.softplus(z[:, :1].float()).clamp(max=self.config.output_max)
+        if self.config.blend:
+            cfg = self.config
+            candidates = box_candidates([f.rates for f in window], valid, cfg.w, cfg.pooled_windows, cfg.level,
+                                        convention)
+            mixed = blend(self.to_linear(t), candidates, z[:, 1:])
+            t = mu_law(mixed, cfg.output_mu).clamp(max=cfg.output_max)
         h, w = ref.size
         return t[..., :h, :w], state
 

@@ -50,7 +50,7 @@ from rmbvideo.train.loss import LossConfig, reconstruction_loss
 log = logging.getLogger(__name__)
 
 LOG_COLUMNS = ("step", "elapsed_s", "lr", "loss", "l2", "ssim", "edge", "val_mu_psnr", "val_mu_ssim",
-               "val_tfw_mu_psnr")
+               "val_tfw_mu_psnr", "linear")
 
 
 @dataclass
@@ -131,7 +131,7 @@ def segment_losses(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossCon
         cache: dict = {}
         state_in = state
         segment_loss = torch.zeros((), device=batch.i_s.device)
-        parts = {"loss": 0.0, "l2": 0.0, "ssim": 0.0, "edge": 0.0}
+        parts = {"loss": 0.0, "l2": 0.0, "ssim": 0.0, "edge": 0.0, "linear": 0.0}
         for i in range(first, last + 1):
             window = [frames[j - lo] for j in window_indices(i, w, count)]
             t, state = model.step(window, state, cache, valid=window_valid(i, w, count), convention=batch.convention)
@@ -150,7 +150,7 @@ def train_batch(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossConfig
     steps the optimizer). Returns the mean loss and its parts over the supervised outputs."""
     model.train()
     outputs = len(output_range(batch.i_s.shape[1], model.config.w, edges))
-    totals = {"loss": 0.0, "l2": 0.0, "ssim": 0.0, "edge": 0.0}
+    totals = {"loss": 0.0, "l2": 0.0, "ssim": 0.0, "edge": 0.0, "linear": 0.0}
     for segment in segment_losses(model, batch, tbptt, loss_config, edges):
         segment.loss.backward()
         for key, value in segment.parts.items():
@@ -257,7 +257,9 @@ class Trainer:
     def warm_start(self, source: str) -> None:
         """Start from the weights of model ``source`` (a file or a shipped model's name): tensors
         of the same shape are copied; a first head conv that gained input channels keeps the old
-        ones and starts the new ones at zero, so the run starts from the old model's function."""
+        ones and starts the new ones at zero, and a last head conv that gained outputs (blend logits)
+        keeps the old output and the new ones' initialisation, so the run starts from (close to) the
+        old model's function."""
         path = Path(source)
         if not path.suffix:
             path = default_model_path(self.config.model.input_mode).with_name(f"{source}.safetensors")
@@ -274,6 +276,9 @@ class Trainer:
             elif target.dim() == 4 and target.shape[0] == tensor.shape[0] and target.shape[1] > tensor.shape[1]:
                 target.zero_()
                 target[:, : tensor.shape[1]] = tensor
+                widened.append(name)
+            elif target.shape[0] > tensor.shape[0] and target.shape[1:] == tensor.shape[1:]:
+                target[: tensor.shape[0]] = tensor  # a head that gained outputs keeps their initialisation
                 widened.append(name)
         self.model.load_state_dict(new_state)
         log.info("warm start from %s: %d tensors copied, widened %s", path, copied, widened or "none")
@@ -381,7 +386,9 @@ class Trainer:
                 "tbptt": f"{cfg.data.steps} consecutive outputs per sample, back-propagated in segments of "
                          f"{cfg.optim.tbptt}",
                 "loss": f"mu-law (mu={cfg.loss.mu:g}) L2 + {cfg.loss.ssim:g} x (1 - SSIM) + {cfg.loss.edge:g} x "
-                        f"gradient L1; ground truth clipped at {cfg.loss.saturation:g} (sensor saturation)",
+                        f"gradient L1" + (f" + {cfg.loss.linear:g} x linear L1 relative to the sample's mean"
+                                          if cfg.loss.linear > 0 else "")
+                        + f"; ground truth clipped at {cfg.loss.saturation:g} (sensor saturation)",
                 "lpips": "not used (no downloadable weights); replaced by the gradient L1 term"
                          if cfg.loss.edge > 0 else "not used (no downloadable weights), no replacement",
             },

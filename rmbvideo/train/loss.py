@@ -1,7 +1,7 @@
 """Training loss of RMB-Net (paper Eqn. 13) on mu-law tone-mapped frames.
 
-L = L2(T(P), T(G)) + beta1 (1 - SSIM(T(P), T(G))) + beta_edge L1(grad T(P), grad T(G)), with
-T(G) = log(1 + mu G) / log(1 + mu), mu = 5000. LPIPS (beta2 in the paper) needs pretrained
+L = L2(T(P), T(G)) + beta1 (1 - SSIM(T(P), T(G))) + beta_edge L1(grad T(P), grad T(G))
+  + beta_linear |P - G|_1 / |G|_1 (per sample), with T(G) = log(1 + mu G) / log(1 + mu), mu = 5000. LPIPS (beta2 in the paper) needs pretrained
 weights that cannot be downloaded here; the edge term (L1 between horizontal and vertical finite
 differences) stands in for it as a cheap sharpness prior. The ground truth is clipped at
 ``saturation`` before tone mapping: above it (1 in the project's units, a pixel firing at every
@@ -16,17 +16,19 @@ import torch
 import torch.nn.functional as F
 
 from rmbvideo.evaluate.metrics import ssim_torch
-from rmbvideo.mulaw import mu_law
+from rmbvideo.mulaw import inverse_mu_law, mu_law
 
 
 @dataclass(frozen=True)
 class LossConfig:
-    """Weights and constants of the loss: ``ssim`` is beta1, ``edge`` replaces LPIPS (0: off)."""
+    """Weights and constants of the loss: ``ssim`` is beta1, ``edge`` replaces LPIPS (0: off),
+    ``linear`` weighs the relative linear-domain L1 (0: off)."""
 
     mu: float = 5000.0
     ssim: float = 1.0
     edge: float = 0.5
     saturation: float = 1.0
+    linear: float = 0.0
 
 
 def tone_mapped_target(gt: torch.Tensor, config: LossConfig) -> torch.Tensor:
@@ -42,7 +44,7 @@ def _gradients(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 def reconstruction_loss(pred_t: torch.Tensor, gt: torch.Tensor, config: LossConfig) -> tuple[torch.Tensor, dict[str, float]]:
     """Loss of mu-law-domain predictions ``pred_t`` (B, H, W) against linear ``gt`` (B, H, W).
 
-    Returns the scalar loss and its parts as floats (``l2``, ``ssim`` = 1 - SSIM, ``edge``).
+    Returns the scalar loss and its parts as floats (``l2``, ``ssim`` = 1 - SSIM, ``edge``, ``linear``).
     """
     target = tone_mapped_target(gt, config)
     pred = pred_t.float()
@@ -55,5 +57,13 @@ def reconstruction_loss(pred_t: torch.Tensor, gt: torch.Tensor, config: LossConf
         gx_t, gy_t = _gradients(target)
         edge = F.l1_loss(gx_p, gx_t) + F.l1_loss(gy_p, gy_t)
         total = total + config.edge * edge
-    parts = {"l2": float(l2.detach()), "ssim": float(ssim_term.detach()), "edge": float(edge.detach())}
+    linear = torch.zeros((), device=pred.device)
+    if config.linear > 0:
+        truth = torch.nan_to_num(gt.float(), nan=0.0, posinf=0.0, neginf=0.0).clamp(0.0, config.saturation)
+        guess = inverse_mu_law(pred, config.mu).clamp(max=config.saturation)
+        scale = truth.flatten(1).mean(dim=1).clamp(min=1e-4)
+        linear = ((guess - truth).abs().flatten(1).mean(dim=1) / scale).mean()
+        total = total + config.linear * linear
+    parts = {"l2": float(l2.detach()), "ssim": float(ssim_term.detach()), "edge": float(edge.detach()),
+             "linear": float(linear.detach())}
     return total, parts
