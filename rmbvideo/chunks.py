@@ -58,11 +58,15 @@ class RmbChunk:
         return self.start + len(self.single)
 
 
+@dataclass
 class DenseChunk(RmbChunk):
     """An ``RmbChunk`` whose multi-bit plane is dense: every row has a value at every readout
     (measured or upsampled, float32 in levels 0..``level``), made by the band upsamplers of
     ``rmbvideo.recon.prelim``. ``multi_rows`` (also ``multi_valid``) is False where a row had no
-    multi-bit sample anywhere in reach (its ``multi`` is 0 and carries no information, e.g. pure-S)."""
+    multi-bit sample anywhere in reach (its ``multi`` is 0 and carries no information, e.g. pure-S).
+    ``measured`` (T, H) bool, where known: True where the value was read at that readout, not upsampled."""
+
+    measured: np.ndarray | None = None
 
     @property
     def multi_valid(self) -> np.ndarray:

@@ -130,6 +130,26 @@ def test_tfw_pools_single_and_multi():
     assert all(np.allclose(f.image, 0.5) for f in frames)  # 1-bit evidence only
 
 
+def test_tfw_on_every_bin_count_is_tfp_of_the_raw_capture():
+    """Pure-M binned data: the 1-bit value is one of its bin's 8 trials, so TFW uses the counts alone,
+    and equals TFP over the same raw planes, 2x2-averaged, exactly."""
+    from rmbvideo.sensor.binning import bin_2x2x2
+
+    rng = np.random.default_rng(5)
+    planes = (rng.random((80, 8, 10)) < rng.uniform(0.01, 0.4, (8, 10))).astype(np.uint8)
+    single, multi = bin_2x2x2(planes)
+    assert planes.reshape(40, 2, 4, 2, 5, 2).sum(axis=(1, 3, 5)).max() < 8  # no bin clamped at level 7
+    chunk = RmbChunk(single, multi, np.ones(single.shape[:2], bool), 0, RATE / 2)
+    tfw = _run(Tfw(window=10), [chunk])
+    tfp = _run(Tfp(window=20, step=20), _spikes(planes, 80))
+    assert len(tfw) == len(tfp) == 4
+    for a, b in zip(tfw, tfp):
+        assert a.time_s == pytest.approx(b.time_s)
+        assert np.allclose(a.image, b.image.reshape(4, 2, 5, 2).mean(axis=(1, 3)), atol=1e-6)
+    rmb = _run(Tfw(window=10), [RmbReadout("rmb", band=1, shift=1).apply(chunk)])  # a band: pooled as before
+    assert not np.allclose(rmb[1].image, tfw[1].image)
+
+
 def test_tfp_matches_ground_truth(shared_data):
     from rmbvideo.io.dat import DatReader
 

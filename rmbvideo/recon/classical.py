@@ -466,7 +466,9 @@ class Tfw:
     a 2x2x2 bin; a native L-level sensor: q = L sub-threshold steps of one pixel). The estimate is
     the pooled rate ``(sum single + sum multi) / (n + q * n_m)`` spikes per raw pixel-plane: the
     maximum-likelihood rate when all counts are Bernoulli trials, i.e. each source weighted by its
-    number of trials. Rows without multi-bit evidence (pure-S) use the 1-bit mean alone. Saturated
+    number of trials. Rows without multi-bit evidence (pure-S) use the 1-bit mean alone. Binned data
+    whose bin count was read at every readout of the window (pure-M) uses the counts alone: the 1-bit
+    value is one of the bin's 8 trials, so pooling it would count that trial twice. Saturated
     bins (multi clamped at ``level``) bias bright pixels low by at most 1/9 for binned data.
     ``window`` and ``step`` are in readouts of the RMB stream; the defaults give frames at the
     same times as TFP/TFI with step 20 on the raw stream.
@@ -492,13 +494,17 @@ class Tfw:
     def _add(self, dense: DenseChunk) -> list[Frame]:
         self._rate_hz = dense.rate_hz
         self._quanta = 4 * dense.raw_per_readout if dense.raw_per_readout > 1 else dense.level
-        channels = [dense.single, dense.multi, dense.multi_valid]
+        measured = dense.measured if dense.measured is not None and dense.raw_per_readout > 1 \
+            else np.zeros_like(dense.multi_valid)
+        channels = [dense.single, dense.multi, dense.multi_valid, measured]
         return [self._frame(w) for w in self._sums.push(dense.start, channels)]
 
     def _frame(self, total: _WindowTotal) -> Frame:
-        sum_s, sum_m, n_m = total.sums
+        sum_s, sum_m, n_m, n_read = total.sums
         trials = total.count + self._quanta * n_m[:, None].astype(np.float64)
-        image = ((sum_s + sum_m) / trials).astype(np.float32)
+        pooled = (sum_s + sum_m) / trials
+        counts_only = (n_read == total.count)[:, None]  # every readout of the window read the bin count
+        image = np.where(counts_only, sum_m / (self._quanta * max(total.count, 1)), pooled).astype(np.float32)
         return Frame(index=total.index, time_s=total.centre / self._rate_hz, image=image)
 
 

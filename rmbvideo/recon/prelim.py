@@ -170,6 +170,7 @@ class TemporalInterpolation:
                     rate_hz=rate_hz,
                     level=level,
                     raw_per_readout=raw_per_readout,
+                    measured=rows[sl],
                 )
             )
         seen = rows[:count].any(axis=0)
