@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import torch
 import pytest
 
@@ -171,3 +173,63 @@ def test_convention_input_is_one_head_plane_that_changes_the_output():
     assert not torch.allclose(camera, simulated)
     torch.testing.assert_close(mixed[0], camera[0])
     torch.testing.assert_close(mixed[1], simulated[1])
+
+
+def blend_model(**kw) -> RmbNet:
+    return small(w=3, pooled_windows=(3, 7), convention_input=True, readout="pure-m", blend=True, **kw)
+
+
+def test_blend_config_needs_every_bin_count_and_round_trips():
+    assert "blend" not in RmbNetConfig().to_dict()  # older cards stay as they were written
+    cfg = RmbNetConfig(w=3, pooled_windows=(3, 7), readout="pure-m", blend=True)
+    assert RmbNetConfig.from_dict(cfg.to_dict()) == cfg
+    for bad in ({"readout": "rmb"}, {"readout": "pure-m", "input_mode": "native"}):
+        with pytest.raises(ValueError, match="blend"):
+            RmbNetConfig(blend=True, **bad)
+
+
+def test_blend_starts_near_the_own_estimate_and_can_pass_a_box_filter_through_exactly():
+    """A new blend head weighs its own estimate ~0.98; with the logits forced to one box candidate the
+    output is that box filter's intensity: the mean rate itself under the rate convention, and
+    r / (1 - r/2) for a camera's reset-to-zero pixel."""
+    from rmbvideo.net.blend import BIN_TRIALS, OWN_LOGIT_INIT
+
+    model = blend_model()
+    plain = small(w=3, pooled_windows=(3, 7), convention_input=True, readout="pure-m")
+    head, plain_head = model.decoder.head[-1], plain.decoder.head[-1]
+    with torch.no_grad():
+        for name, tensor in plain.state_dict().items():
+            target = model.state_dict()[name]
+            if tensor.dim() == 0:
+                target.copy_(tensor)
+            else:
+                target[: tensor.shape[0]] = tensor  # the plain model's function in the blend model
+    i_s, i_m = random_inputs(k=9, h=16, w=16)
+    with torch.inference_mode():
+        own = plain.forward_sequence(i_s, i_m, convention=1.0)[0]
+        mixed = model.forward_sequence(i_s, i_m, convention=1.0)[0]
+    boxes = (i_m / (7 * 10)).clamp(0, 1) * (7 / BIN_TRIALS)  # reference-frame box rate, per frame
+    others = 1 - math.exp(OWN_LOGIT_INIT) / (math.exp(OWN_LOGIT_INIT) + 3)  # weight of the 3 box candidates
+    assert others < 0.02
+    bound = others * torch.maximum(own, torch.tensor(7 / BIN_TRIALS))  # box intensities are <= 7/8 here
+    assert ((mixed - own).abs() <= bound + 1e-6).all()
+    with torch.no_grad():
+        head.bias[1:] = torch.tensor([-50.0, 50.0, -50.0, -50.0])  # all weight on the reference frame's box
+    with torch.inference_mode():
+        spikezoo = model.forward_sequence(i_s, i_m, convention=1.0)[0]
+        camera = model.forward_sequence(i_s, i_m, convention=0.0)[0]
+    torch.testing.assert_close(spikezoo, boxes, rtol=2e-5, atol=1e-6)
+    torch.testing.assert_close(camera, boxes / (1 - boxes / 2), rtol=2e-5, atol=1e-6)
+    assert plain_head.out_channels == 1 and head.out_channels == 5
+
+
+@pytest.mark.parametrize("case", ["dark", "saturated"])
+def test_blend_hard_inputs_stay_finite(case):
+    model = blend_model()
+    k, h, w = 9, 16, 16
+    i_s = torch.zeros(1, k, h, w) if case == "dark" else torch.full((1, k, h, w), 10.0)
+    i_m = torch.zeros(1, k, h, w) if case == "dark" else torch.full((1, k, h, w), 70.0)
+    with torch.inference_mode():
+        for convention in (0.0, 1.0):
+            out = model.forward_sequence(i_s, i_m, convention=convention)[0]
+            assert torch.isfinite(out).all() and (out >= 0).all()

@@ -128,3 +128,21 @@ def test_alignment_with_flow_runs_and_is_chunk_independent():
     assert a.shape == (6, H, W) and np.isfinite(a).all()
     np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
     assert not np.allclose(a, c)
+
+
+def test_blend_model_streams_chunk_independent_on_every_bin_count():
+    model = tiny(w=3, pooled_windows=(3, 7), convention_input=True, readout="pure-m", blend=True)
+    rng = np.random.default_rng(4)
+    light = rng.random((H, W)) * np.linspace(0.05, 4.0, W)[None, :]
+    data = RmbChunk((rng.random((95, H, W)) < np.minimum(light, 1)).astype(np.uint8),
+                    np.minimum(rng.poisson(light * 2, (95, H, W)), 7).astype(np.uint8),
+                    np.ones((95, H), bool), start=0, rate_hz=10_000.0)
+    prelim = PreliminaryFrames(n=10)
+    pframes = prelim.push(data) + prelim.flush()
+    with torch.inference_mode():
+        reference = model.forward_sequence(torch.from_numpy(np.stack([p.i_s for p in pframes]))[None],
+                                           torch.from_numpy(np.stack([p.i_m for p in pframes]))[None])[0][0]
+    for size in (1, 13, 95):
+        images = np.stack([f.image for f in stream(model, split(data, size))[0]])
+        assert np.isfinite(images).all() and (images >= 0).all()
+        np.testing.assert_allclose(images, reference.numpy(), rtol=1e-5, atol=1e-7 * float(reference.max()))
