@@ -135,9 +135,10 @@ def band_oscillation_db(psnr: Seq[float], period_frames: float) -> float:
 
 def flat_field_chunks(level: float, width: int, height: int, readouts: int, seed: int = 0) -> list[RmbChunk]:
     """Binned chunks of a static flat field at ``level`` through the physical emission model with a
-    real camera's noise (raw size 2x, raw planes 2 x ``readouts``)."""
+    real camera's noise (raw size 2x, raw planes 2 x ``readouts``), starting mid-stream (``settle``)."""
     params = SensorParams()
     emitter = SpikeEmitter(2 * height, 2 * width, params, REALISTIC_EFFECTS, seed)
+    emitter.settle(seed)
     photo = np.full((2 * height, 2 * width), level * params.q_r)
     binner, chunks = StreamBinner(), []
     for start in range(0, 2 * readouts, 64):

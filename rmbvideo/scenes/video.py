@@ -63,6 +63,9 @@ class VideoSceneRanges:
     shadow_attenuation: tuple[float, float] = (0.01, 0.3)
     coverage: tuple[float, float] = (3.0, 8.0)  # mean number of leaves over a background point
     reflectance: tuple[float, float] = (0.03, 1.0)
+    flat_probability: float = 0.0    # a static, nearly flat field (a wall, the sky, a lens cap) instead
+    flat_rate: tuple[float, float] = (1e-3, 1.0)  # its level, log-uniform: half of them darker than 0.03
+    flat_gradient: float = 0.3       # +- relative brightness change across it
 
 
 def _log_uniform(rng: np.random.Generator, low: float, high: float) -> float:
@@ -189,8 +192,13 @@ class VideoScene:
             raise ValueError(f"convention must be one of {CONVENTIONS}, got {convention!r}")
         ranges = ranges or VideoSceneRanges()
         self.seed, self.width, self.height, self.convention = seed, width, height, convention
-        rng = np.random.default_rng([seed, 0x71DE0])
         self.layers: list[_Layer] = []
+        self.planes = planes
+        # drawn apart from the main stream, so the other scenes of a seed do not depend on it
+        if np.random.default_rng([seed, 0xF1A7]).random() < ranges.flat_probability:
+            self._flat_field(np.random.default_rng([seed, 0xF1A7, 1]), ranges, convention)
+            return
+        rng = np.random.default_rng([seed, 0x71DE0])
         # the background canvas wraps around, so a camera of any speed stays on it
         speed = 0.0 if rng.random() < ranges.static_probability else _log_uniform(rng, *ranges.camera_speed)
         direction = rng.uniform(0, 2 * math.pi)
@@ -221,7 +229,6 @@ class VideoScene:
             zoom_rate=rng.uniform(-1, 1) * ranges.zoom_rate * (speed > 0), shake=shake))
         for _ in range(int(rng.integers(0, ranges.max_objects + 1))):
             self.layers.append(self._object(rng, ranges, planes))
-        self.planes = planes
         median = float(np.median(self._render_raw(planes / 2)))
         level = _log_uniform(rng, *ranges.median_rate)
         if convention == "spikezoo":
@@ -233,6 +240,22 @@ class VideoScene:
             self.scale = level / max(median, 1e-6)
             self.clip = math.inf
             self.gain = 1.0
+
+    def _flat_field(self, rng: np.random.Generator, ranges: VideoSceneRanges, convention: str) -> None:
+        """A static field with a gentle linear gradient: the dark flat regions where a network must
+        neither invent texture nor pull the level down."""
+        y, x = np.mgrid[0:2 * self.height, 0:2 * self.width].astype(np.float32)
+        angle = rng.uniform(0, 2 * math.pi)
+        u = (x * math.cos(angle) + y * math.sin(angle)) / max(2 * self.width, 2 * self.height)
+        value = (1.0 + ranges.flat_gradient * rng.uniform(-1, 1) * (u - float(u.mean()))).astype(np.float32)
+        self.layers.append(_Layer(
+            value=value, alpha=None, center=np.array([self.width, self.height], float),
+            position0=np.array([self.width / 2, self.height / 2]), velocity=np.zeros(2), acceleration=np.zeros(2),
+            angle0=0.0, spin=0.0, zoom0=1.0, zoom_rate=0.0, shake=np.zeros((0, 4))))
+        if convention == "spikezoo":
+            self.scale, self.clip, self.gain = rng.uniform(0.05, 0.8), 1.0, SPIKEZOO_RATE
+        else:
+            self.scale, self.clip, self.gain = _log_uniform(rng, *ranges.flat_rate), math.inf, 1.0
 
     def _object(self, rng: np.random.Generator, ranges: VideoSceneRanges, planes: int) -> _Layer:
         diag = math.hypot(self.width, self.height)

@@ -103,6 +103,14 @@ class SpikeEmitter:
             if effect.overrides("capacitance_offset"):
                 self.capacitance = self.capacitance + effect.capacitance_offset()
 
+    def settle(self, seed: int) -> None:
+        """Start mid-cycle, as a running camera's pixels are when a capture begins: each pixel's carried
+        charge uniform in [0, its nominal threshold), the steady state of a reset-to-zero pixel under
+        constant light. A fresh array holds no charge, so its first spikes in a dark scene come
+        hundreds of planes late (at 0.01 of the threshold per plane, ~100 planes)."""
+        threshold = np.broadcast_to(self.capacitance * self.params.voltage, self.shape)
+        self.charge = np.random.default_rng([seed, 0x5E77]).random(self.shape) * threshold
+
     @property
     def components(self) -> dict[str, Effect]:
         """The effects that were built (only those the caller listed), by name."""

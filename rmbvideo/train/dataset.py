@@ -38,12 +38,12 @@ from rmbvideo.sensor.conventions import CONVENTIONS
 from rmbvideo.sensor.emission import ReadoutSpec
 from rmbvideo.simulate.capture import CaptureSimulator, capture_planes
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
-from rmbvideo.scenes.random_scenes import SceneRanges, random_scene
-from rmbvideo.scenes.video import VideoScene
+from rmbvideo.scenes.random_scenes import EVAL_SEED_START, SceneRanges, random_scene
+from rmbvideo.scenes.video import VideoScene, VideoSceneRanges
 
 log = logging.getLogger(__name__)
 
-SAMPLE_FORMAT_VERSION = 1
+SAMPLE_FORMAT_VERSION = 2  # 2: physical captures start mid-stream (SpikeEmitter.settle)
 DATA_MODES = ("binned", "native")
 NATIVE_READOUTS = ("rmb", "pure-m")
 RAW_RATE_HZ = 20000.0
@@ -72,6 +72,7 @@ class SampleSpec:
     ranges: SceneRanges = field(default_factory=SceneRanges)
     scenes: str = "panorama"
     spikezoo_fraction: float = 0.0
+    flat_fraction: float = 0.0
 
     def __post_init__(self) -> None:
         if self.scenes not in SCENE_KINDS:
@@ -80,6 +81,8 @@ class SampleSpec:
             raise ValueError("video scenes are simulated as 1-bit captures: use mode = \"binned\"")
         if not 0.0 <= self.spikezoo_fraction <= 1.0:
             raise ValueError(f"spikezoo_fraction must be in [0, 1], got {self.spikezoo_fraction}")
+        if not 0.0 <= self.flat_fraction <= 1.0:
+            raise ValueError(f"flat_fraction must be in [0, 1], got {self.flat_fraction}")
         if self.mode not in DATA_MODES:
             raise ValueError(f"data mode must be one of {DATA_MODES}, got {self.mode!r}")
         ReadoutMode(self.readout)  # raises ValueError naming the valid modes
@@ -106,7 +109,10 @@ class SampleSpec:
 
     def key(self) -> str:
         """Short stable hash of the spec (and the sample format version): the cache folder name."""
-        text = json.dumps({"version": SAMPLE_FORMAT_VERSION, **asdict(self)}, sort_keys=True)
+        fields = asdict(self)
+        if not self.flat_fraction:  # caches made before flat fields existed keep their names
+            del fields["flat_fraction"]
+        text = json.dumps({"version": SAMPLE_FORMAT_VERSION, **fields}, sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:12]
 
 
@@ -141,11 +147,14 @@ def _scene_for(spec: SampleSpec, seed: int):
 def _video_planes(spec: SampleSpec, seed: int) -> tuple[Iterator[SpikeChunk], VideoScene]:
     """Raw 1-bit planes of the video scene of ``seed`` at twice the crop, in chunks, and the scene.
     A fraction ``spikezoo_fraction`` of the seeds uses spikezoo's rate convention, the rest the
-    physical emission model with a real camera's noise."""
+    physical emission model with a real camera's noise. A fraction ``flat_fraction`` of the training
+    seeds (never the validation seeds, which stay one fixed set) is a static, nearly flat field."""
     rng = np.random.default_rng([seed, 0xC0DE])
     convention = "spikezoo" if rng.random() < spec.spikezoo_fraction else "physical"
     planes = (spec.frames + spec.warmup_frames) * spec.n * spec.raw_per_readout
-    scene = VideoScene(seed, 2 * spec.crop, 2 * spec.crop, planes, convention=convention)
+    flat = spec.flat_fraction if seed < EVAL_SEED_START else 0.0
+    scene = VideoScene(seed, 2 * spec.crop, 2 * spec.crop, planes, VideoSceneRanges(flat_probability=flat),
+                       convention=convention)
     return capture_planes(scene, planes, RAW_RATE_HZ), scene
 
 

@@ -402,8 +402,11 @@ class Trainer:
                     "shadows, median rate 2e-3..0.5 per raw plane; 1-bit simulation at 2x size and rate, binned "
                     f"2x2x2 as real captures; {1 - cfg.data.spikezoo_fraction:.0%} physical emission with effects "
                     f"{', '.join(REALISTIC_EFFECTS)}, {cfg.data.spikezoo_fraction:.0%} spikezoo's convention "
-                    "(8-bit intensity, rate 0.6 x intensity, accumulate-and-subtract, no noise); new scenes "
-                    f"every step, each used in {cfg.data.reuse} steps" + (f"; initialised from {cfg.init}" if cfg.init else "")
+                    "(8-bit intensity, rate 0.6 x intensity, accumulate-and-subtract, no noise)"
+                    + (f"; {cfg.data.flat_fraction:.0%} of the training scenes static, nearly flat fields "
+                       "(level 1e-3..1, log-uniform; +-30 % gradient)" if cfg.data.flat_fraction else "")
+                    + f"; new scenes every step, each used in {cfg.data.reuse} steps"
+                    + (f"; initialised from {cfg.init}" if cfg.init else "")
                 ) if cfg.data.scenes == "video" else (
                     "random HDR scenes: CC0 Poly Haven panoramas with random pan/zoom, 0-3 moving textured "
                     "objects (some light sources 10-1e4x brighter), random dark regions, exposure "
