@@ -205,3 +205,20 @@ def test_the_simulator_uses_photon_arrivals_only_where_they_are_exact() -> None:
     assert not arrivals_apply(("threshold_mismatch",), 1)  # no shot noise: deterministic, per readout
     assert not arrivals_apply(REALISTIC_EFFECTS, 1)  # dark current and thermal noise act every readout
     assert "dark_current" not in ARRIVAL_EFFECTS and "thermal_noise" not in ARRIVAL_EFFECTS
+
+
+def test_a_settled_array_fires_at_its_steady_rate_from_the_first_plane() -> None:
+    """A capture starts mid-stream: with ``settle`` a dark flat field fires at its long-run rate from the
+    first planes, where a fresh (empty) array stays silent for ~1/level planes."""
+    from rmbvideo.simulate.capture import REALISTIC_EFFECTS
+
+    params, level, planes = SensorParams(), 0.01, 40
+    photo = np.full((40, 40), level * params.q_r)
+    fresh = SpikeEmitter(40, 40, params, REALISTIC_EFFECTS, seed=3)
+    settled = SpikeEmitter(40, 40, params, REALISTIC_EFFECTS, seed=3)
+    settled.settle(3)
+    assert (settled.charge >= 0).all() and (settled.charge < settled.capacitance * params.voltage).all()
+    early_fresh = np.mean([fresh.emit_one(photo, 1).mean() for _ in range(planes)])
+    early_settled = np.mean([settled.emit_one(photo, 1).mean() for _ in range(planes)])
+    assert early_fresh < 0.2 * level  # the start transient of an empty array
+    assert abs(early_settled / level - 1) < 0.15  # 640 expected spikes: the steady rate within 4 sigma

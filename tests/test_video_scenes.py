@@ -186,3 +186,25 @@ def test_flat_field_and_dark_bias_of_a_classical_method():
     bias = dark_bias("tfw", {"window": 70, "step": 10}, levels=(0.2,), size=(16, 12), frames=20)
     relative, cv = bias[0.2]
     assert -0.5 < relative < 0 and 0 < cv < 1
+
+
+def test_flat_fields_are_static_nearly_flat_and_only_for_training_seeds():
+    ranges = VideoSceneRanges(flat_probability=1.0)
+    scene = VideoScene(7, 64, 48, 200, ranges)
+    first, later = scene.render(0.0), scene.render(150.0)
+    assert np.array_equal(first, later) and len(scene.layers) == 1
+    assert first.max() / first.min() < (1 + ranges.flat_gradient) / (1 - ranges.flat_gradient)
+    assert ranges.flat_rate[0] <= float(np.median(first)) * 1.4 and float(np.median(first)) <= ranges.flat_rate[1] * 1.4
+    # the draw is apart from the main random stream: a scene that is not flat is the same as without the option
+    plain = next(s for s in range(50) if np.random.default_rng([s, 0xF1A7]).random() >= 0.5)
+    np.testing.assert_array_equal(VideoScene(plain, 32, 32, 100, VideoSceneRanges(flat_probability=0.5)).render(3.0),
+                                  VideoScene(plain, 32, 32, 100).render(3.0))
+    from rmbvideo.scenes.random_scenes import EVAL_SEED_START
+
+    spec = SampleSpec(mode="binned", readout="pure-m", scenes="video", crop=16, frames=3, flat_fraction=1.0)
+    train = simulate_sample(spec, 11)
+    assert np.ptp(train.gt) <= train.gt.max() * 0.5  # flat: +-30 % at most
+    held_out = simulate_sample(spec, EVAL_SEED_START + 1)
+    held_out_plain = simulate_sample(SampleSpec(mode="binned", readout="pure-m", scenes="video", crop=16, frames=3),
+                                     EVAL_SEED_START + 1)
+    np.testing.assert_array_equal(held_out.gt, held_out_plain.gt)  # validation seeds are never flat
