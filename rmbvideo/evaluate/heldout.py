@@ -42,8 +42,8 @@ from rmbvideo.sensor.binning import MULTI_LEVEL, bin_2x2x2
 
 log = logging.getLogger(__name__)
 
-CACHE_FORMAT = 1
-#: Video sequences: 2 since captures start mid-stream (``SpikeEmitter.settle``).
+#: 2: captures start mid-stream (``SpikeEmitter.settle``).
+CACHE_FORMAT = 2
 VIDEO_CACHE_FORMAT = 2
 FRAME_STEP = 10  # binned readouts per output frame (N of the paper)
 RAW_RATE_HZ = 20000.0

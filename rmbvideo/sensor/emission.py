@@ -189,6 +189,11 @@ class ArrivalSpikeEmitter:
         everyone = np.ones((height, width), dtype=bool)
         self._target[everyone] = self._arrival(everyone)
 
+    def settle(self, seed: int) -> None:
+        """Start mid-cycle (``SpikeEmitter.settle``): each pixel a uniform fraction of the way to its
+        next spike."""
+        self._expected = np.random.default_rng([seed, 0x5E77]).random(self._expected.shape) * self._target
+
     def _threshold_electrons(self) -> np.ndarray:
         """Photons needed to fire, per pixel: the threshold's charge rounded up (charge is whole electrons)."""
         return np.ceil(np.broadcast_to(self._pixels._threshold(), self._pixels.shape) - 1e-9)

@@ -67,12 +67,15 @@ class CaptureSimulator:
         return total * (self.scene.exposure / n)
 
     def new_emitter(self) -> SpikeEmitter | ArrivalSpikeEmitter:
-        """A pixel array in its initial state (empty charge), with the scene's effects: photon arrivals
-        where they give the same statistics (1-bit readout, shot noise; much faster), else per readout."""
+        """A pixel array as a running camera's is when a capture starts (every pixel at a random point of
+        its integration cycle: ``settle``), with the scene's effects: photon arrivals where they give the
+        same statistics (1-bit readout, shot noise; much faster), else per readout."""
         scene = self.scene
         level = scene.readout.level if scene.readout.is_multibit else 1
-        emitter = ArrivalSpikeEmitter if arrivals_apply(scene.effects, level) else SpikeEmitter
-        return emitter(scene.height, scene.width, scene.sensor, scene.effects, scene.seed, scene.dark_correlation_px)
+        kind = ArrivalSpikeEmitter if arrivals_apply(scene.effects, level) else SpikeEmitter
+        emitter = kind(scene.height, scene.width, scene.sensor, scene.effects, scene.seed, scene.dark_correlation_px)
+        emitter.settle(scene.seed)
+        return emitter
 
     def chunks(self, chunk_readouts: int = 64) -> Iterator[SpikeChunk | RmbChunk]:
         """The whole capture from its start, as consecutive chunks: ``SpikeChunk`` for 1bit/binned
