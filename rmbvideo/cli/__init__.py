@@ -27,6 +27,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("rmbvideo.cli.simulate:simulate", "Simulate a spiking-camera capture of a scene."),
     "dynamic-range": ("rmbvideo.cli.dynamic_range:dynamic_range", "Theoretical dynamic range of a readout design."),
     "train": ("rmbvideo.cli.train:train", "Train RMB-Net from a recipe."),
+    "train-detail": ("rmbvideo.cli.train:train_detail", "Train the detail stage of --resolution full."),
     "evaluate": ("rmbvideo.cli.evaluate:evaluate", "Score every method on held-out and real-video data."),
     "bench": ("rmbvideo.cli.bench:bench", "What accuracy costs in time, for every method."),
     "batch": ("rmbvideo.cli.batch:batch", "Convert many captures, unattended and resumable."),

@@ -1,4 +1,5 @@
-"""``rmbvideo train RECIPE``: train RMB-Net from a TOML recipe (see ``rmbvideo.train.config``).
+"""``rmbvideo train RECIPE``: train RMB-Net from a TOML recipe (see ``rmbvideo.train.config``);
+``rmbvideo train-detail``: train the detail stage of ``--resolution full`` (``rmbvideo.train.detail``).
 
 RECIPE is a path or the name of a bundled recipe (``cpu``, ``gpu``, ``native-cpu``, ``ablation-*``;
 ``rmbvideo/train/recipes/``). Output in ``--out`` (default ``train-<name>``): ``loss.csv``,
@@ -54,3 +55,23 @@ def train(recipe: str, out_dir: Path | None, cache_dir: Path | None, resume: boo
     click.echo(f"{result.weights}: {result.steps} steps in {result.elapsed_s / 60:.1f} min "
                f"(stopped by {result.stopped_by}); held-out mu-law PSNR {result.metrics['val_mu_psnr']:.2f} dB, "
                f"TFW {result.metrics['val_tfw_mu_psnr']:.2f} dB")
+
+
+@click.command("train-detail")
+@click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("train-detail"),
+              show_default=True, help="Output folder: loss.csv, checkpoint.*, then detail-binned.safetensors + .json.")
+@click.option("--minutes", type=click.FloatRange(min=0, min_open=True), default=25.0, show_default=True,
+              help="Wall-time budget (with --resume: the whole run's, including the time already spent).")
+@click.option("--resume", is_flag=True, help="Continue from the checkpoint in --output.")
+@quiet_option
+@verbose_option
+def train_detail(out_dir: Path, minutes: float, resume: bool, quiet: bool) -> None:
+    """Train the learned detail stage of --resolution full on simulated video scenes (CPU, one thread)."""
+    import torch
+
+    from rmbvideo.train.detail import DetailTrainConfig
+    from rmbvideo.train.detail import train_detail as run
+
+    torch.set_num_threads(1)
+    weights = run(DetailTrainConfig(minutes=minutes), out_dir, resume=resume, progress=progress_enabled(quiet))
+    click.echo(f"{weights}: install it as models/detail-binned.safetensors (+ .json) to use it")

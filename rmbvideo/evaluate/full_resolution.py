@@ -35,7 +35,7 @@ from rmbvideo.evaluate.real_video import (
     scaled_psnr,
 )
 from rmbvideo.io.dat import DatReader
-from rmbvideo.recon.full_resolution import FullResolution, upsample
+from rmbvideo.recon.full_resolution import FullResolution, detail_stage, upsample
 from rmbvideo.recon.methods import make_reconstructor
 from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
 from rmbvideo.recon.run import trained_readout
@@ -44,14 +44,16 @@ from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
 log = logging.getLogger(__name__)
 
 FULL = "RMB-Net, full resolution"
+FULL_LEARNED = "RMB-Net, full resolution (learned detail)"
 BINNED_UP = "RMB-Net, binned (bilinear 2x)"
 BEST_RAW_FULL = "best classical on the raw capture"
 
 
 @dataclass(frozen=True)
 class FullRow:
-    """A row: ``method`` with ``options``; ``kind`` is "full" (binned method + raw detail), "binned-up"
-    (the binned output upsampled bilinearly) or "raw" (a method on the raw capture)."""
+    """A row: ``method`` with ``options``; ``kind`` is "full" (binned method + classical raw detail),
+    "full-learned" (+ the learned detail stage), "binned-up" (the binned output upsampled bilinearly) or
+    "raw" (a method on the raw capture)."""
 
     name: str
     method: str
@@ -61,8 +63,11 @@ class FullRow:
 
 def full_rows(model: Path | None = None, threads: int | None = 1) -> list[FullRow]:
     """RMB-Net at full and at binned resolution, TFP at every window and TFI on the raw capture."""
+    from rmbvideo.net.weights import default_detail_path
+
     rmbnet = {"model": model, "input_mode": "binned", "threads": threads}
-    return [FullRow(FULL, "rmbnet", rmbnet, "full"), FullRow(BINNED_UP, "rmbnet", rmbnet, "binned-up"),
+    learned = [FullRow(FULL_LEARNED, "rmbnet", rmbnet, "full-learned")] if default_detail_path().is_file() else []
+    return [*learned, FullRow(FULL, "rmbnet", rmbnet, "full"), FullRow(BINNED_UP, "rmbnet", rmbnet, "binned-up"),
             *(FullRow(f"TFP-{w}", "tfp", {"window": w, "step": RAW_STEP}) for w in TFP_WINDOWS),
             FullRow("TFI", "tfi", {"step": RAW_STEP})]
 
@@ -74,8 +79,9 @@ def run_row(row: FullRow, source: Any, keep: list[int] | None = None,
     options = {**row.options, "convention": convention} if row.method == "rmbnet" else row.options
     recon = make_reconstructor(row.method, **options)
     readout = RmbReadout(mode=ReadoutMode(trained_readout(recon)))
-    if row.kind == "full":
-        recon, readout = FullResolution(recon, readout, step=RAW_STEP), None
+    if row.kind in ("full", "full-learned"):
+        stage = detail_stage("learned" if row.kind == "full-learned" else "classical")
+        recon, readout = FullResolution(recon, readout, step=RAW_STEP, detail=stage), None
     elif row.kind == "raw":
         readout = None
     sink = FrameCollector(keep=keep)
@@ -115,7 +121,7 @@ class FullScores:
     psnr: dict[str, dict[str, float]] = field(default_factory=dict)
     ssim: dict[str, dict[str, float]] = field(default_factory=dict)
     fps: dict[str, list[float]] = field(default_factory=dict)
-    binned_check: dict[str, tuple[float, float]] = field(default_factory=dict)  # full 2x2-avg, binned
+    binned_check: dict[str, dict[str, float]] = field(default_factory=dict)  # seq -> row -> binned-res PSNR
     pictures: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
 
 
@@ -139,12 +145,9 @@ def score_sequences(sequences: Seq[Sequence], rows: Seq[FullRow], scores: FullSc
             psnr[row.name] = float(np.mean([mu_law_psnr(frames[i], truth[i]) for i in truth]))
             ssim_[row.name] = float(np.mean([mu_law_ssim(frames[i], truth[i]) for i in truth]))
             scores.fps.setdefault(row.name, []).append(emitted / seconds if seconds > 0 else math.inf)
-            if row.kind in ("full", "binned-up"):
-                binned = float(np.mean([mu_law_psnr(downsample_2x(frames[i], seq.shape), binned_truth[i])
-                                        for i in truth]))
-                scores.binned_check.setdefault(seq.name, (math.nan, math.nan))
-                full_avg, binned_score = scores.binned_check[seq.name]
-                scores.binned_check[seq.name] = (binned, binned_score) if row.kind == "full" else (full_avg, binned)
+            if row.kind != "raw":  # full outputs 2x2-averaged, and the binned output itself
+                scores.binned_check.setdefault(seq.name, {})[row.name] = float(np.mean(
+                    [mu_law_psnr(downsample_2x(frames[i], seq.shape), binned_truth[i]) for i in truth]))
             log.info("%s: %s %.2f dB", seq.name, row.name, psnr[row.name])
         _add_best_raw(psnr, ssim_)
         scores.psnr[seq.name], scores.ssim[seq.name] = psnr, ssim_
@@ -186,9 +189,14 @@ def markdown(scores: FullScores, synthetic: Seq[str], real: Seq[str]) -> str:
               "with a least-squares gain against the full-resolution reference. 'best classical' picks the best "
               "raw row per sequence (an oracle window choice).", "",
               "## Binned-resolution check (synthetic, mu-law PSNR against the binned ground truth)", "",
-              "| sequence | full output, 2x2-averaged | binned output | difference |", "|---|---:|---:|---:|"]
-    for name, (full_avg, binned) in scores.binned_check.items():
-        lines.append(f"| {name} | {full_avg:.2f} | {binned:.2f} | {full_avg - binned:+.2f} |")
+              "Each full-resolution output 2x2-averaged, against the binned output (difference in brackets).", ""]
+    if scores.binned_check:
+        full = [r for r in next(iter(scores.binned_check.values())) if r != BINNED_UP]
+        lines += ["| sequence | " + " | ".join(full) + " | binned output |", "|---|" + "---:|" * (len(full) + 1)]
+        for name, checks in scores.binned_check.items():
+            binned = checks.get(BINNED_UP, math.nan)
+            cells = [f"{checks[r]:.2f} ({checks[r] - binned:+.2f})" for r in full]
+            lines.append(f"| {name} | " + " | ".join(cells) + f" | {binned:.2f} |")
     return "\n".join(lines) + "\n"
 
 
@@ -206,7 +214,8 @@ def write_full_resolution(out_dir: Path, sequences: Seq[Sequence], streams: Seq[
     written = [md]
     if streams:
         png = out_dir / "full_resolution.png"
-        comparison_picture(scores, png, [FULL, BINNED_UP, "TFP-20", "TFI"])
+        learned = [FULL_LEARNED] if any(r.name == FULL_LEARNED for r in rows) else []
+        comparison_picture(scores, png, [*learned, FULL, BINNED_UP, "TFP-20", "TFI"])
         written.append(png)
     return written
 

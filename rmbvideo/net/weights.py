@@ -1,4 +1,5 @@
-"""Safe weight files for RMB-Net: ``name.safetensors`` (tensors only) + ``name.json`` (model card).
+"""Safe weight files for RMB-Net and the detail stage: ``name.safetensors`` (tensors only) + ``name.json``
+(model card).
 
 Loading never executes code from a file: no ``torch.load``, no pickle. The safetensors header is
 checked before anything else, so a pickle, a ``.pt`` checkpoint or random bytes are refused with a
@@ -24,16 +25,30 @@ from rmbvideo import __version__
 from rmbvideo.errors import ModelError
 from rmbvideo.io.atomic import atomic_path, atomic_write_text
 from rmbvideo.net.config import RmbNetConfig
+from rmbvideo.net.detail import DetailConfig, DetailNet
 from rmbvideo.net.model import RmbNet
 
 log = logging.getLogger(__name__)
 
 CARD_FORMAT = "rmbvideo-rmbnet"
+DETAIL_CARD_FORMAT = "rmbvideo-detail"
 CARD_FORMAT_VERSION = 1
+#: card format -> (what it is, its config class, its network class)
+_KINDS: dict[str, tuple[str, Any, Any]] = {
+    CARD_FORMAT: ("an RMB-Net model card", RmbNetConfig, RmbNet),
+    DETAIL_CARD_FORMAT: ("a detail-stage model card", DetailConfig, DetailNet),
+}
 MAX_HEADER_BYTES = 100 * 1024 * 1024
 # Shipped weights: ``rmbvideo/models`` links to the repository's top-level ``models/`` folder.
 MODELS_DIR = Path(__file__).resolve().parents[1] / "models"
 DEFAULT_MODELS = {"binned": "rmbnet-binned", "native": "rmbnet-native"}
+#: The shipped detail stage of ``--resolution full`` (``rmbvideo.net.detail``).
+DEFAULT_DETAIL = "detail-binned"
+
+
+def default_detail_path() -> Path:
+    """Where the shipped detail stage lives (it may be absent: then full resolution is classical)."""
+    return MODELS_DIR / f"{DEFAULT_DETAIL}.safetensors"
 
 
 def default_model_path(input_mode: str = "binned", readout: str | None = None) -> Path:
@@ -102,31 +117,33 @@ def _paths(path: str | os.PathLike[str]) -> tuple[Path, Path]:
     return weights, weights.with_suffix(".json")
 
 
-def save_model(path: str | os.PathLike[str], model: RmbNet, card: ModelCard) -> Path:
+def save_model(path: str | os.PathLike[str], model: RmbNet | DetailNet, card: ModelCard) -> Path:
     """Write ``path`` (.safetensors added if missing) and its JSON card; returns the weights path."""
     weights, card_path = _paths(path)
     tensors = {k: v.detach().to("cpu").contiguous() for k, v in model.state_dict().items()}
+    card_format = DETAIL_CARD_FORMAT if isinstance(model, DetailNet) else CARD_FORMAT
     document = {
-        "format": CARD_FORMAT,
+        "format": card_format,
         "format_version": CARD_FORMAT_VERSION,
         "architecture": model.config.to_dict(),
         **asdict(card),
     }
     with atomic_path(weights) as temp:
-        save_file(tensors, str(temp), metadata={"format": CARD_FORMAT, "architecture": _architecture_text(model.config)})
+        save_file(tensors, str(temp), metadata={"format": card_format, "architecture": _architecture_text(model.config)})
     atomic_write_text(card_path, json.dumps(document, indent=2) + "\n")
     return weights
 
 
-def _read_card(card_path: Path) -> tuple[RmbNetConfig, ModelCard]:
+def _read_card(card_path: Path, card_format: str = CARD_FORMAT) -> tuple[Any, ModelCard]:
     try:
         document = json.loads(card_path.read_text())
     except OSError as exc:
         raise ModelError(f"{card_path}: cannot read the model card ({exc.strerror})") from None
     except (json.JSONDecodeError, UnicodeDecodeError):
         raise ModelError(f"{card_path}: model card is not valid JSON") from None
-    if not isinstance(document, dict) or document.get("format") != CARD_FORMAT:
-        raise ModelError(f"{card_path}: not an RMB-Net model card (format must be {CARD_FORMAT!r})")
+    what, config_class, _ = _KINDS[card_format]
+    if not isinstance(document, dict) or document.get("format") != card_format:
+        raise ModelError(f"{card_path}: not {what} (format must be {card_format!r})")
     if document.get("format_version") != CARD_FORMAT_VERSION:
         raise ModelError(f"{card_path}: card format version {document.get('format_version')!r} "
                          f"is not supported (expected {CARD_FORMAT_VERSION})")
@@ -135,7 +152,7 @@ def _read_card(card_path: Path) -> tuple[RmbNetConfig, ModelCard]:
     if unknown:
         raise ModelError(f"{card_path}: unknown model card keys {unknown}")
     try:
-        config = RmbNetConfig.from_dict(document["architecture"])
+        config = config_class.from_dict(document["architecture"])
         card = ModelCard(**{k: document[k] for k in card_keys if k in document})
     except KeyError as exc:
         raise ModelError(f"{card_path}: architecture does not match this code: {exc.args[0]}") from None
@@ -144,7 +161,7 @@ def _read_card(card_path: Path) -> tuple[RmbNetConfig, ModelCard]:
     return config, card
 
 
-def _architecture_text(config: RmbNetConfig) -> str:
+def _architecture_text(config: RmbNetConfig | DetailConfig) -> str:
     """The architecture as stored inside the weights, so a card that contradicts them is caught."""
     return json.dumps(config.to_dict(), sort_keys=True)
 
@@ -179,12 +196,24 @@ def load_model(
     Raises ``ModelError`` for a missing, foreign or corrupt file, a card that does not match the
     code, tensors that do not match the card, or an input mode other than ``expect_input_mode``.
     """
+    model, card = _load(path, CARD_FORMAT, device, expect_input_mode)
+    return model, card
+
+
+def load_detail_model(path: str | os.PathLike[str], device: str | torch.device = "cpu") -> tuple[DetailNet, ModelCard]:
+    """Load a detail-stage weight file and its card (``rmbvideo.net.detail``), with ``load_model``'s checks."""
+    model, card = _load(path, DETAIL_CARD_FORMAT, device)
+    return model, card
+
+
+def _load(path: str | os.PathLike[str], card_format: str, device: str | torch.device,
+          expect_input_mode: str | None = None) -> tuple[Any, ModelCard]:
     weights, card_path = _paths(path)
     if not weights.is_file():
         raise ModelError(f"{weights}: model file not found")
     if not card_path.is_file():
         raise ModelError(f"{card_path}: model card not found (expected beside {weights.name})")
-    config, card = _read_card(card_path)
+    config, card = _read_card(card_path, card_format)
     if expect_input_mode is not None and config.input_mode != expect_input_mode:
         raise ModelError(f"{weights}: model was trained for {config.input_mode!r} input, "
                          f"this input is {expect_input_mode!r}")
@@ -198,7 +227,7 @@ def load_model(
     bad = sorted(key for key, tensor in tensors.items() if tensor.is_floating_point() and not bool(tensor.isfinite().all()))
     if bad:
         raise ModelError(f"{weights}: refused: NaN or Inf in {len(bad)} tensors (first: {bad[0]})")
-    model = RmbNet(config)
+    model = _KINDS[card_format][2](config)
     expected = model.state_dict()
     missing = sorted(set(expected) - set(tensors))
     unexpected = sorted(set(tensors) - set(expected))
@@ -223,5 +252,5 @@ def load_model(
         raise ModelError(f"{weights}: refused: the card's architecture contradicts the weights' own "
                          f"({', '.join(f'{k}' for k in differs[:4])})")
     model.load_state_dict(tensors)
-    log.debug("loaded %s (%s, input mode %s)", weights, card.name, config.input_mode)
+    log.debug("loaded %s (%s)", weights, card.name)
     return model.to(device).eval(), card

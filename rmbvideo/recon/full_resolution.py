@@ -12,6 +12,9 @@ where ``block_mean`` is the 2x2 block mean spread back to its pixels and ``g`` a
 samples. A block whose raw counts cannot tell its pixels apart keeps the binned value (no invented
 texture); the 2x2 mean of the relative detail is 1, so averaging the full frame over 2x2 blocks gives
 the (upsampled) binned frame back. This is joint (guided) upsampling with a noise-aware gain.
+
+With a learned detail stage (``rmbvideo.net.detail.DetailNet``, ``detail=``) the factor is predicted
+instead, from TFP over each of the stage's windows.
 """
 
 from __future__ import annotations
@@ -27,6 +30,9 @@ from rmbvideo.sensor.binning import StreamBinner
 from rmbvideo.sensor.readout import RmbReadout
 
 DEFAULT_DETAIL_WINDOW = 20  # raw planes: the frame interval, so moving detail is not smeared
+#: How the detail inside each 2x2 block is found: "learned" (the shipped detail stage), "classical"
+#: (the Wiener-gated TFP ratio), "auto" (learned when the detail stage is installed).
+DETAIL_KINDS = ("auto", "learned", "classical")
 
 
 @dataclass(frozen=True)
@@ -35,6 +41,19 @@ class DetailSettings:
 
     window: int = DEFAULT_DETAIL_WINDOW
     min_noise_spikes: float = 0.5  # Bernoulli variance floor, in spikes, for blocks with rates near 0 or 1
+
+
+def detail_stage(kind: str = "auto") -> Any:
+    """The learned detail stage for ``kind`` (see ``DETAIL_KINDS``), or None for the classical detail."""
+    from rmbvideo.errors import OptionError
+    from rmbvideo.net.weights import default_detail_path, load_detail_model
+
+    if kind not in DETAIL_KINDS:
+        raise OptionError(f"--detail: must be one of {', '.join(DETAIL_KINDS)}, not {kind!r}")
+    path = default_detail_path()
+    if kind == "classical" or (kind == "auto" and not path.is_file()):
+        return None
+    return load_detail_model(path)[0]
 
 
 def block_mean(image: np.ndarray) -> np.ndarray:
@@ -73,16 +92,18 @@ class FullResolution:
     input_kind: ClassVar[str] = "spikes"
 
     def __init__(self, binned: Any, readout: RmbReadout | None, step: int = 20,
-                 settings: DetailSettings = DetailSettings()) -> None:
+                 settings: DetailSettings = DetailSettings(), detail: Any = None) -> None:
         if binned.input_kind != "rmb":
             raise ValueError(f"full resolution wraps a method on the binned stream, not {type(binned).__name__}")
         self.binned = binned
         self.readout = readout
         self.settings = settings
+        self.detail = detail
         self._binner = StreamBinner()
-        self._detail = Tfp(window=settings.window, step=step)
+        windows = detail.config.windows if detail is not None else (settings.window,)
+        self._rates = [Tfp(window=w, step=step) for w in windows]
         self._coarse: dict[int, Frame] = {}
-        self._fine: dict[int, Frame] = {}
+        self._fine: list[dict[int, Frame]] = [{} for _ in windows]
         self.stage_seconds = getattr(binned, "stage_seconds", {})
 
     def push(self, chunk: SpikeChunk) -> list[Frame]:
@@ -91,15 +112,18 @@ class FullResolution:
             if self.readout is not None:
                 binned = self.readout.apply(binned)
             self._keep(self._coarse, self.binned.push(binned))
-        self._keep(self._fine, self._detail.push(chunk))
+        for tfp, store in zip(self._rates, self._fine):
+            self._keep(store, tfp.push(chunk))
         return self._combine()
 
     def flush(self) -> list[Frame]:
         self._keep(self._coarse, self.binned.flush())
-        self._keep(self._fine, self._detail.flush())
+        for tfp, store in zip(self._rates, self._fine):
+            self._keep(store, tfp.flush())
         frames = self._combine()
         self._coarse.clear()
-        self._fine.clear()
+        for store in self._fine:
+            store.clear()
         return frames
 
     @staticmethod
@@ -108,11 +132,22 @@ class FullResolution:
 
     def _combine(self) -> list[Frame]:
         out = []
-        for index in sorted(set(self._coarse) & set(self._fine)):
-            coarse, fine = self._coarse.pop(index), self._fine.pop(index)
+        for index in sorted(set(self._coarse).intersection(*self._fine)):
+            coarse = self._coarse.pop(index)
             h, w = coarse.image.shape
-            rates = fine.image[: 2 * h, : 2 * w]
-            detail = relative_detail(rates, self.settings.window, self.settings)
-            out.append(Frame(index=index, time_s=coarse.time_s, image=upsample(coarse.image) * detail))
+            rates = [store.pop(index).image[: 2 * h, : 2 * w] for store in self._fine]
+            if self.detail is None:
+                image = upsample(coarse.image) * relative_detail(rates[0], self.settings.window, self.settings)
+            else:
+                image = self._learned(coarse.image, rates)
+            out.append(Frame(index=index, time_s=coarse.time_s, image=image))
         # Frames one side made and the other never will (edges of the clip) are dropped at flush.
         return out
+
+    def _learned(self, coarse: np.ndarray, rates: list[np.ndarray]) -> np.ndarray:
+        import torch
+
+        with torch.inference_mode():
+            full = self.detail(torch.from_numpy(np.ascontiguousarray(coarse, np.float32))[None, None],
+                               torch.from_numpy(np.stack(rates).astype(np.float32))[None])
+        return full[0, 0].numpy()

@@ -1,0 +1,108 @@
+"""Learned detail stage for full camera resolution: the binned result, upsampled, times a per-pixel
+detail factor predicted from the raw stream's full-resolution spike rates.
+
+The binned path (RMB-Net) decides each 2x2 block's level; this stage decides only how that level is
+shared among the block's four pixels. It reads the raw TFP rates over a few windows (short ones
+follow motion, long ones resolve faint texture), each as its relative deviation from its block mean
+with the block's spike count (how far that deviation can be trusted), plus the bilinear upsampling's
+own deviation from the block level. The predicted relative deviation d is made zero-mean over every
+2x2 block, and
+
+    full = bilinear(binned) * max(1 + d, 0),
+
+so averaging the output over 2x2 blocks gives (nearly) the binned result back: the stage adds
+detail, never a tone change.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from rmbvideo.mulaw import mu_law
+
+
+@dataclass(frozen=True)
+class DetailConfig:
+    """``windows``: raw planes of the TFP rates the stage reads (centred on the frame); ``channels``
+    and ``layers``: the width and depth of its 3x3 convolution stack."""
+
+    windows: tuple[int, ...] = (20, 40, 80)
+    channels: int = 16
+    layers: int = 4
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "windows", tuple(int(w) for w in self.windows))
+        if not self.windows or min(self.windows) < 1:
+            raise ValueError(f"windows must be positive plane counts, got {self.windows}")
+        if self.channels < 1 or self.layers < 2:
+            raise ValueError(f"channels must be >= 1 and layers >= 2, got {self.channels}, {self.layers}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dictionary."""
+        out = asdict(self)
+        out["windows"] = list(self.windows)
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> DetailConfig:
+        """Rebuild from ``to_dict`` output; unknown keys raise ``KeyError`` naming them."""
+        unknown = sorted(set(data) - {f.name for f in fields(cls)})
+        if unknown:
+            raise KeyError(f"unknown detail config keys {unknown}")
+        return cls(**{**data, "windows": tuple(data.get("windows", cls.windows))})
+
+
+def block_mean(x: torch.Tensor) -> torch.Tensor:
+    """2x2 block means of (B,C,H,W) (even H, W), spread back to every pixel of the block."""
+    return F.interpolate(F.avg_pool2d(x, 2), scale_factor=2.0, mode="nearest")
+
+
+def upsample(binned: torch.Tensor) -> torch.Tensor:
+    """Bilinear 2x upsampling, pixel centres aligned (each binned pixel covers a 2x2 block)."""
+    return F.interpolate(binned, scale_factor=2.0, mode="bilinear", align_corners=False)
+
+
+class DetailNet(nn.Module):
+    """The detail stage; ``forward(binned, rates)`` -> the full-resolution linear frame."""
+
+    def __init__(self, config: DetailConfig = DetailConfig()) -> None:
+        super().__init__()
+        self.config = config
+        inputs = 1 + 2 * len(config.windows)
+        layers: list[nn.Module] = []
+        for k in range(config.layers - 1):
+            layers += [nn.Conv2d(inputs if k == 0 else config.channels, config.channels, 3, padding=1),
+                       nn.ReLU(inplace=True)]
+        layers.append(nn.Conv2d(config.channels, 1, 3, padding=1))
+        self.body = nn.Sequential(*layers)
+        with torch.no_grad():  # start as plain bilinear upsampling
+            layers[-1].weight.zero_()
+            layers[-1].bias.zero_()
+
+    def features(self, up: torch.Tensor, rates: torch.Tensor) -> torch.Tensor:
+        """(B, 1 + 2K, H, W): the bilinear deviation from the block level, then per window the rate's
+        relative deviation from its block mean and the block's spike count (mu-law compressed)."""
+        level = F.interpolate(F.avg_pool2d(up, 2), scale_factor=2.0, mode="nearest")
+        parts = [(up / level.clamp(min=1e-12) - 1.0).clamp(-1.0, 1.0) * (level > 0)]
+        for k, window in enumerate(self.config.windows):
+            r = rates[:, k : k + 1].float()
+            mean = block_mean(r)
+            spikes = mean * (4 * window)  # spikes in the block over the window
+            parts.append(((r - mean) / (mean + 1.0 / (4 * window))).clamp(-1.0, 3.0))
+            parts.append(mu_law(spikes / (4 * window), 255.0))
+        return torch.cat(parts, dim=1)
+
+    def forward(self, binned: torch.Tensor, rates: torch.Tensor) -> torch.Tensor:
+        """``binned`` (B,1,h,w) linear; ``rates`` (B,K,2h,2w) raw spike rates per plane over each of the
+        config's windows -> (B,1,2h,2w) linear, >= 0 and finite."""
+        binned = torch.nan_to_num(binned.float(), nan=0.0, posinf=0.0, neginf=0.0).clamp(min=0.0)
+        rates = torch.nan_to_num(rates.float(), nan=0.0, posinf=0.0, neginf=0.0).clamp(0.0, 1.0)
+        up = upsample(binned)
+        d = self.body(self.features(up, rates))
+        d = d - block_mean(d)
+        return up * (1.0 + d).clamp(min=0.0)

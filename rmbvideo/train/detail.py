@@ -1,0 +1,206 @@
+"""Training of the full-resolution detail stage (``rmbvideo.net.detail``) on simulated video scenes.
+
+A sample is one frame of a video scene (``rmbvideo.scenes.video``) captured as 1-bit planes at the
+camera's resolution (the physical emission model with a real camera's noise, or spikezoo's rate
+convention): the raw TFP rates over the stage's windows, centred on the frame, the exact
+full-resolution ground truth at the frame's centre, and, as the binned input, the ground truth's 2x2
+block means. The stage only learns how a block's level is shared among its pixels, so it does not need
+the binned network in the loop. Loss: L1 of mu-law tone-mapped frames after dividing by the ground
+truth's 99.9th percentile (the evaluation's domain). Checkpoints (weights and Adam state) every
+``checkpoint_every`` steps; ``resume`` continues from them.
+"""
+
+from __future__ import annotations
+
+import csv
+import logging
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from rmbvideo.mulaw import mu_law
+from rmbvideo.net.detail import DetailConfig, DetailNet
+from rmbvideo.net.weights import ModelCard, save_model
+from rmbvideo.recon.full_resolution import relative_detail, upsample
+from rmbvideo.scenes.random_scenes import EVAL_SEED_START
+from rmbvideo.scenes.video import VideoScene
+from rmbvideo.simulate.capture import capture_planes
+from rmbvideo.train.checkpoint import (
+    CheckpointState,
+    checkpoint_paths,
+    load_checkpoint,
+    save_checkpoint,
+)
+from rmbvideo.train.dataset import RAW_RATE_HZ
+from rmbvideo.train.loop import machine_description
+
+log = logging.getLogger(__name__)
+
+MU = 5000.0
+
+
+@dataclass(frozen=True)
+class DetailTrainConfig:
+    """``crop``: binned size of a sample (the capture is twice that); a pool of ``pool`` samples is
+    kept and ``new_per_step`` of them replaced every step (simulation is the slow part)."""
+
+    detail: DetailConfig = field(default_factory=DetailConfig)
+    crop: int = 48
+    batch: int = 8
+    pool: int = 64
+    new_per_step: int = 1
+    lr: float = 1e-3
+    lr_final: float = 1e-4
+    minutes: float = 25.0
+    seed: int = 5
+    spikezoo_fraction: float = 0.3
+    val_count: int = 12
+    val_every: int = 200
+    checkpoint_every: int = 50
+
+
+@dataclass
+class DetailSample:
+    """``binned`` (h, w) ground-truth block means; ``rates`` (K, 2h, 2w) raw TFP rates; ``gt`` (2h, 2w)."""
+
+    binned: np.ndarray
+    rates: np.ndarray
+    gt: np.ndarray
+
+
+def simulate_detail_sample(seed: int, crop: int, windows: tuple[int, ...], spikezoo_fraction: float) -> DetailSample:
+    """The sample of ``seed``: a frame at raw plane time ``max(windows)/2 + 10``, every window centred on it."""
+    rng = np.random.default_rng([seed, 0xDE7A])
+    convention = "spikezoo" if rng.random() < spikezoo_fraction else "physical"
+    centre = max(windows) // 2 + 10
+    planes = 2 * centre
+    scene = VideoScene(seed, 2 * crop, 2 * crop, planes, convention=convention)
+    raw = np.concatenate([c.planes for c in capture_planes(scene, planes, RAW_RATE_HZ)]).astype(np.float32)
+    rates = np.stack([raw[centre - w // 2: centre - w // 2 + w].mean(axis=0) for w in windows])
+    gt = scene.render(float(centre)).astype(np.float32)
+    binned = gt.reshape(crop, 2, crop, 2).mean(axis=(1, 3))
+    return DetailSample(binned=binned, rates=rates, gt=gt)
+
+
+def detail_loss(pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
+    """Mean L1 of mu-law frames after dividing both by each ground truth's 99.9th percentile."""
+    scale = torch.quantile(gt.flatten(1), 0.999, dim=1).clamp(min=1e-6).reshape(-1, 1, 1, 1)
+    return (mu_law(pred / scale, MU) - mu_law(gt / scale, MU)).abs().mean()
+
+
+def mu_psnr(pred: np.ndarray, gt: np.ndarray) -> float:
+    """mu-law PSNR (peak 1) after dividing by the ground truth's 99.9th percentile."""
+    scale = max(float(np.percentile(gt, 99.9)), 1e-6)
+    mse = float(np.mean((mu_law(np.clip(pred / scale, 0, None), MU) - mu_law(np.clip(gt / scale, 0, None), MU)) ** 2))
+    return 10.0 * math.log10(1.0 / max(mse, 1e-12))
+
+
+def _batch(samples: list[DetailSample]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def stack(name: str) -> torch.Tensor:
+        return torch.from_numpy(np.stack([getattr(s, name) for s in samples]))
+
+    binned, rates, gt = stack("binned"), stack("rates"), stack("gt")
+    return binned[:, None], rates, gt[:, None]
+
+
+@torch.no_grad()
+def validate(model: DetailNet, samples: list[DetailSample], windows: tuple[int, ...]) -> dict[str, float]:
+    """mu-law PSNR of the stage, of bilinear upsampling and of the classical Wiener detail
+    (``rmbvideo.recon.full_resolution``, TFP over the shortest window) on ``samples``."""
+    model.eval()
+    scores: dict[str, list[float]] = {"learned": [], "bilinear": [], "classical": []}
+    for s in samples:
+        binned, rates, _ = _batch([s])
+        scores["learned"].append(mu_psnr(model(binned, rates)[0, 0].numpy(), s.gt))
+        up = upsample(s.binned)
+        scores["bilinear"].append(mu_psnr(up, s.gt))
+        scores["classical"].append(mu_psnr(up * relative_detail(s.rates[0], windows[0]), s.gt))
+    model.train()
+    return {k: float(np.mean(v)) for k, v in scores.items()}
+
+
+def train_detail(config: DetailTrainConfig, out_dir: Path, name: str = "detail-binned",
+                 resume: bool = False, progress: bool = False) -> Path:
+    """Train for ``config.minutes`` of wall time (a progress bar in seconds when ``progress``); write
+    ``out_dir/<name>.safetensors`` + card and return it."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    torch.manual_seed(config.seed)
+    model = DetailNet(config.detail)
+    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+    state = load_checkpoint(out_dir, model, optimizer) if resume else CheckpointState(0, 0.0)
+    windows = config.detail.windows
+    rng = np.random.default_rng([config.seed, state.step])
+    base = (config.seed % 9) * 100_000  # training seeds, below the evaluation seeds
+    next_seed = iter(range(base + config.pool + state.step * config.new_per_step, EVAL_SEED_START))
+
+    def simulate(seed: int) -> DetailSample:
+        return simulate_detail_sample(seed, config.crop, windows, config.spikezoo_fraction)
+
+    val = [simulate(EVAL_SEED_START + 500_000 + k) for k in range(config.val_count)]
+    pool = [simulate(base + k) for k in range(config.pool)]
+    log_path = out_dir / "loss.csv"
+    first = not (resume and log_path.exists())
+    handle = log_path.open("w" if first else "a", newline="")
+    writer = csv.writer(handle)
+    if first:
+        writer.writerow(["step", "elapsed_s", "lr", "loss", "val_learned", "val_bilinear", "val_classical"])
+    budget = config.minutes * 60.0
+    start = time.monotonic() - state.elapsed_s
+    step, metrics = state.step, {}
+    bar = tqdm(total=round(budget), initial=round(state.elapsed_s), disable=not progress, unit="s", desc=name)
+    try:
+        while time.monotonic() - start < budget:
+            progress = min((time.monotonic() - start) / budget, 1.0)
+            lr = config.lr_final + 0.5 * (config.lr - config.lr_final) * (1 + math.cos(math.pi * progress))
+            for group in optimizer.param_groups:
+                group["lr"] = lr
+            for _ in range(config.new_per_step):
+                pool[int(rng.integers(len(pool)))] = simulate(next(next_seed))
+            chosen = [pool[int(k)] for k in rng.choice(len(pool), config.batch, replace=False)]
+            binned, rates, gt = _batch(chosen)
+            if rng.random() < 0.5:  # flips: the same statistics, more variety
+                binned, rates, gt = binned.flip(-1), rates.flip(-1), gt.flip(-1)
+            loss = detail_loss(model(binned, rates), gt)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            step += 1
+            row = [step, f"{time.monotonic() - start:.1f}", f"{lr:.3g}", f"{float(loss.detach()):.5g}", "", "", ""]
+            if step % config.val_every == 0:
+                metrics = validate(model, val, windows)
+                row[4:] = [f"{metrics[k]:.3f}" for k in ("learned", "bilinear", "classical")]
+                log.info("detail step %d: val mu-PSNR learned %.2f, bilinear %.2f, classical %.2f dB",
+                         step, metrics["learned"], metrics["bilinear"], metrics["classical"])
+            writer.writerow(row)
+            bar.update(round(time.monotonic() - start) - bar.n)
+            if step % config.checkpoint_every == 0:
+                handle.flush()
+                save_checkpoint(out_dir, model, optimizer, CheckpointState(step, time.monotonic() - start))
+    finally:
+        handle.close()
+        bar.close()
+    save_checkpoint(out_dir, model, optimizer, CheckpointState(step, time.monotonic() - start))
+    metrics = validate(model, val, windows)
+    card = ModelCard(
+        name=name,
+        description="Detail stage for --resolution full: how each 2x2 block's level is shared among its pixels, "
+                    "from the raw TFP rates over " + "/".join(map(str, windows)) + " planes",
+        training={"config": {k: v for k, v in asdict(config).items() if k != "detail"}, "steps_done": step,
+                  "wall_time_s": round(time.monotonic() - start, 1), "machine": machine_description(torch.device("cpu")),
+                  "optimizer": f"Adam, lr {config.lr} cosine to {config.lr_final} over the wall-time budget",
+                  "loss": "L1 of mu-law (mu=5000) frames after dividing by the ground truth's 99.9th percentile",
+                  "checkpoint": str(checkpoint_paths(out_dir)[0].name)},
+        data={"description": "video scenes (rmbvideo.scenes.video), 1-bit captures at twice the binned size "
+                             f"({100 * (1 - config.spikezoo_fraction):.0f} % physical emission with a camera's noise, "
+                             f"{100 * config.spikezoo_fraction:.0f} % spikezoo's rate convention), ground truth "
+                             "at the frame's centre, binned input = its 2x2 block means",
+              "val_seeds": f"{EVAL_SEED_START + 500_000}..{EVAL_SEED_START + 500_000 + config.val_count - 1}"},
+        metrics={f"val_mu_psnr_{k}": round(v, 3) for k, v in metrics.items()},
+    )
+    return save_model(out_dir / name, model, card)
