@@ -230,7 +230,7 @@ def comparison_picture(scores: FullScores, path: Path, rows: Seq[str]) -> None:
             h, w = image.shape
             crop = image[h // 2 - 60: h // 2 + 60, w // 2 - 80: w // 2 + 80]
             tile = cv2.resize((crop * 255).astype(np.uint8), (320, 240), interpolation=cv2.INTER_NEAREST)
-            cv2.putText(tile, name[:28], (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, 255, 1, cv2.LINE_AA)
+            cv2.putText(tile, name[:44], (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, 255, 1, cv2.LINE_AA)
             tiles.append(tile)
         strips.append(np.hstack(tiles))
     cv2.imwrite(str(path), np.vstack(strips))
