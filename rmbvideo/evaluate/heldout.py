@@ -44,7 +44,6 @@ log = logging.getLogger(__name__)
 
 #: 2: captures start mid-stream (``SpikeEmitter.settle``).
 CACHE_FORMAT = 2
-VIDEO_CACHE_FORMAT = 2
 FRAME_STEP = 10  # binned readouts per output frame (N of the paper)
 RAW_RATE_HZ = 20000.0
 _SIMULATE_CHUNK = 64  # raw planes simulated at once
@@ -263,7 +262,7 @@ def load_video_heldout(quick: bool, cache: Path | None = None, per_kind: int = 1
         for j in range(per_kind):
             seed = VIDEO_SEED_START + 100 * k + j
             digest = hashlib.sha256(repr(kind).encode()).hexdigest()[:8]  # any change of the kind is a new file
-            path = cache / (f"video-v{VIDEO_CACHE_FORMAT}-{kind.name}-{digest}-seed{seed}-{config.width}x{config.height}"
+            path = cache / (f"video-v{CACHE_FORMAT}-{kind.name}-{digest}-seed{seed}-{config.width}x{config.height}"
                             f"-{config.readouts}.npz")
             sequences.append(_cached(path, config, lambda: simulate_video_sequence(seed, kind, config)))
     return sequences

@@ -23,6 +23,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from rmbvideo.evaluate.metrics import mu_law_psnr
 from rmbvideo.mulaw import mu_law
 from rmbvideo.net.detail import DetailConfig, DetailNet
 from rmbvideo.net.weights import ModelCard, save_model
@@ -47,7 +48,8 @@ MU = 5000.0
 @dataclass(frozen=True)
 class DetailTrainConfig:
     """``crop``: binned size of a sample (the capture is twice that); a pool of ``pool`` samples is
-    kept and ``new_per_step`` of them replaced every step (simulation is the slow part)."""
+    kept and ``new_per_step`` of them replaced every step (simulation is the slow part). Training stops
+    at ``minutes`` of wall time or after ``steps`` steps in all (None: no step limit)."""
 
     detail: DetailConfig = field(default_factory=DetailConfig)
     crop: int = 48
@@ -57,6 +59,7 @@ class DetailTrainConfig:
     lr: float = 1e-3
     lr_final: float = 1e-4
     minutes: float = 25.0
+    steps: int | None = None
     seed: int = 5
     spikezoo_fraction: float = 0.3
     val_count: int = 12
@@ -93,13 +96,6 @@ def detail_loss(pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
     return (mu_law(pred / scale, MU) - mu_law(gt / scale, MU)).abs().mean()
 
 
-def mu_psnr(pred: np.ndarray, gt: np.ndarray) -> float:
-    """mu-law PSNR (peak 1) after dividing by the ground truth's 99.9th percentile."""
-    scale = max(float(np.percentile(gt, 99.9)), 1e-6)
-    mse = float(np.mean((mu_law(np.clip(pred / scale, 0, None), MU) - mu_law(np.clip(gt / scale, 0, None), MU)) ** 2))
-    return 10.0 * math.log10(1.0 / max(mse, 1e-12))
-
-
 def _batch(samples: list[DetailSample]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     def stack(name: str) -> torch.Tensor:
         return torch.from_numpy(np.stack([getattr(s, name) for s in samples]))
@@ -116,10 +112,10 @@ def validate(model: DetailNet, samples: list[DetailSample], windows: tuple[int, 
     scores: dict[str, list[float]] = {"learned": [], "bilinear": [], "classical": []}
     for s in samples:
         binned, rates, _ = _batch([s])
-        scores["learned"].append(mu_psnr(model(binned, rates)[0, 0].numpy(), s.gt))
+        scores["learned"].append(mu_law_psnr(model(binned, rates)[0, 0].numpy(), s.gt))
         up = upsample(s.binned)
-        scores["bilinear"].append(mu_psnr(up, s.gt))
-        scores["classical"].append(mu_psnr(up * relative_detail(s.rates[0], windows[0]), s.gt))
+        scores["bilinear"].append(mu_law_psnr(up, s.gt))
+        scores["classical"].append(mu_law_psnr(up * relative_detail(s.rates[0], windows[0]), s.gt))
     model.train()
     return {k: float(np.mean(v)) for k, v in scores.items()}
 
@@ -155,7 +151,7 @@ def train_detail(config: DetailTrainConfig, out_dir: Path, name: str = "detail-b
     step, metrics = state.step, {}
     bar = tqdm(total=round(budget), initial=round(state.elapsed_s), disable=not progress, unit="s", desc=name)
     try:
-        while time.monotonic() - start < budget:
+        while time.monotonic() - start < budget and (config.steps is None or step < config.steps):
             progress = min((time.monotonic() - start) / budget, 1.0)
             lr = config.lr_final + 0.5 * (config.lr - config.lr_final) * (1 + math.cos(math.pi * progress))
             for group in optimizer.param_groups:
