@@ -170,7 +170,7 @@ class TemporalInterpolation:
                     rate_hz=rate_hz,
                     level=level,
                     raw_per_readout=raw_per_readout,
-                    measured=rows[sl],
+                    measured=rows[sl].copy(),
                 )
             )
         seen = rows[:count].any(axis=0)
