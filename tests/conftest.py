@@ -3,11 +3,15 @@ need it skip cleanly where it is absent (as on a user's machine)."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+#: The environment the test session started with, before any test module's imports changed it (importing
+#: OpenCV prepends its bundled libraries to LD_LIBRARY_PATH, which changes what a child process loads).
+STARTUP_ENV = dict(os.environ)
 
 
 @pytest.fixture
@@ -16,6 +20,12 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip("../shared/data is not present (development data only)")
     return SHARED_DATA
+
+
+@pytest.fixture
+def startup_env() -> dict[str, str]:
+    """A copy of the environment as it was when the test session started."""
+    return dict(STARTUP_ENV)
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:

@@ -20,32 +20,33 @@ WIDTH, HEIGHT = 400, 250
 FACTOR = 5
 
 
-def peaks(tmp_path, planes: int, extra: list[str]) -> list[int]:
-    """Anonymous peak RSS of reconstruct on ``planes`` and FACTOR x ``planes`` planes."""
+def peaks(tmp_path, planes: int, extra: list[str], startup_env: dict[str, str]) -> list[int]:
+    """Anonymous peak RSS of reconstruct on ``planes`` and FACTOR x ``planes`` planes, in children started
+    with the session's startup environment (so other tests' imports cannot change what they load)."""
     out = []
     for count in (planes, FACTOR * planes):
         path = write_random_capture(tmp_path / f"c{count}.dat", count, WIDTH, HEIGHT, seed=count)
         out.append(reconstruct_peak_rss([str(path), "-o", str(tmp_path / "out"), "--format", "null", "-q",
                                          "--width", str(WIDTH), "--height", str(HEIGHT), *extra],
-                                        env={"OMP_NUM_THREADS": "1"}).anonymous)
+                                        env={"OMP_NUM_THREADS": "1"}, base_env=startup_env).anonymous)
     return out
 
 
 @pytest.mark.parametrize("method", ["tfp", "tfw"])
-def test_classical_peak_rss_independent_of_length(tmp_path, method):
-    short, long = peaks(tmp_path, 2048, ["--method", method])
+def test_classical_peak_rss_independent_of_length(tmp_path, method, startup_env):
+    short, long = peaks(tmp_path, 2048, ["--method", method], startup_env)
     assert long < 1.10 * short, (short, long)
 
 
-def test_rmbnet_peak_rss_independent_of_length(tmp_path):
+def test_rmbnet_peak_rss_independent_of_length(tmp_path, startup_env):
     torch.manual_seed(0)
     model = save_model(tmp_path / "tiny", RmbNet(RmbNetConfig(w=1, width=0.25)), ModelCard(name="tiny"))
     short, long = peaks(tmp_path, 1024, ["--method", "rmbnet", "--model", str(model), "--device", "cpu",
-                                        "--chunk-planes", "256"])
+                                        "--chunk-planes", "256"], startup_env)
     assert long < 1.10 * short, (short, long)
 
 
-def test_a_leak_would_be_seen(tmp_path):
+def test_a_leak_would_be_seen(tmp_path, startup_env):
     """The measurement can fail: holding the whole capture in memory (read it all at once) shows."""
-    short, long = peaks(tmp_path, 2048, ["--method", "tfp", "--chunk-planes", str(FACTOR * 2048)])
+    short, long = peaks(tmp_path, 2048, ["--method", "tfp", "--chunk-planes", str(FACTOR * 2048)], startup_env)
     assert long > 1.10 * short, (short, long)

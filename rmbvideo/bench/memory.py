@@ -105,13 +105,15 @@ class PeakRss:
 
 
 def reconstruct_peak_rss(args: list[str], env: dict[str, str] | None = None,
-                         timeout_s: float = 600.0) -> PeakMemory:
-    """Peak memory of ``rmbvideo reconstruct ARGS`` run in a fresh Python subprocess.
+                         timeout_s: float = 600.0, base_env: dict[str, str] | None = None) -> PeakMemory:
+    """Peak memory of ``rmbvideo reconstruct ARGS`` run in a fresh Python subprocess, whose environment is
+    ``base_env`` (default: this process's) updated with ``env``.
 
     Raises ``RuntimeError`` with the child's stderr if it fails.
     """
+    child_env = {**(os.environ if base_env is None else base_env), **(env or {})}
     result = subprocess.run([sys.executable, "-c", _CHILD, "reconstruct", *args], capture_output=True,
-                            text=True, timeout=timeout_s, env={**os.environ, **(env or {})})
+                            text=True, timeout=timeout_s, env=child_env)
     last = result.stdout.strip().splitlines()[-1] if result.stdout.strip() else ""
     if result.returncode != 0 or not last.startswith("{"):
         raise RuntimeError(f"reconstruct {' '.join(args)} failed ({result.returncode}): {result.stderr[-2000:]}")
