@@ -105,7 +105,7 @@ def test_cache_hit_does_not_resimulate(tmp_path):
     a = first.get(5)
     assert first.simulated == 1 and first.path(5).is_file()
     with np.load(first.path(5), allow_pickle=False) as data:
-        assert set(data.files) == {"i_s", "i_m", "gt", "m_valid", "times_s", "convention"}
+        assert set(data.files) == {"i_s", "i_m", "gt", "m_valid", "times_s", "i_c", "convention"}
     second = SampleCache(tmp_path, TINY_SPEC)
     b = second.get(5)
     assert second.simulated == 0

@@ -4,8 +4,9 @@ Where the scene is bright and the spikes are many, the plain mean of the counts 
 stream) is already accurate to a fraction of a percent, and a network that re-derives it through
 the mu-law output domain loses about 2 dB of linear PSNR to it (measured on spikezoo-convention
 video). So the head also predicts per-pixel softmax weights over its own estimate and the box-filter
-intensities of the reference frame and of each pooled window (valid frames only); the output is
-their weighted sum in linear units. It can pass an exact classical estimate through where that is
+intensities of the reference frame, of each pooled window (valid frames only) and of each central
+sub-window of the reference frame (``centre_windows``: its centre time, finer than N readouts); the
+output is their weighted sum in linear units. It can pass an exact classical estimate through where that is
 right (bright, or fast motion: the reference alone) and use its own where the counts are noisy.
 
 Box-filter intensity from the mean multi-bit rate r per raw pixel-plane (bin count over its 8 trials):
@@ -27,13 +28,15 @@ BIN_TRIALS = 8
 #: Initial logit of the network's own estimate (the box filters start at 0): a new blend head starts
 #: close to the plain network's function.
 OWN_LOGIT_INIT = 5.0
+#: Initial logit of a central sub-window candidate: noisy, so a new one starts nearly unused.
+CENTRE_LOGIT_INIT = -2.0
 #: Rates above this are treated as this in the reset-to-zero inverse (it has a pole at r = 2).
 _MAX_PHYSICAL_RATE = 0.98
 
 
-def candidate_count(pooled_windows: Sequence[int]) -> int:
-    """Box-filter candidates: the reference frame and each pooled window."""
-    return 1 + len(pooled_windows)
+def candidate_count(pooled_windows: Sequence[int], centre_windows: Sequence[int] = ()) -> int:
+    """Box-filter candidates: the reference frame, each pooled window and each central sub-window."""
+    return 1 + len(pooled_windows) + len(centre_windows)
 
 
 def box_intensity(rate: torch.Tensor, convention: torch.Tensor | float) -> torch.Tensor:
@@ -45,10 +48,13 @@ def box_intensity(rate: torch.Tensor, convention: torch.Tensor | float) -> torch
 
 
 def box_candidates(rates: Sequence[torch.Tensor], valid: Sequence[bool], w: int, pooled_windows: Sequence[int],
-                   level: int, convention: torch.Tensor | float) -> list[torch.Tensor]:
-    """Box-filter intensities of the reference frame and of each pooled window, (B,1,Hp,Wp) each.
+                   level: int, convention: torch.Tensor | float,
+                   centre: torch.Tensor | None = None) -> list[torch.Tensor]:
+    """Box-filter intensities of the reference frame, of each pooled window and of each central
+    sub-window, (B,1,Hp,Wp) each.
 
-    ``rates``: the window's normalised (I_s/N, I_m/(level N)) per frame (``EncodedFrame.rates``).
+    ``rates``: the window's normalised (I_s/N, I_m/(level N)) per frame (``EncodedFrame.rates``);
+    ``centre``: the reference frame's central multi-bit rates I_c/(level k), (B,C,Hp,Wp), or None.
     """
     out = []
     for size in (1, *pooled_windows):
@@ -56,6 +62,8 @@ def box_candidates(rates: Sequence[torch.Tensor], valid: Sequence[bool], w: int,
         chosen = [rates[j][:, 1:2].float() for j in range(w - half, w + half + 1) if valid[j]]
         rate = torch.stack(chosen).mean(dim=0) * (level / BIN_TRIALS)
         out.append(box_intensity(rate, convention))
+    if centre is not None:
+        out += [box_intensity(c * (level / BIN_TRIALS), convention) for c in centre.float().split(1, dim=1)]
     return out
 
 

@@ -30,6 +30,9 @@ class RmbNetConfig:
     ``blend``: the output is a per-pixel softmax blend of the network's own estimate and the exact
     box-filter intensities of the reference frame and each pooled window (``rmbvideo.net.blend``);
     needs every bin count (binned input, pure-M readout).
+    ``centre_windows``: even readout counts (< N, N - k even) of central sub-windows of each frame
+    whose multi-bit rates the head also sees and blends as box filters: fast motion, where a frame's N
+    readouts already blur, is read at the reference frame's centre time more finely; needs ``blend``.
     ``output_mu``/``output_max``: the decoder predicts the mu-law domain T(G) (the training loss
     domain, mu = 5000) through a softplus, capped at ``output_max`` so the inverse cannot overflow.
     """
@@ -53,6 +56,7 @@ class RmbNetConfig:
     convention_input: bool = False
     readout: str = "rmb"
     blend: bool = False
+    centre_windows: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
         if not 0 <= self.w <= 3:
@@ -72,6 +76,12 @@ class RmbNetConfig:
         for size in self.pooled_windows:
             if size % 2 == 0 or not 3 <= size <= self.window:
                 raise ValueError(f"pooled_windows must be odd lengths in 3..{self.window}, got {size}")
+        object.__setattr__(self, "centre_windows", tuple(int(k) for k in self.centre_windows))
+        for k in self.centre_windows:
+            if not 0 < k < self.n or (self.n - k) % 2:
+                raise ValueError(f"centre_windows must be lengths in 1..{self.n - 1} of the parity of n, got {k}")
+        if self.centre_windows and not self.blend:
+            raise ValueError("centre_windows need the blend output")
         if self.blend and (self.input_mode != "binned" or self.readout != "pure-m"):
             raise ValueError("blend needs every bin count: input_mode \"binned\" and readout \"pure-m\"")
 
@@ -88,7 +98,7 @@ class RmbNetConfig:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary (tuples become lists; no ``pooled_windows`` key when there are none, no
         ``convention_input`` key when it is off, no ``readout`` key for the RMB design, no ``blend`` key
-        when it is off)."""
+        when it is off, no ``centre_windows`` key when there are none)."""
         out = asdict(self)
         out["base_channels"] = list(self.base_channels)
         out["pooled_windows"] = list(self.pooled_windows)
@@ -100,6 +110,9 @@ class RmbNetConfig:
             del out["readout"]
         if not self.blend:
             del out["blend"]
+        out["centre_windows"] = list(self.centre_windows)
+        if not self.centre_windows:
+            del out["centre_windows"]
         return out
 
     @classmethod
@@ -112,6 +125,7 @@ class RmbNetConfig:
         kwargs = dict(data)
         if "base_channels" in kwargs:
             kwargs["base_channels"] = tuple(kwargs["base_channels"])
-        if "pooled_windows" in kwargs:
-            kwargs["pooled_windows"] = tuple(kwargs["pooled_windows"])
+        for key in ("pooled_windows", "centre_windows"):
+            if key in kwargs:
+                kwargs[key] = tuple(kwargs[key])
         return cls(**kwargs)

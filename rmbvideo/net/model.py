@@ -26,6 +26,9 @@ Choices where the paper and supplement are silent:
   charge above threshold (spikezoo): the same rates mean different intensities near saturation.
 - Blend output (``config.blend``): the head also predicts softmax weights over its own estimate and
   exact box-filter intensities (``rmbvideo.net.blend``); the output is their linear blend.
+- Centre windows (``config.centre_windows``): the reference frame's multi-bit rates over its central
+  2/4/6 readouts (``I_c``) join the head inputs (mu-law compressed) and the blend candidates, so a
+  pixel in fast motion can be read at the frame's centre time instead of over all N readouts.
 """
 
 from __future__ import annotations
@@ -39,7 +42,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from rmbvideo.net.attention import CrossBitAttention, CrossTimeAttention, PlainBitFusion, TemporalMean
-from rmbvideo.net.blend import OWN_LOGIT_INIT, blend, box_candidates, candidate_count
+from rmbvideo.net.blend import CENTRE_LOGIT_INIT, OWN_LOGIT_INIT, blend, box_candidates, candidate_count
 from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.decoder import Decoder, DecoderState
 from rmbvideo.net.encoder import Encoder
@@ -58,7 +61,8 @@ class EncodedFrame:
     their mu-law compression; ``f_s``/``f_m``: encoder features per
     scale; ``query_parts``/``key_parts``: first-layer XBA terms per scale (empty without XBA);
     ``f_ms``: per-scale F_ms when there is no XBA (it then depends on the frame only).
-    ``size``: the unpadded (H, W).
+    ``size``: the unpadded (H, W); ``centre``: the central multi-bit rates I_c/(level k) clipped to
+    [0, 1], padded, (B,C,Hp,Wp), or None when the config has no centre windows.
     """
 
     index: int
@@ -70,6 +74,7 @@ class EncodedFrame:
     query_parts: list[torch.Tensor]
     key_parts: list[torch.Tensor]
     f_ms: list[torch.Tensor]
+    centre: torch.Tensor | None = None
 
 
 def window_indices(i: int, w: int, count: int | None) -> list[int]:
@@ -107,16 +112,17 @@ class RmbNet(nn.Module):
             )
         else:
             self.time_fusion = TemporalMean()
-        outputs = 2 + candidate_count(config.pooled_windows) if config.blend else 1
-        self.decoder = Decoder(channels, config.lstm_kernel,
-                               input_channels=2 + 2 * len(config.pooled_windows) + int(config.convention_input),
-                               outputs=outputs)
+        outputs = 2 + candidate_count(config.pooled_windows, config.centre_windows) if config.blend else 1
+        head_inputs = 2 + 2 * len(config.pooled_windows) + int(config.convention_input) + len(config.centre_windows)
+        self.decoder = Decoder(channels, config.lstm_kernel, input_channels=head_inputs, outputs=outputs)
         if config.blend:  # start from the network's own estimate (weight ~0.98), whatever the input
             last = self.decoder.head[-1]
             with torch.no_grad():
                 last.weight[1:].zero_()
                 last.bias[1:].zero_()
                 last.bias[1] = OWN_LOGIT_INIT
+                if config.centre_windows:
+                    last.bias[-len(config.centre_windows):] = CENTRE_LOGIT_INIT
 
     def normalise_inputs(self, i_s: torch.Tensor, i_m: torch.Tensor) -> torch.Tensor:
         """(B,H,W) preliminary sums -> (B,2,H,W) rates I_s/N and I_m/(level N), clipped to [0, 1]."""
@@ -129,17 +135,34 @@ class RmbNet(nn.Module):
         """(B,H,W) preliminary sums -> (B,2,H,W) normalised, clipped, mu-law compressed inputs."""
         return mu_law(self.normalise_inputs(i_s, i_m), self.config.input_mu)
 
-    def encode(self, i_s: torch.Tensor, i_m: torch.Tensor, indices: Sequence[int]) -> list[EncodedFrame]:
+    def normalise_centre(self, i_c: torch.Tensor | None) -> torch.Tensor | None:
+        """(B,C,H,W) central sums over ``config.centre_windows`` -> rates I_c/(level k) in [0, 1]
+        (None without centre windows; missing sums are an error when the config has them)."""
+        windows = self.config.centre_windows
+        if not windows:
+            return None
+        if i_c is None or i_c.shape[1] != len(windows):
+            found = "none" if i_c is None else f"{i_c.shape[1]} channels"
+            raise ValueError(f"the model reads central sums over {list(windows)} readouts, got {found}")
+        scale = torch.tensor([self.config.level * k for k in windows], dtype=torch.float32, device=i_c.device)
+        return torch.nan_to_num(i_c.float() / scale.reshape(1, -1, 1, 1), nan=0.0).clamp(0.0, 1.0)
+
+    def encode(self, i_s: torch.Tensor, i_m: torch.Tensor, indices: Sequence[int],
+               i_c: torch.Tensor | None = None) -> list[EncodedFrame]:
         """Encode a batch of frames (F,H,W) each belonging to a batch of size B = 1 per index.
 
-        ``i_s``/``i_m`` are (F*B, H, W) ordered frame-major; ``indices`` has F entries.
+        ``i_s``/``i_m`` are (F*B, H, W) ordered frame-major; ``indices`` has F entries; ``i_c``
+        (F*B, C, H, W): central sums over ``config.centre_windows`` (needed only when it names some).
         """
         count = len(indices)
         size = (int(i_s.shape[-2]), int(i_s.shape[-1]))
         rates = self.normalise_inputs(i_s, i_m)
+        centre = self.normalise_centre(i_c)
         pad_h, pad_w = (-size[0]) % PAD_MULTIPLE, (-size[1]) % PAD_MULTIPLE
         if pad_h or pad_w:
             rates = F.pad(rates, (0, pad_w, 0, pad_h), mode="replicate")
+            if centre is not None:
+                centre = F.pad(centre, (0, pad_w, 0, pad_h), mode="replicate")
         x = mu_law(rates, self.config.input_mu)
         f_s_all = self.encoder_s(x[:, :1])
         f_m_all = self.encoder_m(x[:, 1:])
@@ -157,6 +180,7 @@ class RmbNet(nn.Module):
         per = {name: [split(t) for t in ts] for name, ts in
                (("f_s", f_s_all), ("f_m", f_m_all), ("q", q_all), ("k", k_all), ("ms", ms_all))}
         inputs, rates_split = split(x), split(rates)
+        centre_split = split(centre) if centre is not None else [None] * count
         return [
             EncodedFrame(
                 index=int(index),
@@ -168,6 +192,7 @@ class RmbNet(nn.Module):
                 query_parts=[t[j] for t in per["q"]],
                 key_parts=[t[j] for t in per["k"]],
                 f_ms=[t[j] for t in per["ms"]],
+                centre=centre_split[j],
             )
             for j, index in enumerate(indices)
         ]
@@ -206,7 +231,8 @@ class RmbNet(nn.Module):
                      convention: torch.Tensor | float) -> torch.Tensor:
         """The reference's compressed inputs plus its mean rates over each pooled window (valid
         frames only), mu-law compressed, plus the convention plane when the config has it:
-        (B, 2 + 2 len(pooled_windows) [+ 1], Hp, Wp)."""
+        then the reference's central rates (mu-law compressed) when the config has centre windows:
+        (B, 2 + 2 len(pooled_windows) [+ 1] + len(centre_windows), Hp, Wp)."""
         w = self.config.w
         inputs = window[w].inputs
         parts = [inputs]
@@ -217,6 +243,8 @@ class RmbNet(nn.Module):
         if self.config.convention_input:
             code = torch.as_tensor(convention, dtype=inputs.dtype, device=inputs.device).reshape(-1, 1, 1, 1)
             parts.append(code.expand(inputs.shape[0], 1, *inputs.shape[2:]))
+        if window[w].centre is not None:
+            parts.append(mu_law(window[w].centre, self.config.input_mu))
         return torch.cat(parts, dim=1) if len(parts) > 1 else parts[0]
 
     def step(
@@ -248,7 +276,7 @@ class RmbNet(nn.Module):
         if self.config.blend:
             cfg = self.config
             candidates = box_candidates([f.rates for f in window], valid, cfg.w, cfg.pooled_windows, cfg.level,
-                                        convention)
+                                        convention, ref.centre)
             mixed = blend(self.to_linear(t), candidates, z[:, 1:])
             t = mu_law(mixed, cfg.output_mu).clamp(max=cfg.output_max)
         h, w = ref.size
@@ -265,14 +293,17 @@ class RmbNet(nn.Module):
         state: DecoderState | None = None,
         linear: bool = True,
         convention: torch.Tensor | float = 0.0,
+        i_c: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, DecoderState | None]:
         """Reconstruct a whole sequence (B,K,H,W) of preliminary sums -> (B,K,H,W) and final state.
 
         Linear HDR by default; ``linear=False`` returns the mu-law domain (the training loss domain).
+        ``i_c`` (B,K,C,H,W): central sums, when the config has centre windows.
         """
         batch, count = i_s.shape[:2]
         frames = self.encode(
-            i_s.transpose(0, 1).flatten(0, 1), i_m.transpose(0, 1).flatten(0, 1), range(count)
+            i_s.transpose(0, 1).flatten(0, 1), i_m.transpose(0, 1).flatten(0, 1), range(count),
+            None if i_c is None else i_c.transpose(0, 1).flatten(0, 1),
         )
         outputs = []
         for i in range(count):

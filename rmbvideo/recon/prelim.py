@@ -7,7 +7,8 @@ flow-based upsampler (warping with optical flow from the 1-bit stream) can repla
 implementing the same two methods.
 
 Preliminary frames: :class:`PreliminaryFrames` sums N readouts of 1-bit values (I_s) and of dense
-multi-bit values (I_m). Frame ``i`` covers readouts ``[i*N, (i+1)*N)`` counted from readout 0 of the
+multi-bit values (I_m), and the dense multi-bit values of the central 2, 4 and 6 readouts (I_c:
+the frame's centre time at a finer time scale, for fast motion). Frame ``i`` covers readouts ``[i*N, (i+1)*N)`` counted from readout 0 of the
 file, so runs started at different planes produce aligned frames. A group that is not complete in
 the data (the first one when the run starts mid-group, the last one when the data ends mid-group)
 is dropped rather than emitted with fewer readouts, so every frame has the same exposure.
@@ -29,6 +30,9 @@ log = logging.getLogger(__name__)
 # in float64, so windowed sums downstream do not depend on chunking or summation order. The
 # rounding error (<= 5e-4 of a level) is far below the shot noise of one readout.
 _DENSE_QUANTUM = 1024.0
+#: Central sub-windows (readouts) whose multi-bit sums every preliminary frame also carries, where
+#: they fit the frame symmetrically (``centre_windows``).
+CENTRE_READOUTS = (2, 4, 6)
 # Readouts interpolated per block: bounds the (block, H, W) float temporaries.
 _BLOCK_READOUTS = 64
 
@@ -182,12 +186,29 @@ class TemporalInterpolation:
         return out
 
 
+def centre_windows(n: int) -> tuple[int, ...]:
+    """The ``CENTRE_READOUTS`` that fit a frame of ``n`` readouts symmetrically (shorter than n, same parity)."""
+    return tuple(k for k in CENTRE_READOUTS if k < n and (n - k) % 2 == 0)
+
+
+def select_centre(i_c: np.ndarray | None, n: int, windows: tuple[int, ...]) -> np.ndarray:
+    """The channels of central sums ``i_c`` (laid out as ``centre_windows(n)``, leading axes kept) that
+    ``windows`` names, (..., len(windows), H, W) float32. Raises ``ValueError`` if any is missing."""
+    available = centre_windows(n)
+    missing = [k for k in windows if k not in available]
+    if i_c is None or missing:
+        raise ValueError(f"central sums over {list(windows)} readouts are needed; frames of {n} readouts carry "
+                         f"{list(available) if i_c is not None else 'none'}")
+    return np.asarray(i_c, np.float32)[..., [available.index(k) for k in windows], :, :]
+
+
 @dataclass
 class PrelimFrame:
     """Sums over N readouts: ``i_s`` of 1-bit values, ``i_m`` of dense multi-bit values ((H, W) float32).
 
     ``m_valid`` (H,) bool is False for rows without multi-bit evidence (``i_m`` is 0 there).
-    ``time_s`` is the centre of the N readouts in seconds from the start of the file.
+    ``time_s`` is the centre of the N readouts in seconds from the start of the file. ``i_c``
+    (len(centre_windows(N)), H, W) float32: dense multi-bit sums over each central sub-window, or None.
     """
 
     index: int
@@ -195,6 +216,7 @@ class PrelimFrame:
     i_s: np.ndarray
     i_m: np.ndarray
     m_valid: np.ndarray
+    i_c: np.ndarray | None = None
 
 
 class PreliminaryFrames:
@@ -210,6 +232,8 @@ class PreliminaryFrames:
         self._complete_from_start = False  # the group's first readout was seen
         self._sum_s: np.ndarray | None = None
         self._sum_m: np.ndarray | None = None
+        self._sum_c: np.ndarray | None = None
+        self._centre = [((n - k) // 2, (n + k) // 2) for k in centre_windows(n)]  # offsets in the frame
         self._valid: np.ndarray | None = None
         self._next_readout: int | None = None
 
@@ -239,6 +263,11 @@ class PreliminaryFrames:
             a, b = pos - dense.start, end - dense.start
             self._sum_s += dense.single[a:b].sum(axis=0, dtype=np.int64)
             self._sum_m += dense.multi[a:b].sum(axis=0, dtype=np.float64)
+            offset = pos - group * self.n  # of readout a within the frame
+            for c, (lo, hi) in enumerate(self._centre):
+                c0, c1 = max(lo, offset), min(hi, offset + b - a)
+                if c0 < c1:
+                    self._sum_c[c] += dense.multi[a + c0 - offset : a + c1 - offset].sum(axis=0, dtype=np.float64)
             self._valid &= dense.multi_valid[a:b].all(axis=0)
             self._count += b - a
             pos = end
@@ -250,6 +279,7 @@ class PreliminaryFrames:
                         i_s=self._sum_s.astype(np.float32),
                         i_m=self._sum_m.astype(np.float32),
                         m_valid=self._valid.copy(),
+                        i_c=self._sum_c.astype(np.float32),
                     )
                 )
                 self._count = 0
@@ -264,4 +294,5 @@ class PreliminaryFrames:
         self._complete_from_start = from_start
         self._sum_s = np.zeros((height, width), dtype=np.int64)
         self._sum_m = np.zeros((height, width), dtype=np.float64)
+        self._sum_c = np.zeros((len(self._centre), height, width), dtype=np.float64)
         self._valid = np.ones(height, dtype=bool)

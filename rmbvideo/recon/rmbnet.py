@@ -36,7 +36,7 @@ from rmbvideo.net.model import (
     window_indices,
     window_valid,
 )
-from rmbvideo.recon.prelim import MultiUpsampler, PreliminaryFrames
+from rmbvideo.recon.prelim import MultiUpsampler, PreliminaryFrames, select_centre
 from rmbvideo.sensor.conventions import CONVENTIONS
 from rmbvideo.threads import default_threads
 
@@ -231,7 +231,7 @@ class RmbNetReconstructor:
                 batch = frames[a : a + ENCODE_BATCH]
                 i_s = torch.from_numpy(np.stack([np.asarray(f.i_s, np.float32) for f in batch])).to(self.device)
                 i_m = torch.from_numpy(np.stack([np.asarray(f.i_m, np.float32) for f in batch])).to(self.device)
-                for encoded in self._net.encode(i_s, i_m, ids[a : a + ENCODE_BATCH]):
+                for encoded in self._net.encode(i_s, i_m, ids[a : a + ENCODE_BATCH], self._centre(batch)):
                     self._encoded[encoded.index] = encoded
 
     def _window(self, i: int, count: int | None) -> list[EncodedFrame]:
@@ -244,8 +244,20 @@ class RmbNetReconstructor:
         aligned = align(raw, self._w, self.align, cache=self._flow_cache, keys=ids)
         i_s = torch.from_numpy(np.stack([a[0] for a in aligned])).to(self.device)
         i_m = torch.from_numpy(np.stack([a[1] for a in aligned])).to(self.device)
-        # positions, not frame ids: aligned encodings are valid for this window only
-        return self._net.encode(i_s, i_m, range(len(ids)))
+        # positions, not frame ids: aligned encodings are valid for this window only; only the reference's
+        # central sums are read, and the reference is not warped
+        return self._net.encode(i_s, i_m, range(len(ids)), self._centre(raw))
+
+    def _centre(self, frames: list[PrelimLike]) -> torch.Tensor | None:
+        """The frames' central sums over the model's centre windows, (F,C,H,W), or None if it has none."""
+        windows = self._net.config.centre_windows
+        if not windows:
+            return None
+        try:
+            sums = np.stack([select_centre(getattr(f, "i_c", None), self.n, windows) for f in frames])
+        except ValueError as exc:
+            raise InputError(f"preliminary frame {frames[0].index}: {exc}") from None
+        return torch.from_numpy(sums).to(self.device)
 
     def _emit(self, i: int, count: int | None) -> Frame:
         cache = self._pair_cache if self.align == "none" else None

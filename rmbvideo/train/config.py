@@ -115,7 +115,7 @@ def _typed(cls: type, table: dict[str, Any], where: str, path: Path) -> Any:
             if ok and isinstance(default, int) and not isinstance(value, int):
                 ok = False
         elif isinstance(default, tuple):
-            ok = isinstance(value, list) and (len(value) == len(default) or name in ("base_channels", "pooled_windows"))
+            ok = isinstance(value, list) and (len(value) == len(default) or name in ("base_channels", "pooled_windows", "centre_windows"))
             value = tuple(value) if ok else value
         else:
             ok = isinstance(value, type(default))

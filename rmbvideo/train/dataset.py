@@ -43,7 +43,7 @@ from rmbvideo.scenes.video import VideoScene, VideoSceneRanges
 
 log = logging.getLogger(__name__)
 
-SAMPLE_FORMAT_VERSION = 2  # 2: physical captures start mid-stream (SpikeEmitter.settle)
+SAMPLE_FORMAT_VERSION = 3  # 2: physical captures start mid-stream (SpikeEmitter.settle); 3: central sums i_c
 DATA_MODES = ("binned", "native")
 NATIVE_READOUTS = ("rmb", "pure-m")
 RAW_RATE_HZ = 20000.0
@@ -120,13 +120,15 @@ class SampleSpec:
 class Sample:
     """F consecutive preliminary frames and their ground truth: ``i_s``, ``i_m``, ``gt`` (F, H, W)
     float32, ``m_valid`` (F, H) bool (rows with multi-bit evidence), ``times_s`` (F,) float64,
-    ``convention``: the index in ``CONVENTIONS`` of the sensor convention that made the spikes."""
+    ``i_c`` (F, C, H, W) float32 central sums (``PrelimFrame.i_c``), ``convention``: the index in
+    ``CONVENTIONS`` of the sensor convention that made the spikes."""
 
     i_s: np.ndarray
     i_m: np.ndarray
     gt: np.ndarray
     m_valid: np.ndarray
     times_s: np.ndarray
+    i_c: np.ndarray
     convention: float = 0.0
 
 
@@ -189,6 +191,7 @@ def simulate_sample(spec: SampleSpec, seed: int) -> Sample:
         gt=np.nan_to_num(gt, nan=0.0, posinf=0.0, neginf=0.0),
         m_valid=np.stack([f.m_valid for f in kept]),
         times_s=np.array([f.time_s for f in kept], dtype=np.float64),
+        i_c=np.stack([f.i_c for f in kept]).astype(np.float32),
     )
 
 
@@ -213,6 +216,7 @@ def _simulate_video_sample(spec: SampleSpec, seed: int) -> Sample:
         gt=np.nan_to_num(gt, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32),
         m_valid=np.stack([f.m_valid for f in kept]),
         times_s=np.array([f.time_s for f in kept], dtype=np.float64),
+        i_c=np.stack([f.i_c for f in kept]).astype(np.float32),
         convention=float(CONVENTIONS.index(scene.convention)),
     )
 

@@ -30,6 +30,7 @@ from rmbvideo.evaluate.metrics import mu_law_psnr, mu_law_ssim
 from rmbvideo.net.decoder import DecoderState
 from rmbvideo.net.model import RmbNet, window_indices, window_valid
 from rmbvideo.net.weights import ModelCard, default_model_path, load_model, save_model
+from rmbvideo.recon.prelim import select_centre
 from rmbvideo.scenes.random_scenes import (
     EVAL_SEED_START,
     HELD_OUT_PANORAMA,
@@ -50,30 +51,35 @@ from rmbvideo.train.loss import LossConfig, reconstruction_loss
 log = logging.getLogger(__name__)
 
 LOG_COLUMNS = ("step", "elapsed_s", "lr", "loss", "l2", "ssim", "edge", "val_mu_psnr", "val_mu_ssim",
-               "val_tfw_mu_psnr", "linear")
+               "val_tfw_mu_psnr", "linear", "regional")
 
 
 @dataclass
 class Batch:
-    """Samples stacked on a device: ``i_s``, ``i_m``, ``gt`` (B, F, H, W) float32, ``convention`` (B,)."""
+    """Samples stacked on a device: ``i_s``, ``i_m``, ``gt`` (B, F, H, W) float32, ``convention`` (B,),
+    ``i_c`` (B, F, C, H, W): central sums over the model's centre windows, or None when it has none."""
 
     i_s: torch.Tensor
     i_m: torch.Tensor
     gt: torch.Tensor
     convention: torch.Tensor
+    i_c: torch.Tensor | None = None
 
     @classmethod
-    def from_samples(cls, samples: list[Sample], device: torch.device, flips: list[bool] | None = None) -> "Batch":
+    def from_samples(cls, samples: list[Sample], device: torch.device, flips: list[bool] | None = None,
+                     centre: tuple[int, ...] = (), n: int = 10) -> "Batch":
         """Stack samples, mirroring sample j left-right where ``flips[j]`` (rows, hence the
-        rolling band, are unchanged by a horizontal mirror)."""
+        rolling band, are unchanged by a horizontal mirror); ``centre``: the model's centre windows
+        (frames of ``n`` readouts)."""
         flips = flips or [False] * len(samples)
 
-        def stack(name: str) -> torch.Tensor:
-            arrays = [getattr(s, name)[..., ::-1] if f else getattr(s, name) for s, f in zip(samples, flips)]
+        def stack(arrays: list[np.ndarray]) -> torch.Tensor:
+            arrays = [a[..., ::-1] if f else a for a, f in zip(arrays, flips)]
             return torch.from_numpy(np.ascontiguousarray(np.stack(arrays), dtype=np.float32)).to(device)
 
         convention = torch.tensor([float(s.convention) for s in samples], dtype=torch.float32, device=device)
-        return cls(stack("i_s"), stack("i_m"), stack("gt"), convention)
+        i_c = stack([select_centre(s.i_c, n, centre) for s in samples]) if centre else None
+        return cls(*(stack([getattr(s, name) for s in samples]) for name in ("i_s", "i_m", "gt")), convention, i_c)
 
 
 @dataclass(frozen=True)
@@ -127,11 +133,12 @@ def segment_losses(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossCon
         last = min(first + tbptt, supervised.stop) - 1
         lo, hi = max(first - w, 0), min(last + w + 1, count)
         frames = model.encode(batch.i_s[:, lo:hi].transpose(0, 1).flatten(0, 1),
-                              batch.i_m[:, lo:hi].transpose(0, 1).flatten(0, 1), range(lo, hi))
+                              batch.i_m[:, lo:hi].transpose(0, 1).flatten(0, 1), range(lo, hi),
+                              None if batch.i_c is None else batch.i_c[:, lo:hi].transpose(0, 1).flatten(0, 1))
         cache: dict = {}
         state_in = state
         segment_loss = torch.zeros((), device=batch.i_s.device)
-        parts = {"loss": 0.0, "l2": 0.0, "ssim": 0.0, "edge": 0.0, "linear": 0.0}
+        parts = {"loss": 0.0, "l2": 0.0, "ssim": 0.0, "edge": 0.0, "linear": 0.0, "regional": 0.0}
         for i in range(first, last + 1):
             window = [frames[j - lo] for j in window_indices(i, w, count)]
             t, state = model.step(window, state, cache, valid=window_valid(i, w, count), convention=batch.convention)
@@ -150,7 +157,7 @@ def train_batch(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossConfig
     steps the optimizer). Returns the mean loss and its parts over the supervised outputs."""
     model.train()
     outputs = len(output_range(batch.i_s.shape[1], model.config.w, edges))
-    totals = {"loss": 0.0, "l2": 0.0, "ssim": 0.0, "edge": 0.0, "linear": 0.0}
+    totals = {"loss": 0.0, "l2": 0.0, "ssim": 0.0, "edge": 0.0, "linear": 0.0, "regional": 0.0}
     for segment in segment_losses(model, batch, tbptt, loss_config, edges):
         segment.loss.backward()
         for key, value in segment.parts.items():
@@ -181,9 +188,9 @@ def validate(model: RmbNet, samples: list[Sample], quanta: int | None, saturatio
     w, n = model.config.w, model.config.n
     psnr, ssim, tfw = [], [], []
     for sample in samples:
-        batch = Batch.from_samples([sample], device)
+        batch = Batch.from_samples([sample], device, centre=model.config.centre_windows, n=n)
         count = batch.i_s.shape[1]
-        frames = model.encode(batch.i_s[0], batch.i_m[0], range(count))
+        frames = model.encode(batch.i_s[0], batch.i_m[0], range(count), None if batch.i_c is None else batch.i_c[0])
         state = None
         for i in output_range(count, w, edges):
             window = [frames[j] for j in window_indices(i, w, count)]
@@ -325,7 +332,7 @@ class Trainer:
                     break
                 samples = self.batch_samples(step)
                 flips = [bool(np.random.default_rng([cfg.seed, step, j, 1]).integers(2)) for j in range(len(samples))]
-                batch = Batch.from_samples(samples, self.device, flips)
+                batch = Batch.from_samples(samples, self.device, flips, cfg.model.centre_windows, cfg.model.n)
                 lr = learning_rate(step, time.monotonic() - started, cfg)
                 for group in self.optimizer.param_groups:
                     group["lr"] = lr
