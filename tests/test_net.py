@@ -233,3 +233,39 @@ def test_blend_hard_inputs_stay_finite(case):
         for convention in (0.0, 1.0):
             out = model.forward_sequence(i_s, i_m, convention=convention)[0]
             assert torch.isfinite(out).all() and (out >= 0).all()
+
+
+def test_centre_windows_config_is_checked_and_round_trips():
+    assert "centre_windows" not in blend_model().config.to_dict()
+    cfg = blend_model(centre_windows=(2, 4, 6)).config
+    assert RmbNetConfig.from_dict(cfg.to_dict()) == cfg
+    for bad, match in (({"centre_windows": (3,)}, "parity"), ({"centre_windows": (10,)}, "parity")):
+        with pytest.raises(ValueError, match=match):
+            blend_model(**bad)
+    with pytest.raises(ValueError, match="blend"):
+        RmbNetConfig(readout="pure-m", centre_windows=(2,))
+
+
+def test_centre_candidate_passes_the_frame_centre_through_exactly():
+    """With the logits forced onto the central-4 candidate, the output is the box intensity of the
+    reference frame's central 4 readouts, not of its 10; without the central sums the model refuses."""
+    from rmbvideo.net.blend import BIN_TRIALS
+
+    model = blend_model(centre_windows=(2, 4))
+    head = model.decoder.head[-1]
+    assert head.out_channels == 1 + 1 + 3 + 2 and head.bias[-1] < 0  # new candidates start little used
+    g = torch.Generator().manual_seed(3)
+    i_s, i_m = random_inputs(k=9, h=16, w=16)
+    i_c = torch.stack([torch.randint(0, 15, (1, 9, 16, 16), generator=g).float(),
+                       torch.randint(0, 29, (1, 9, 16, 16), generator=g).float()], dim=2)
+    with torch.no_grad():
+        head.weight[1:].zero_()
+        head.bias[1:] = torch.tensor([-50.0, -50.0, -50.0, -50.0, -50.0, 50.0])  # own, box 1/3/7, centre 2, centre 4
+    with torch.inference_mode():
+        spikezoo = model.forward_sequence(i_s, i_m, convention=1.0, i_c=i_c)[0]
+        camera = model.forward_sequence(i_s, i_m, convention=0.0, i_c=i_c)[0]
+        with pytest.raises(ValueError, match="central sums over \\[2, 4\\]"):
+            model.forward_sequence(i_s, i_m, convention=1.0)
+    rate = (i_c[:, :, 1] / (7 * 4)).clamp(0, 1) * (7 / BIN_TRIALS)
+    torch.testing.assert_close(spikezoo, rate, rtol=2e-5, atol=1e-6)
+    torch.testing.assert_close(camera, rate / (1 - rate / 2), rtol=2e-5, atol=1e-6)

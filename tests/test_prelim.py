@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from rmbvideo.chunks import RmbChunk
-from rmbvideo.recon.prelim import PreliminaryFrames, TemporalInterpolation
+from rmbvideo.recon.prelim import PreliminaryFrames, TemporalInterpolation, centre_windows, select_centre
 from rmbvideo.sensor.readout import RmbReadout
 
 
@@ -129,3 +129,29 @@ def test_preliminary_frames_pure_s_flags_rows():
                      [RmbReadout("pure-s").apply(_random_pure_m(t=30))])
     assert len(frames) == 3 and all((f.i_m == 0).all() and not f.m_valid.any() for f in frames)
     assert all(f.i_s.sum() > 0 for f in frames)
+
+
+def test_centre_sums_are_the_central_readouts_whatever_the_chunking():
+    data = _random_pure_m(t=60)
+    whole = PreliminaryFrames(n=10)
+    frames = whole.push(data) + whole.flush()
+    assert centre_windows(10) == (2, 4, 6) and centre_windows(5) == () and centre_windows(8) == (2, 4, 6)
+    for frame in frames:
+        first = frame.index * 10
+        for c, k in enumerate(centre_windows(10)):
+            lo = first + (10 - k) // 2
+            expected = data.multi[lo:lo + k].astype(np.float64).sum(axis=0)
+            assert np.array_equal(frame.i_c[c], expected.astype(np.float32)), (frame.index, k)
+    for size in (1, 3, 7):
+        prelim = PreliminaryFrames(n=10)
+        split = [f for c in _split(data, size) for f in prelim.push(c)] + prelim.flush()
+        assert all(np.array_equal(a.i_c, b.i_c) for a, b in zip(frames, split)) and len(split) == len(frames)
+
+
+def test_select_centre_picks_channels_and_names_what_is_missing():
+    i_c = np.arange(3 * 2 * 2, dtype=np.float32).reshape(3, 2, 2)
+    assert np.array_equal(select_centre(i_c, 10, (6, 2)), i_c[[2, 0]])
+    with pytest.raises(ValueError, match="central sums over \\[4\\]"):
+        select_centre(None, 10, (4,))
+    with pytest.raises(ValueError, match="carry \\[\\]"):
+        select_centre(np.zeros((0, 2, 2), np.float32), 5, (2,))

@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from rmbvideo.chunks import RmbChunk
+from rmbvideo.errors import InputError
 from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.model import RmbNet
 from rmbvideo.recon.prelim import PreliminaryFrames, PrelimFrame
@@ -146,3 +147,25 @@ def test_blend_model_streams_chunk_independent_on_every_bin_count():
         images = np.stack([f.image for f in stream(model, split(data, size))[0]])
         assert np.isfinite(images).all() and (images >= 0).all()
         np.testing.assert_allclose(images, reference.numpy(), rtol=1e-5, atol=1e-7 * float(reference.max()))
+
+
+def test_centre_windows_stream_equals_forward_sequence_and_need_the_sums():
+    torch.manual_seed(0)
+    model = RmbNet(RmbNetConfig(w=2, width=0.25, readout="pure-m", blend=True, centre_windows=(2, 6))).eval()
+    rng = np.random.default_rng(4)
+    multi = rng.integers(0, 8, (95, H, W)).astype(np.uint8)
+    data = RmbChunk((multi > 3).astype(np.uint8), multi, np.ones((95, H), bool), start=0, rate_hz=10_000.0)
+    prelim = PreliminaryFrames(n=10)
+    pframes = prelim.push(data) + prelim.flush()
+    with torch.inference_mode():
+        reference = model.forward_sequence(
+            torch.from_numpy(np.stack([p.i_s for p in pframes]))[None],
+            torch.from_numpy(np.stack([p.i_m for p in pframes]))[None],
+            i_c=torch.from_numpy(np.stack([p.i_c[[0, 2]] for p in pframes]))[None])[0][0]
+    for size in (7, 95):
+        images = np.stack([f.image for f in stream(model, split(data, size))[0]])
+        np.testing.assert_allclose(images, reference.numpy(), rtol=1e-5, atol=1e-7 * float(reference.max()))
+    engine = RmbNetReconstructor(model, device="cpu")
+    bare = PrelimFrame(0, 0.0, pframes[0].i_s, pframes[0].i_m, pframes[0].m_valid)
+    with pytest.raises(InputError, match="preliminary frame 0: central sums"):
+        engine.push([bare])

@@ -256,3 +256,24 @@ def test_shipped_models_load_and_match_their_cards(mode):
         i_s = torch.full((1, 7, 16, 16), 3.0)
         out, _ = model.forward_sequence(i_s, i_s * 8)
     assert torch.isfinite(out).all()
+
+
+def test_regional_loss_asks_for_the_mean_not_the_median():
+    """On a sparse field (a few spikes per pixel: the pixel values' median sits below their mean) the
+    regional term is smallest for a prediction at the block means; the pixel-wise linear L1 prefers the
+    median, which is why the regional term is there."""
+    from rmbvideo.mulaw import mu_law
+    from rmbvideo.train.loss import reconstruction_loss
+
+    rng = np.random.default_rng(0)
+    truth = torch.from_numpy((rng.poisson(0.5, (2, 32, 32)) * 0.01).astype(np.float32))  # median 0, mean 0.005
+    config = LossConfig(ssim=0.0, edge=0.0, linear=1.0, regional=1.0)
+
+    def parts(level: float) -> dict[str, float]:
+        return reconstruction_loss(mu_law(torch.full_like(truth, level), config.mu), truth, config)[1]
+
+    levels = [0.0005, 0.0025, 0.005, 0.0075]
+    regional = [parts(v)["regional"] for v in levels]
+    linear = [parts(v)["linear"] for v in levels]
+    assert int(np.argmin(regional)) == 2 and int(np.argmin(linear)) == 0
+    assert reconstruction_loss(mu_law(truth, config.mu), truth, config)[1]["regional"] < 1e-3
