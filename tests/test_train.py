@@ -18,7 +18,9 @@ from rmbvideo.net.model import RmbNet
 from rmbvideo.train.checkpoint import load_checkpoint
 from rmbvideo.train.config import RECIPES_DIR, load_recipe
 from rmbvideo.train.dataset import SampleCache, SampleSpec, simulate_sample
-from rmbvideo.train.loop import Batch, Trainer, segment_losses, tfw_prediction, train_batch
+from rmbvideo.train.batch import Batch
+from rmbvideo.train.loop import Trainer, segment_losses, train_batch
+from rmbvideo.train.validation import tfw_prediction
 from rmbvideo.train.loss import LossConfig
 from rmbvideo.scenes.random_scenes import (EVAL_SEED_START, HELD_OUT_PANORAMA, TRAIN_PANORAMAS,
                                           random_scene)

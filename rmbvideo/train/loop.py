@@ -26,11 +26,9 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from rmbvideo.evaluate.metrics import mu_law_psnr, mu_law_ssim
 from rmbvideo.net.decoder import DecoderState
 from rmbvideo.net.model import RmbNet, window_indices, window_valid
 from rmbvideo.net.weights import ModelCard, default_model_path, load_model, save_model
-from rmbvideo.recon.prelim import select_centre
 from rmbvideo.scenes.random_scenes import (
     EVAL_SEED_START,
     HELD_OUT_PANORAMA,
@@ -44,42 +42,16 @@ from rmbvideo.train.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
+from rmbvideo.train.batch import Batch, output_range
 from rmbvideo.train.config import TrainConfig
 from rmbvideo.train.dataset import Sample, SampleCache, SamplePrefetcher
 from rmbvideo.train.loss import LossConfig, reconstruction_loss
+from rmbvideo.train.validation import validate
 
 log = logging.getLogger(__name__)
 
 LOG_COLUMNS = ("step", "elapsed_s", "lr", "loss", "l2", "ssim", "edge", "val_mu_psnr", "val_mu_ssim",
                "val_tfw_mu_psnr", "linear", "regional")
-
-
-@dataclass
-class Batch:
-    """Samples stacked on a device: ``i_s``, ``i_m``, ``gt`` (B, F, H, W) float32, ``convention`` (B,),
-    ``i_c`` (B, F, C, H, W): central sums over the model's centre windows, or None when it has none."""
-
-    i_s: torch.Tensor
-    i_m: torch.Tensor
-    gt: torch.Tensor
-    convention: torch.Tensor
-    i_c: torch.Tensor | None = None
-
-    @classmethod
-    def from_samples(cls, samples: list[Sample], device: torch.device, flips: list[bool] | None = None,
-                     centre: tuple[int, ...] = (), n: int = 10) -> "Batch":
-        """Stack samples, mirroring sample j left-right where ``flips[j]`` (rows, hence the
-        rolling band, are unchanged by a horizontal mirror); ``centre``: the model's centre windows
-        (frames of ``n`` readouts)."""
-        flips = flips or [False] * len(samples)
-
-        def stack(arrays: list[np.ndarray]) -> torch.Tensor:
-            arrays = [a[..., ::-1] if f else a for a, f in zip(arrays, flips)]
-            return torch.from_numpy(np.ascontiguousarray(np.stack(arrays), dtype=np.float32)).to(device)
-
-        convention = torch.tensor([float(s.convention) for s in samples], dtype=torch.float32, device=device)
-        i_c = stack([select_centre(s.i_c, n, centre) for s in samples]) if centre else None
-        return cls(*(stack([getattr(s, name) for s in samples]) for name in ("i_s", "i_m", "gt")), convention, i_c)
 
 
 @dataclass(frozen=True)
@@ -108,15 +80,6 @@ class SegmentLoss:
     loss: torch.Tensor
     parts: dict[str, float]
     state_in: DecoderState | None
-
-
-def output_range(count: int, w: int, edges: bool) -> range:
-    """Supervised outputs of a sample of ``count`` frames: every frame (the first and last w as a
-    clip's edges, their windows cut at the sample's ends) when ``edges``, else the full windows."""
-    outputs = range(count) if edges else range(w, count - w)
-    if len(outputs) < 1:
-        raise ValueError(f"samples have {count} frames, need at least 2w+1 = {2 * w + 1}")
-    return outputs
 
 
 def segment_losses(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossConfig,
@@ -163,45 +126,6 @@ def train_batch(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossConfig
         for key, value in segment.parts.items():
             totals[key] += value
     return {key: value / outputs for key, value in totals.items()}
-
-
-def tfw_prediction(sample: Sample, i: int, w: int, n: int, quanta: int | None) -> np.ndarray:
-    """TFW over the window of frame ``i``: pooled spike rate (sum I_s + I_m) / (N (2w+1) (1 + q)),
-    with q = ``quanta`` trials per multi-bit value; rows without multi-bit evidence, and all rows
-    when ``quanta`` is None (multi-bit values are not rates), use I_s alone."""
-    frames = slice(max(i - w, 0), min(i + w + 1, len(sample.i_s)))
-    valid = sample.m_valid[frames].all(axis=0)[:, None] & (quanta is not None)
-    quanta = quanta or 0
-    readouts = n * (frames.stop - frames.start)
-    sum_s = sample.i_s[frames].sum(axis=0, dtype=np.float64)
-    sum_m = sample.i_m[frames].sum(axis=0, dtype=np.float64)
-    pooled = np.where(valid, (sum_s + sum_m) / (readouts * (1 + quanta)), sum_s / readouts)
-    return pooled.astype(np.float32)
-
-
-@torch.no_grad()
-def validate(model: RmbNet, samples: list[Sample], quanta: int | None, saturation: float,
-             device: torch.device, edges: bool = False) -> dict[str, float]:
-    """Mean mu-law PSNR/SSIM of the model and mu-law PSNR of TFW over the supervised outputs of
-    the held-out ``samples`` (``output_range``), against ground truth clipped at ``saturation``."""
-    model.eval()
-    w, n = model.config.w, model.config.n
-    psnr, ssim, tfw = [], [], []
-    for sample in samples:
-        batch = Batch.from_samples([sample], device, centre=model.config.centre_windows, n=n)
-        count = batch.i_s.shape[1]
-        frames = model.encode(batch.i_s[0], batch.i_m[0], range(count), None if batch.i_c is None else batch.i_c[0])
-        state = None
-        for i in output_range(count, w, edges):
-            window = [frames[j] for j in window_indices(i, w, count)]
-            t, state = model.step(window, state, valid=window_valid(i, w, count), convention=batch.convention)
-            pred = model.to_linear(t)[0, 0].float().cpu().numpy()
-            gt = np.clip(sample.gt[i], 0.0, saturation)
-            psnr.append(mu_law_psnr(pred, gt))
-            ssim.append(mu_law_ssim(pred, gt))
-            tfw.append(mu_law_psnr(np.clip(tfw_prediction(sample, i, w, n, quanta), 0, saturation), gt))
-    return {"val_mu_psnr": float(np.mean(psnr)), "val_mu_ssim": float(np.mean(ssim)),
-            "val_tfw_mu_psnr": float(np.mean(tfw))}
 
 
 def batch_seeds(seed: int, step: int, batch: int, count: int) -> list[int]:
