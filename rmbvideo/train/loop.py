@@ -319,6 +319,8 @@ class Trainer:
                 "loss": f"mu-law (mu={cfg.loss.mu:g}) L2 + {cfg.loss.ssim:g} x (1 - SSIM) + {cfg.loss.edge:g} x "
                         f"gradient L1" + (f" + {cfg.loss.linear:g} x linear L1 relative to the sample's mean"
                                           if cfg.loss.linear > 0 else "")
+                        + (f" + {cfg.loss.regional:g} x linear L1 of 8x8 block means relative to their level"
+                           if cfg.loss.regional > 0 else "")
                         + f"; ground truth clipped at {cfg.loss.saturation:g} (sensor saturation)",
                 "lpips": "not used (no downloadable weights); replaced by the gradient L1 term"
                          if cfg.loss.edge > 0 else "not used (no downloadable weights), no replacement",
