@@ -26,12 +26,14 @@ from rmbvideo.cli.options import DEVICE_CHOICE, AliasOption
 @click.option("--resume", is_flag=True, help="Continue from the checkpoint in --out.")
 @click.option("--minutes", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Override the recipe's wall-time budget.")
+@click.option("--steps", type=click.IntRange(min=1), default=None,
+              help="Override the recipe's step budget (e.g. an ablation set at a longer equal budget).")
 @click.option("--device", type=DEVICE_CHOICE, default="auto", show_default=True,
               help="Where to train (auto: CUDA when available, else CPU).")
 @quiet_option
 @verbose_option
 def train(recipe: str, out_dir: Path | None, cache_dir: Path | None, resume: bool, minutes: float | None,
-          device: str, quiet: bool) -> None:
+          steps: int | None, device: str, quiet: bool) -> None:
     """Train RMB-Net from RECIPE (a .toml file or a bundled recipe name)."""
     from rmbvideo.errors import InputError
     from rmbvideo.train.config import bundled_recipe, load_recipe
@@ -43,6 +45,8 @@ def train(recipe: str, out_dir: Path | None, cache_dir: Path | None, resume: boo
     config = load_recipe(path)
     if minutes is not None:
         config = config.with_minutes(minutes)
+    if steps is not None:
+        config = config.with_steps(steps)
     import torch
 
     if device == "auto":

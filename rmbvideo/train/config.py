@@ -98,6 +98,10 @@ class TrainConfig:
         """The same recipe with another wall-time budget."""
         return replace(self, minutes=minutes)
 
+    def with_steps(self, steps: int) -> "TrainConfig":
+        """The same recipe with another step budget (the learning-rate schedule spans it)."""
+        return replace(self, optim=replace(self.optim, steps=steps))
+
 
 def _typed(cls: type, table: dict[str, Any], where: str, path: Path) -> Any:
     known = {f.name: f for f in fields(cls)}
