@@ -28,10 +28,11 @@ from rmbvideo.mulaw import mu_law
 
 @dataclass(frozen=True)
 class DetailConfig:
-    """``windows``: raw planes of the TFP rates the stage reads (centred on the frame); ``channels``
-    and ``layers``: the width and depth of its 3x3 convolution stack."""
+    """``windows``: raw planes of the TFP rates the stage reads (centred on the frame; the 6-plane one
+    follows fast motion, which blurs over 20 planes at a raw pixel per plane); ``channels`` and
+    ``layers``: the width and depth of its 3x3 convolution stack."""
 
-    windows: tuple[int, ...] = (20, 40, 80)
+    windows: tuple[int, ...] = (6, 20, 40, 80)
     channels: int = 16
     layers: int = 4
 

@@ -27,7 +27,7 @@ from rmbvideo.evaluate.metrics import mu_law_psnr
 from rmbvideo.mulaw import mu_law
 from rmbvideo.net.detail import DetailConfig, DetailNet
 from rmbvideo.net.weights import ModelCard, save_model
-from rmbvideo.recon.full_resolution import relative_detail, upsample
+from rmbvideo.recon.full_resolution import DEFAULT_DETAIL_WINDOW, relative_detail, upsample
 from rmbvideo.scenes.random_scenes import EVAL_SEED_START
 from rmbvideo.scenes.video import VideoScene
 from rmbvideo.simulate.capture import capture_planes
@@ -107,15 +107,17 @@ def _batch(samples: list[DetailSample]) -> tuple[torch.Tensor, torch.Tensor, tor
 @torch.no_grad()
 def validate(model: DetailNet, samples: list[DetailSample], windows: tuple[int, ...]) -> dict[str, float]:
     """mu-law PSNR of the stage, of bilinear upsampling and of the classical Wiener detail
-    (``rmbvideo.recon.full_resolution``, TFP over the shortest window) on ``samples``."""
+    (``rmbvideo.recon.full_resolution``, TFP over its window when the stage reads it, else the
+    shortest) on ``samples``."""
     model.eval()
     scores: dict[str, list[float]] = {"learned": [], "bilinear": [], "classical": []}
+    k = windows.index(DEFAULT_DETAIL_WINDOW) if DEFAULT_DETAIL_WINDOW in windows else 0
     for s in samples:
         binned, rates, _ = _batch([s])
         scores["learned"].append(mu_law_psnr(model(binned, rates)[0, 0].numpy(), s.gt))
         up = upsample(s.binned)
         scores["bilinear"].append(mu_law_psnr(up, s.gt))
-        scores["classical"].append(mu_law_psnr(up * relative_detail(s.rates[0], windows[0]), s.gt))
+        scores["classical"].append(mu_law_psnr(up * relative_detail(s.rates[k], windows[k]), s.gt))
     model.train()
     return {k: float(np.mean(v)) for k, v in scores.items()}
 
