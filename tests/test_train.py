@@ -254,9 +254,11 @@ def test_shipped_models_load_and_match_their_cards(mode):
     assert card.metrics["val_mu_psnr"] > card.metrics["val_tfw_mu_psnr"]
     recipe_text = card.training["recipe"]
     assert f'mode = "{mode}"' in recipe_text
+    windows = model.config.centre_windows  # central sums at the frame's mean rate
     with torch.no_grad():
         i_s = torch.full((1, 7, 16, 16), 3.0)
-        out, _ = model.forward_sequence(i_s, i_s * 8)
+        i_c = torch.stack([i_s * 8 * k / 10 for k in windows], dim=2) if windows else None
+        out, _ = model.forward_sequence(i_s, i_s * 8, i_c=i_c)
     assert torch.isfinite(out).all()
 
 
