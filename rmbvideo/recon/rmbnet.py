@@ -49,12 +49,14 @@ ENCODE_BATCH = 8
 
 
 class PrelimLike(Protocol):
-    """What the engine reads from a preliminary frame (``rmbvideo.recon.prelim.PrelimFrame``)."""
+    """What the engine reads from a preliminary frame (``rmbvideo.recon.prelim.PrelimFrame``); ``i_c``
+    (central sums) only for a model with centre windows."""
 
     index: int
     time_s: float
     i_s: np.ndarray
     i_m: np.ndarray
+    i_c: np.ndarray | None
 
 
 def inference_copy(model: RmbNet) -> RmbNet:
@@ -254,7 +256,7 @@ class RmbNetReconstructor:
         if not windows:
             return None
         try:
-            sums = np.stack([select_centre(getattr(f, "i_c", None), self.n, windows) for f in frames])
+            sums = np.stack([select_centre(f.i_c, self.n, windows) for f in frames])
         except ValueError as exc:
             raise InputError(f"preliminary frame {frames[0].index}: {exc}") from None
         return torch.from_numpy(sums).to(self.device)
