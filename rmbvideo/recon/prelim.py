@@ -7,9 +7,9 @@ flow-based upsampler (warping with optical flow from the 1-bit stream) can repla
 implementing the same two methods.
 
 Preliminary frames: :class:`PreliminaryFrames` sums N readouts of 1-bit values (I_s) and of dense
-multi-bit values (I_m), and the dense multi-bit values of the central 2, 4 and 6 readouts (I_c:
-the frame's centre time at a finer time scale, for fast motion). Frame ``i`` covers readouts ``[i*N, (i+1)*N)`` counted from readout 0 of the
-file, so runs started at different planes produce aligned frames. A group that is not complete in
+multi-bit values (I_m), and the dense multi-bit values of the central 2, 4 and 6 readouts (I_c: the
+frame's centre time at a finer time scale, for fast motion). Frame ``i`` covers readouts
+``[i*N, (i+1)*N)`` counted from readout 0 of the file, so runs started at different planes produce aligned frames. A group that is not complete in
 the data (the first one when the run starts mid-group, the last one when the data ends mid-group)
 is dropped rather than emitted with fewer readouts, so every frame has the same exposure.
 """

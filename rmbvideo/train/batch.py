@@ -39,6 +39,7 @@ class Batch:
         i_c = stack([select_centre(s.i_c, n, centre) for s in samples]) if centre else None
         return cls(*(stack([getattr(s, name) for s in samples]) for name in ("i_s", "i_m", "gt")), convention, i_c)
 
+
 def output_range(count: int, w: int, edges: bool) -> range:
     """Supervised outputs of a sample of ``count`` frames: every frame (the first and last w as a
     clip's edges, their windows cut at the sample's ends) when ``edges``, else the full windows."""

@@ -70,20 +70,19 @@ def reconstruction_loss(pred_t: torch.Tensor, gt: torch.Tensor, config: LossConf
         edge = F.l1_loss(gx_p, gx_t) + F.l1_loss(gy_p, gy_t)
         total = total + config.edge * edge
     linear = torch.zeros((), device=pred.device)
-    if config.linear > 0:
-        truth = torch.nan_to_num(gt.float(), nan=0.0, posinf=0.0, neginf=0.0).clamp(0.0, config.saturation)
-        guess = inverse_mu_law(pred, config.mu).clamp(max=config.saturation)
-        scale = truth.flatten(1).mean(dim=1).clamp(min=1e-4)
-        linear = ((guess - truth).abs().flatten(1).mean(dim=1) / scale).mean()
-        total = total + config.linear * linear
     regional = torch.zeros((), device=pred.device)
-    if config.regional > 0:
+    if config.linear > 0 or config.regional > 0:  # linear-domain terms, against the clipped ground truth
         truth = torch.nan_to_num(gt.float(), nan=0.0, posinf=0.0, neginf=0.0).clamp(0.0, config.saturation)
         guess = inverse_mu_law(pred, config.mu).clamp(max=config.saturation)
-        block_p = F.avg_pool2d(guess[:, None], REGION, ceil_mode=True)
-        block_g = F.avg_pool2d(truth[:, None], REGION, ceil_mode=True)
-        regional = ((block_p - block_g).abs() / (block_g + REGION_FLOOR)).mean()
-        total = total + config.regional * regional
+        if config.linear > 0:
+            scale = truth.flatten(1).mean(dim=1).clamp(min=1e-4)
+            linear = ((guess - truth).abs().flatten(1).mean(dim=1) / scale).mean()
+            total = total + config.linear * linear
+        if config.regional > 0:
+            block_p = F.avg_pool2d(guess[:, None], REGION, ceil_mode=True)
+            block_g = F.avg_pool2d(truth[:, None], REGION, ceil_mode=True)
+            regional = ((block_p - block_g).abs() / (block_g + REGION_FLOOR)).mean()
+            total = total + config.regional * regional
     parts = {"l2": float(l2.detach()), "ssim": float(ssim_term.detach()), "edge": float(edge.detach()),
              "linear": float(linear.detach()), "regional": float(regional.detach())}
     return total, parts
