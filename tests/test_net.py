@@ -7,7 +7,8 @@ import math
 import torch
 import pytest
 
-from rmbvideo.net.attention import PairProjection
+from rmbvideo.net.attention import PairProjection, attend
+from rmbvideo.net.encoder import MaxPool2x2
 from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.model import RmbNet, window_indices, window_valid
 from rmbvideo.mulaw import inverse_mu_law, mu_law
@@ -47,6 +48,30 @@ def test_split_projection_equals_conv_on_concatenation():
         expected = proj.out(torch.relu(whole(torch.cat([a, b], dim=1))))
         got = proj.combine(proj.part(0, a) + proj.part(1, b))
     torch.testing.assert_close(got, expected, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("valid", [None, [True, True, False, True, False]])
+def test_attend_equals_softmax_over_the_valid_keys(valid):
+    """The key-at-a-time SoftMax equals a plain SoftMax over the stacked keys, invalid keys left out,
+    also for logits large enough to overflow a naive exp."""
+    torch.manual_seed(0)
+    logits = torch.randn(3, 5, 2, 4, 6, 7) * 30 + 80
+    values = torch.randn(5, 2, 4, 6, 7)
+    keep = list(range(5)) if valid is None else [k for k, ok in enumerate(valid) if ok]
+    weights = torch.softmax(logits[:, keep].double(), dim=1)
+    expected = (weights * values[keep].double().unsqueeze(0)).sum(dim=1)
+    got = attend(logits.unbind(1), values.unbind(0), valid)
+    assert got.shape == (3, 2, 4, 6, 7) and torch.isfinite(got).all()
+    torch.testing.assert_close(got.double(), expected, rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.bfloat16])
+@pytest.mark.parametrize("channels_last", [False, True])
+def test_strided_max_pool_equals_max_pool_2d(dtype, channels_last):
+    x = torch.randn(2, 3, 9, 14).to(dtype)
+    if channels_last:
+        x = x.contiguous(memory_format=torch.channels_last)
+    assert torch.equal(MaxPool2x2()(x), torch.nn.functional.max_pool2d(x, 2))
 
 
 def test_ablations_change_the_graph():

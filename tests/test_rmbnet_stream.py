@@ -12,6 +12,7 @@ from rmbvideo.errors import InputError
 from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.model import RmbNet
 from rmbvideo.recon.prelim import PreliminaryFrames, PrelimFrame
+from rmbvideo.recon.precision import cpu_has_native_bf16, uses_bf16
 from rmbvideo.recon.rmbnet import RmbNetReconstructor
 from rmbvideo.sensor.readout import RmbReadout
 
@@ -46,7 +47,7 @@ def split(chunk: RmbChunk, size: int) -> list[RmbChunk]:
 
 
 def stream(model: RmbNet, chunks: list, **kw):
-    engine = RmbNetReconstructor(model, device="cpu", **kw)
+    engine = RmbNetReconstructor(model, device="cpu", **{"precision": "fp32", **kw})
     frames = [f for c in chunks for f in engine.push(c)] + engine.flush()
     return frames, engine
 
@@ -169,3 +170,30 @@ def test_centre_windows_stream_equals_forward_sequence_and_need_the_sums():
     bare = PrelimFrame(0, 0.0, pframes[0].i_s, pframes[0].i_m, pframes[0].m_valid)
     with pytest.raises(InputError, match="preliminary frame 0: central sums"):
         engine.push([bare])
+
+
+@pytest.mark.parametrize("flags, native", [("fpu sse avx512f avx512_bf16 avx512vl", True),
+                                           ("fpu sse amx_tile amx_bf16", True), ("fpu sse avx2 fma", False)])
+def test_auto_precision_is_bf16_only_where_the_hardware_has_it(tmp_path, flags, native):
+    cpuinfo = tmp_path / "cpuinfo"
+    cpuinfo.write_text(f"processor\t: 0\nflags\t\t: {flags}\n\nprocessor\t: 1\nflags\t\t: {flags}\n")
+    assert cpu_has_native_bf16(cpuinfo) is native
+    assert cpu_has_native_bf16(tmp_path / "missing") is False
+    assert uses_bf16("auto", torch.device("cuda")) and not uses_bf16("fp32", torch.device("cuda"))
+    assert uses_bf16("bf16", torch.device("cpu")) and not uses_bf16("fp32", torch.device("cpu"))
+    assert uses_bf16("auto", torch.device("cpu")) is cpu_has_native_bf16()
+    with pytest.raises(ValueError, match="precision"):
+        uses_bf16("fp16", torch.device("cpu"))
+
+
+def test_bf16_engine_stays_close_to_fp32_and_finite():
+    """The bf16 engine (the CPU default where the hardware has bf16) against the fp32 reference path:
+    mu-law outputs within 0.03 (bf16 keeps 8 mantissa bits) and nothing non-finite."""
+    model = tiny()
+    chunks = split(rmb_stream(95), 19)
+    exact = np.stack([f.image for f in stream(model, chunks)[0]])
+    fast = np.stack([f.image for f in stream(model, chunks, precision="bf16")[0]])
+    assert np.isfinite(fast).all() and (fast >= 0).all()
+    mu = model.config.output_mu
+    compress = lambda x: np.log1p(mu * x) / np.log1p(mu)  # noqa: E731
+    assert np.abs(compress(fast) - compress(exact)).max() < 0.03

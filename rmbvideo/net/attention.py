@@ -9,7 +9,8 @@ supplement's "cyclic shift to obtain (2w+1)^2 feature pairs"). XBA pair logits d
 frames only, so a streaming engine can cache them across overlapping windows.
 
 Tensor layout: stacks over window positions are (K, B, C, H, W); pair logits are (Q, K, B, C, H, W)
-with one mask channel per feature channel (the masks multiply features element-wise, Eqn. 11).
+with one mask channel per feature channel (the masks multiply features element-wise, Eqn. 11);
+``attend`` takes them one key at a time.
 """
 
 from __future__ import annotations
@@ -41,23 +42,34 @@ class PairProjection(nn.Module):
         return self.out(torch.relu(flat)).reshape(*lead, -1, *summed.shape[-2:])
 
 
-def attend(logits: torch.Tensor, values: torch.Tensor, valid: torch.Tensor | None = None) -> torch.Tensor:
-    """SoftMax over keys (dim 1, in float32) and weighted sum: (Q,K,B,C,H,W) x (K,B,C,H,W) -> (Q,B,C,H,W).
+def attend(logits: Sequence[torch.Tensor], values: Sequence[torch.Tensor],
+           valid: Sequence[bool] | None = None) -> torch.Tensor:
+    """SoftMax over keys (in float32) and weighted sum: ``logits[k]`` (Q,B,C,H,W) and ``values[k]``
+    (B,C,H,W) per key k -> (Q,B,C,H,W).
 
-    ``valid`` (K,) bool leaves keys out of the SoftMax (window positions past a clip's edge)."""
-    logits = logits.float()
-    if valid is not None:
-        logits = logits.masked_fill(~valid.view(1, -1, 1, 1, 1, 1), float("-inf"))
-    weights = torch.softmax(logits, dim=1).to(values.dtype)
-    return (weights * values.unsqueeze(0)).sum(dim=1)
+    Keys are visited one at a time (running maximum, then exp-weighted sums): no stack of the window
+    is built and no SoftMax runs across a strided key dimension, about twice as fast on CPU as both.
+    ``valid`` (one bool per key) leaves keys out (window positions past a clip's edge); the maximum
+    is subtracted first, so every weight is <= 1 and the denominator >= 1.
+    """
+    keys = [k for k in range(len(logits)) if valid is None or valid[k]]
+    peak = logits[keys[0]].float()
+    for k in keys[1:]:
+        peak = torch.maximum(peak, logits[k].float())
+    numerator = denominator = None
+    for k in keys:
+        weight = torch.exp(logits[k].float() - peak)
+        term = weight * values[k].float()
+        numerator = term if numerator is None else numerator + term
+        denominator = weight if denominator is None else denominator + weight
+    return (numerator / denominator).to(values[keys[0]].dtype)
 
 
-def masked_mean(x: torch.Tensor, valid: torch.Tensor | None) -> torch.Tensor:
-    """Mean over dim 0 of the positions where ``valid`` (K,) is True (all when None)."""
-    if valid is None:
+def masked_mean(x: torch.Tensor, valid: Sequence[bool] | None) -> torch.Tensor:
+    """Mean over dim 0 of the positions where ``valid`` (one bool per position) is True (all when None)."""
+    if valid is None or all(valid):
         return x.mean(dim=0)
-    weights = valid.to(x.dtype).view(-1, *([1] * (x.dim() - 1)))
-    return (x * weights).sum(dim=0) / weights.sum()
+    return x[[k for k, ok in enumerate(valid) if ok]].mean(dim=0)
 
 
 class CrossBitAttention(nn.Module):
@@ -78,13 +90,14 @@ class CrossBitAttention(nn.Module):
         return self.proj.part(1, f_m)
 
     def pair_logits(self, query_parts: torch.Tensor, key_parts: torch.Tensor) -> torch.Tensor:
-        """Logits of the pairs (query_parts[p], key_parts[p]), both (P, B, Ch, H, W) -> (P, B, C, H, W)."""
+        """Logits of the pairs (query_parts[p], key_parts[p]), (P, B, Ch, H, W) each (or one query part
+        broadcast over P) -> (P, B, C, H, W)."""
         return self.proj.combine(query_parts + key_parts)
 
-    def fuse(self, f_s: torch.Tensor, f_m: torch.Tensor, logits: torch.Tensor,
-             valid: torch.Tensor | None = None) -> torch.Tensor:
-        """F_ms for queries ``f_s`` (Q,B,C,H,W) over keys ``f_m`` (K,B,C,H,W) with ``logits`` (Q,K,...);
-        keys where ``valid`` is False are left out."""
+    def fuse(self, f_s: torch.Tensor, f_m: Sequence[torch.Tensor], logits: Sequence[torch.Tensor],
+             valid: Sequence[bool] | None = None) -> torch.Tensor:
+        """F_ms for queries ``f_s`` (Q,B,C,H,W) over keys ``f_m[k]`` (B,C,H,W) with ``logits[k]``
+        (Q,B,C,H,W) per key; keys where ``valid`` is False are left out."""
         f_m_hat = attend(logits, f_m, valid)
         q = f_s.shape[0]
         mixed = torch.cat([f_s, f_m_hat], dim=2).flatten(0, 1)
@@ -115,7 +128,7 @@ class CrossTimeAttention(nn.Module):
         super().__init__()
         self.proj = PairProjection((channels, channels, channels), hidden, channels, kernel)
 
-    def forward(self, f_ms: torch.Tensor, valid: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(self, f_ms: torch.Tensor, valid: Sequence[bool] | None = None) -> torch.Tensor:
         """F_bar_ms over the window (K,B,C,H,W); positions where ``valid`` is False are neither
         keys, queries nor part of the bias."""
         k = f_ms.shape[0]
@@ -125,11 +138,11 @@ class CrossTimeAttention(nn.Module):
         k_part = self.proj.part(1, flat).unflatten(0, (k, -1))
         b_part = self.proj.part(2, bias)
         logits = self.proj.combine(q_part[:, None] + k_part[None] + b_part)
-        return masked_mean(attend(logits, f_ms, valid), valid)
+        return masked_mean(attend(logits.unbind(1), f_ms.unbind(0), valid), valid)
 
 
 class TemporalMean(nn.Module):
     """"Without XTA" ablation: F_bar_ms(i) is the plain temporal mean of F_ms over the window."""
 
-    def forward(self, f_ms: torch.Tensor, valid: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(self, f_ms: torch.Tensor, valid: Sequence[bool] | None = None) -> torch.Tensor:
         return masked_mean(f_ms, valid)

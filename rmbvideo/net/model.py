@@ -90,6 +90,11 @@ def window_valid(i: int, w: int, count: int | None) -> list[bool]:
     return [0 <= j <= last for j in range(i - w, i + w + 1)]
 
 
+def _stack(tensors: Sequence[torch.Tensor]) -> torch.Tensor:
+    """``torch.stack`` along a new dim 0, a view (no copy) for a single tensor."""
+    return tensors[0].unsqueeze(0) if len(tensors) == 1 else torch.stack(list(tensors))
+
+
 class RmbNet(nn.Module):
     """The whole network; ``forward_sequence`` is the plain, non-streaming reference path."""
 
@@ -199,33 +204,38 @@ class RmbNet(nn.Module):
 
     def _xba_logits(
         self, scale: int, queries: Sequence[EncodedFrame], keys: Sequence[EncodedFrame], cache: PairCache
-    ) -> torch.Tensor:
-        """(Q,K,B,C,h,w) XBA logits; pairs missing from ``cache`` are computed in one batched call."""
-        missing: dict[tuple[int, int, int], tuple[EncodedFrame, EncodedFrame]] = {}
+    ) -> list[torch.Tensor]:
+        """XBA logits per key, (Q,B,C,h,w) each; pairs missing from ``cache`` are computed in one batched call."""
+        missing: dict[tuple[int, int, int], tuple[int, EncodedFrame]] = {}
+        query_parts = []
         for q in queries:
+            part = q.query_parts[scale]
             for k in keys:
                 key = (scale, q.index, k.index)
-                if key not in cache:
-                    missing[key] = (q, k)
+                if key not in cache and key not in missing:
+                    if not query_parts or query_parts[-1] is not part:
+                        query_parts.append(part)
+                    missing[key] = (len(query_parts) - 1, k)
         if missing:
-            xba = self.xba[scale]
-            q_parts = torch.stack([q.query_parts[scale] for q, _ in missing.values()])
+            if len(query_parts) == 1:  # one new query (the usual streaming step): broadcast its part
+                q_parts = query_parts[0].unsqueeze(0)
+            else:
+                q_parts = torch.stack([query_parts[j] for j, _ in missing.values()])
             k_parts = torch.stack([k.key_parts[scale] for _, k in missing.values()])
-            for key, logits in zip(missing, xba.pair_logits(q_parts, k_parts).unbind(0)):
+            for key, logits in zip(missing, self.xba[scale].pair_logits(q_parts, k_parts).unbind(0)):
                 cache[key] = logits
-        return torch.stack([torch.stack([cache[(scale, q.index, k.index)] for k in keys]) for q in queries])
+        return [_stack([cache[(scale, q.index, k.index)] for q in queries]) for k in keys]
 
     def _bit_fused(
         self, scale: int, queries: Sequence[EncodedFrame], window: Sequence[EncodedFrame], cache: PairCache,
-        valid: torch.Tensor | None = None,
+        valid: Sequence[bool] | None = None,
     ) -> torch.Tensor:
         """F_ms(q) at ``scale`` for each query over the window's valid keys, (Q,B,C,h,w)."""
         if not self.config.use_xba:
-            return torch.stack([q.f_ms[scale] for q in queries])
+            return _stack([q.f_ms[scale] for q in queries])
         logits = self._xba_logits(scale, queries, window, cache)
-        f_s = torch.stack([q.f_s[scale] for q in queries])
-        f_m = torch.stack([k.f_m[scale] for k in window])
-        return self.xba[scale].fuse(f_s, f_m, logits, valid)
+        f_s = _stack([q.f_s[scale] for q in queries])
+        return self.xba[scale].fuse(f_s, [k.f_m[scale] for k in window], logits, valid)
 
     def _head_inputs(self, window: Sequence[EncodedFrame], valid: Sequence[bool],
                      convention: torch.Tensor | float) -> torch.Tensor:
@@ -266,7 +276,7 @@ class RmbNet(nn.Module):
             raise ValueError("the reference frame of a window must be valid")
         cache = {} if cache is None else cache
         ref = window[self.config.w]
-        mask = None if all(valid) else torch.tensor(valid, device=ref.inputs.device)
+        mask = None if all(valid) else valid
         reference = [self._bit_fused(s, [ref], window, cache, mask)[0] for s in range(2)]
         f_ms_coarse = self._bit_fused(2, window, window, cache, mask)
         reference.append(f_ms_coarse[self.config.w])

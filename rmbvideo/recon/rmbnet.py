@@ -36,6 +36,7 @@ from rmbvideo.net.model import (
     window_indices,
     window_valid,
 )
+from rmbvideo.recon.precision import PRECISIONS, uses_bf16
 from rmbvideo.recon.prelim import MultiUpsampler, PreliminaryFrames, select_centre
 from rmbvideo.sensor.conventions import CONVENTIONS
 from rmbvideo.threads import default_threads
@@ -43,7 +44,6 @@ from rmbvideo.threads import default_threads
 log = logging.getLogger(__name__)
 
 ALIGN_METHODS = ("none", "dis", "farneback", "tvl1")
-PRECISIONS = ("auto", "fp32", "bf16")
 # Frames encoded per call: bounds the full-resolution activations whatever the chunk size.
 ENCODE_BATCH = 8
 
@@ -87,7 +87,8 @@ def resolve_device(device: str | torch.device) -> torch.device:
 class RmbNetReconstructor:
     """``push(chunk or prelim frames) -> list[Frame]``, ``flush() -> list[Frame]``.
 
-    ``precision``: "auto" uses bf16 autocast on CUDA and fp32 on CPU; "bf16"/"fp32" force it.
+    ``precision``: "auto" uses bf16 autocast where the hardware computes in bf16 natively (CUDA, CPUs
+    with AVX512-BF16/AMX; ``rmbvideo.recon.precision``) and fp32 elsewhere; "bf16"/"fp32" force it.
     ``threads``: intra-op threads while the network runs (restored afterwards); None follows the
     project's thread policy (``rmbvideo.threads``: one thread on a busy or small machine).
     ``n`` is the readouts per preliminary frame when RmbChunks are pushed (default: the model's N)
@@ -120,8 +121,7 @@ class RmbNetReconstructor:
         self.device = resolve_device(device)
         self.model = model.to(self.device).eval()
         self._net = inference_copy(self.model)
-        bf16 = precision == "bf16" or (precision == "auto" and self.device.type == "cuda")
-        self._autocast = bf16
+        self._autocast = uses_bf16(precision, self.device)
         self._threads = threads if threads is not None else default_threads()
         self.align = align
         self.n = model.config.n if n is None else n
