@@ -60,7 +60,7 @@ def test_default_configs_cover_the_issue():
     for device in ("cpu", "cuda"):
         mine = [c for c in rmb if c.device == device]
         assert {c.w for c in mine} == {0, 1, 2, 3} and {c.align for c in mine} == {"none", "dis", "tvl1"}
-        assert {c.width for c in mine} == {0.5, 1.0} and {c.precision for c in mine} == {"fp32", "bf16"}
+        assert {c.width for c in mine} == {0.5, 1.0} and {c.precision for c in mine} == {"auto", "fp32", "bf16"}
     assert len(set(names)) == len(names)
     assert len([c for c in default_configs(("cpu",), full_grid=True) if c.is_rmbnet]) == 48
 

@@ -1,8 +1,9 @@
 """The benchmark's configurations: every baseline of paper Table 2 and the RMB-Net speed knobs.
 
 RMB-Net knobs (window half-width w, alignment, width multiplier, precision, device) are varied one
-at a time around the shipped default model (w = 3, no alignment, width 0.5, fp32) unless the full grid is
-asked for, which multiplies them out (4 x 3 x 2 x 2 = 48 runs per device).
+at a time around the shipped default model (w = 3, no alignment, width 0.5, the default precision "auto",
+named with what it resolves to on this machine) unless the full grid is asked for, which multiplies them
+out (4 x 3 x 2 x 2 = 48 runs per device, fp32 and bf16).
 """
 
 from __future__ import annotations
@@ -11,7 +12,10 @@ import itertools
 from dataclasses import dataclass, field
 from typing import Any
 
+import torch
+
 from rmbvideo.evaluate.harness import BASELINE_SPECS, RAW_SPECS
+from rmbvideo.recon.precision import uses_bf16
 
 #: name -> (method, options): the RMB-input baselines of ``rmbvideo evaluate`` (paper Table 2) and
 #: the classical methods on the raw capture that ``reconstruct`` runs at full resolution (scored
@@ -44,10 +48,17 @@ class BenchConfig:
         return self.method == "rmbnet"
 
 
-def rmbnet_config(w: int = 3, align: str = "none", width: float = DEFAULT_WIDTH, precision: str = "fp32",
+def precision_label(precision: str, device: str) -> str:
+    """``precision`` as a row shows it: "auto" with what it resolves to on ``device`` here, e.g. "auto=bf16"."""
+    if precision != "auto":
+        return precision
+    return "auto=" + ("bf16" if uses_bf16("auto", torch.device(device)) else "fp32")
+
+
+def rmbnet_config(w: int = 3, align: str = "none", width: float = DEFAULT_WIDTH, precision: str = "auto",
                   device: str = "cpu") -> BenchConfig:
-    """An RMB-Net row named after its knobs, e.g. ``RMB-Net w3 none x1 fp32 cpu``."""
-    name = f"RMB-Net w{w} {align} x{width:g} {precision} {device}"
+    """An RMB-Net row named after its knobs, e.g. ``RMB-Net w3 none x1 auto=bf16 cpu``."""
+    name = f"RMB-Net w{w} {align} x{width:g} {precision_label(precision, device)} {device}"
     return BenchConfig(name=name, method="rmbnet", w=w, align=align, width=width, precision=precision,
                        device=device)
 
@@ -68,8 +79,8 @@ def default_configs(devices: tuple[str, ...] = ("cpu",), full_grid: bool = False
             rows += [rmbnet_config(w, a, wd, p, device) for w, a, wd, p in combos]
             continue
         rows.append(default)
-        rows += [rmbnet_config(w, "none", DEFAULT_WIDTH, "fp32", device) for w in W_VALUES if w != 3]
-        rows += [rmbnet_config(3, a, DEFAULT_WIDTH, "fp32", device) for a in alignments if a != "none"]
-        rows += [rmbnet_config(3, "none", wd, "fp32", device) for wd in WIDTHS if wd != DEFAULT_WIDTH]
-        rows += [rmbnet_config(3, "none", DEFAULT_WIDTH, p, device) for p in PRECISIONS if p != "fp32"]
+        rows += [rmbnet_config(w, "none", DEFAULT_WIDTH, "auto", device) for w in W_VALUES if w != 3]
+        rows += [rmbnet_config(3, a, DEFAULT_WIDTH, "auto", device) for a in alignments if a != "none"]
+        rows += [rmbnet_config(3, "none", wd, "auto", device) for wd in WIDTHS if wd != DEFAULT_WIDTH]
+        rows += [rmbnet_config(3, "none", DEFAULT_WIDTH, p, device) for p in PRECISIONS]
     return rows

@@ -113,7 +113,7 @@ def _make(config: BenchConfig, network, threads: int):
     from rmbvideo.recon.rmbnet import RmbNetReconstructor
 
     return RmbNetReconstructor(network, device=config.device, align=config.align or "none",
-                               precision=config.precision or "fp32", threads=threads)
+                               precision=config.precision or "auto", threads=threads)
 
 
 def _sync(device: str) -> None:

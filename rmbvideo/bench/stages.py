@@ -46,7 +46,7 @@ def _instrument(network, clock: _StageClock) -> None:
 
 
 def stage_breakdown(network, planes: int = 2000, width: int = 400, height: int = 250,
-                    threads: int = 1, precision: str = "fp32", device: str = "cpu") -> dict[str, float]:
+                    threads: int = 1, precision: str = "auto", device: str = "cpu") -> dict[str, float]:
     """Milliseconds per output frame of each stage for ``network`` on a random ``width`` x ``height``
     capture of ``planes`` raw planes (output at half the size): the stages of one streaming run
     (``RunSummary.stages``, the network split by instrumenting its parts), then tone mapping and the

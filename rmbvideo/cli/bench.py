@@ -10,7 +10,7 @@ from pathlib import Path
 
 import click
 
-from rmbvideo.bench.configs import DEFAULT_WIDTH
+from rmbvideo.bench.configs import DEFAULT_WIDTH, precision_label
 from rmbvideo.cli import verbose_option
 
 log = logging.getLogger(__name__)
@@ -25,7 +25,8 @@ def _devices(choice: str) -> tuple[str, ...]:
 
 
 def _stage_table(stages: dict[str, float]) -> str:
-    lines = [f"Per-stage time of RMB-Net (w = 3, width {DEFAULT_WIDTH:g}, no alignment, fp32, CPU) at {stages.pop('size')}, "
+    lines = [f"Per-stage time of RMB-Net (w = 3, width {DEFAULT_WIDTH:g}, no alignment, precision "
+             f"{precision_label('auto', 'cpu')}, CPU) at {stages.pop('size')}, "
              f"ms per output frame over {int(stages.pop('frames'))} frames:", "",
              "| stage | ms/frame |", "|---|---|"]
     lines += [f"| {k} | {v:.2f} |" for k, v in stages.items()]
