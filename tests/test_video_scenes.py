@@ -175,6 +175,19 @@ def test_band_oscillation_amplitude_is_measured_at_its_period():
     assert band_oscillation_db(20 + 0.01 * t, 6.25) < 1e-9
 
 
+def test_oscillation_floor_reads_noise_not_the_band():
+    """The floor (amplitude at periods away from the band's) stays near zero for a pure band sinusoid
+    and matches the band-period amplitude's order for white noise, where nothing oscillates."""
+    from rmbvideo.evaluate.video_checks import band_oscillation_db, oscillation_floor_db
+
+    t = np.arange(58)
+    band = 20 + 0.3 * np.sin(2 * np.pi * t / 6.25)
+    assert oscillation_floor_db(band, 6.25) < 0.05 < 0.29 < band_oscillation_db(band, 6.25)
+    noise = 20 + 0.1 * np.random.default_rng(3).standard_normal(t.size)
+    floor = oscillation_floor_db(noise, 6.25)
+    assert 0.005 < floor < 0.06 and band_oscillation_db(noise, 6.25) < 3 * floor
+
+
 def test_flat_field_and_dark_bias_of_a_classical_method():
     from rmbvideo.evaluate.video_checks import dark_bias, flat_field_chunks
 

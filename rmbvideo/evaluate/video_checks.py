@@ -4,7 +4,9 @@
   moment each edge frame shows: the time offset at which the scene's ground truth matches the
   frame best (a window that repeats or leans on one side shows the scene early or late).
 - Rolling-band oscillation: the RMB band returns to a row every H / shift readouts (6.25 frames
-  for 125 binned rows); the amplitude (dB) of the per-frame PSNR at that period.
+  for 125 binned rows); the amplitude (dB) of the per-frame PSNR at that period, against the floor
+  the same fit reads at other periods, on a slow pan and a still scene, beside methods that read the
+  band.
 - Dark-end bias: a flat, static field at levels 1e-3..1 (charge per raw plane relative to the
   threshold) through the physical emission model: the mean output over the clip's second half
   relative to the level, and the output's spatial coefficient of variation (invented texture).
@@ -17,6 +19,7 @@ import math
 from collections.abc import Iterator
 from collections.abc import Sequence as Seq
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -103,8 +106,9 @@ def edge_report(seq: Sequence, method: str = "rmbnet", options: dict | None = No
     return EdgeReport(psnr, median - psnr[0], median - psnr[-1], first, last, middle)
 
 
-def slow_sequence(width: int, height: int, frames: int, seed: int = 1_600_000) -> Sequence:
-    """A long held-out video sequence with slow motion, for the rolling-band oscillation check."""
+def band_sequence(width: int, height: int, frames: int, static: bool = False, seed: int = 1_600_000) -> Sequence:
+    """A long held-out video sequence for the rolling-band check: slow motion, or (``static``) a still
+    textured scene, where the per-frame PSNR varies with nothing but noise and the band's phase."""
     from rmbvideo.evaluate.heldout import (
         HeldoutConfig,
         VideoHeldout,
@@ -112,8 +116,13 @@ def slow_sequence(width: int, height: int, frames: int, seed: int = 1_600_000) -
     )
     from rmbvideo.scenes.video import VideoSceneRanges
 
-    kind = VideoHeldout("slow", VideoSceneRanges(camera_speed=(0.02, 0.05), static_probability=0.0,
-                                                 object_speed=(0.01, 0.05), median_rate=(0.02, 0.2)))
+    if static:
+        kind = VideoHeldout("static", VideoSceneRanges(static_probability=1.0, shake_px=0.0, zoom_rate=0.0,
+                                                       max_objects=0, median_rate=(0.02, 0.2)))
+        seed += 1
+    else:
+        kind = VideoHeldout("slow", VideoSceneRanges(camera_speed=(0.02, 0.05), static_probability=0.0,
+                                                     object_speed=(0.01, 0.05), median_rate=(0.02, 0.2)))
     return simulate_video_sequence(seed, kind, HeldoutConfig(count=1, width=width, height=height,
                                                               readouts=frames * FRAME_STEP))
 
@@ -131,6 +140,32 @@ def band_oscillation_db(psnr: Seq[float], period_frames: float) -> float:
     design = np.stack([np.ones_like(t), t, np.cos(omega * t), np.sin(omega * t)], axis=1)
     coef, *_ = np.linalg.lstsq(design, np.asarray(psnr, np.float64), rcond=None)
     return float(math.hypot(coef[2], coef[3]))
+
+
+def oscillation_floor_db(psnr: Seq[float], period_frames: float) -> float:
+    """The same amplitude at periods away from the band's (3..16 frames, outside +-20 % of it),
+    median over them: what the measure reads on this series when nothing oscillates at a period."""
+    periods = [p for p in np.linspace(3.0, 16.0, 53) if abs(p / period_frames - 1.0) > 0.2]
+    return float(np.median([band_oscillation_db(psnr, p) for p in periods]))
+
+
+@dataclass(frozen=True)
+class BandReport:
+    """Per-frame mu-law PSNR of one method on one band-check sequence, its amplitude at the band's
+    period and the measure's floor there (``oscillation_floor_db``)."""
+
+    method: str
+    sequence: str
+    psnr: list[float]
+    amplitude_db: float
+    floor_db: float
+
+
+def band_report(label: str, method: str, options: dict, seq: Sequence, period: float) -> BandReport:
+    """Band check of ``method`` on ``seq`` (edge frames, whose windows are one-sided, left out)."""
+    images = run_rmb(method, options, seq)
+    psnr = [mu_law_psnr(images[i], np.minimum(seq.gt[i], 1.0)) for i in range(3, len(seq.gt) - 3)]
+    return BandReport(label, seq.name, psnr, band_oscillation_db(psnr, period), oscillation_floor_db(psnr, period))
 
 
 def flat_field_chunks(level: float, width: int, height: int, readouts: int, seed: int = 0) -> list[RmbChunk]:
@@ -167,8 +202,6 @@ def dark_bias(method: str = "rmbnet", options: dict | None = None, levels: Seq[f
 def write_checks(out_dir, method: str, options: dict, sequences: Seq[Sequence], quick: bool) -> list:
     """Run the three checks for ``method`` and write ``checks.md`` (and ``checks.png`` when
     matplotlib is installed) into ``out_dir``; returns the paths written."""
-    from pathlib import Path
-
     from rmbvideo.io.atomic import atomic_write_text
 
     out_dir = Path(out_dir)
@@ -189,14 +222,24 @@ def write_checks(out_dir, method: str, options: dict, sequences: Seq[Sequence], 
         lines.append(f"| {seq.name} | {report.first_drop_db:.2f} | {report.last_drop_db:.2f} | "
                      f"{report.first_offset_ms:+.2f} | {report.last_offset_ms:+.2f} | {report.middle_offset_ms:+.2f} |")
     width, height, frames = (112, 64, 40) if quick else (200, 125, 64)
-    slow = slow_sequence(width, height, frames)
-    images = run_rmb(method, options, slow)
-    psnr = [mu_law_psnr(images[i], np.minimum(slow.gt[i], 1.0)) for i in range(3, len(slow.gt) - 3)]
     period = band_period_frames(height)
-    amplitude = band_oscillation_db(psnr, period)
+    sequences_band = [band_sequence(width, height, frames), band_sequence(width, height, frames, static=True)]
+    controls = [("TFW-S (reads the band)", "tfw", {"window": FRAME_STEP, "step": FRAME_STEP})]
+    rmb_model = Path(options["model"]).with_name("rmbnet-binned-rmb.safetensors") if "model" in options else None
+    if rmb_model is not None and rmb_model.exists():
+        controls.append(("RMB-Net, RMB readout", "rmbnet", {**options, "model": rmb_model}))
+    bands = [band_report(label, m, o, seq, period) for seq in sequences_band
+             for label, m, o in [(method, method, options), *controls]]
     lines += ["", "## Rolling-band oscillation", "",
-              f"A slow held-out sequence of {len(slow.gt)} frames at {width}x{height}: band cycle {period:.2f} frames; "
-              f"amplitude of the per-frame mu-law PSNR at that period (edge frames left out): **{amplitude:.3f} dB**.",
+              f"Held-out sequences of {frames} frames at {width}x{height} (a slow pan and a still textured scene); "
+              f"band cycle {period:.2f} frames. Amplitude: the per-frame mu-law PSNR's sinusoid at that period "
+              "(edge frames left out); floor: the median amplitude the same fit reads at periods of 3-16 frames "
+              "away from the band's, i.e. what content and noise alone give. The TFW-S and RMB-readout rows read "
+              "the RMB band itself (the default reads every bin count): what reading a band does to per-frame "
+              "quality.", "",
+              "| method | sequence | amplitude at the band period (dB) | floor (dB) |", "|---|---|---:|---:|"]
+    lines += [f"| {b.method} | {b.sequence} | {b.amplitude_db:.3f} | {b.floor_db:.3f} |" for b in bands]
+    lines += [
               "", "## Dark end (flat static field, physical noise)", "",
               "| level (charge/plane/threshold) | relative bias | spatial CV of a frame |", "|---:|---:|---:|"]
     bias = dark_bias(method, options)
@@ -217,8 +260,14 @@ def write_checks(out_dir, method: str, options: dict, sequences: Seq[Sequence], 
         axes[0].plot(report.psnr, marker=".", label=name)
     axes[0].set(xlabel="frame", ylabel="mu-law PSNR (dB)", title="per-frame quality: clip edges")
     axes[0].legend(fontsize=7)
-    axes[1].plot(range(3, 3 + len(psnr)), psnr, marker=".")
-    axes[1].set(xlabel="frame", ylabel="mu-law PSNR (dB)", title=f"band cycle {period:.2f} frames: {amplitude:.3f} dB")
+    for band in bands:
+        if band.sequence == sequences_band[-1].name:
+            centred = np.asarray(band.psnr) - np.mean(band.psnr)
+            axes[1].plot(range(3, 3 + len(centred)), centred, marker=".",
+                         label=f"{band.method}: {band.amplitude_db:.3f} dB (floor {band.floor_db:.3f})")
+    axes[1].set(xlabel="frame", ylabel="mu-law PSNR - mean (dB)",
+                title=f"still scene, band cycle {period:.2f} frames")
+    axes[1].legend(fontsize=7)
     levels = list(bias)
     axes[2].semilogx(levels, [100 * bias[v][0] for v in levels], marker="o")
     axes[2].axhspan(-5, 5, color="green", alpha=0.15)
