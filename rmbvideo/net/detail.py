@@ -5,7 +5,8 @@ The binned path (RMB-Net) decides each 2x2 block's level; this stage decides onl
 shared among the block's four pixels. It reads the raw TFP rates over a few windows (short ones
 follow motion, long ones resolve faint texture), each as its relative deviation from its block mean
 with the block's spike count (how far that deviation can be trusted), plus the bilinear upsampling's
-own deviation from the block level. The predicted relative deviation d is made zero-mean over every
+own deviation from the block level, and optionally (``interval_reach``) TFI, the inverse interval
+between the spikes around the frame's centre: the sharpest estimate of a moving bright pixel. The predicted relative deviation d is made zero-mean over every
 2x2 block, and
 
     full = bilinear(binned) * max(1 + d, 0),
@@ -29,12 +30,15 @@ from rmbvideo.mulaw import mu_law
 @dataclass(frozen=True)
 class DetailConfig:
     """``windows``: raw planes of the TFP rates the stage reads (centred on the frame; the 6-plane one
-    follows fast motion, which blurs over 20 planes at a raw pixel per plane); ``channels`` and
-    ``layers``: the width and depth of its 3x3 convolution stack."""
+    follows fast motion, which blurs over 20 planes at a raw pixel per plane); ``interval_reach``: raw
+    planes TFI searches on each side of the frame's centre (``rmbvideo.recon.classical.Tfi``'s
+    ``max_reach``), 0 for no TFI input; ``channels`` and ``layers``: the width and depth of its 3x3
+    convolution stack."""
 
     windows: tuple[int, ...] = (6, 20, 40, 80)
     channels: int = 16
     layers: int = 4
+    interval_reach: int = 0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "windows", tuple(int(w) for w in self.windows))
@@ -42,11 +46,20 @@ class DetailConfig:
             raise ValueError(f"windows must be positive plane counts, got {self.windows}")
         if self.channels < 1 or self.layers < 2:
             raise ValueError(f"channels must be >= 1 and layers >= 2, got {self.channels}, {self.layers}")
+        if self.interval_reach < 0:
+            raise ValueError(f"interval_reach must be >= 0, got {self.interval_reach}")
+
+    @property
+    def rate_channels(self) -> int:
+        """Rate planes the stage reads: one per window, then TFI when ``interval_reach`` > 0."""
+        return len(self.windows) + int(self.interval_reach > 0)
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dictionary."""
+        """JSON-ready dictionary (no ``interval_reach`` key without TFI input: older cards stay valid)."""
         out = asdict(self)
         out["windows"] = list(self.windows)
+        if not self.interval_reach:
+            del out["interval_reach"]
         return out
 
     @classmethod
@@ -74,7 +87,7 @@ class DetailNet(nn.Module):
     def __init__(self, config: DetailConfig = DetailConfig()) -> None:
         super().__init__()
         self.config = config
-        inputs = 1 + 2 * len(config.windows)
+        inputs = 1 + 2 * config.rate_channels
         layers: list[nn.Module] = []
         for k in range(config.layers - 1):
             layers += [nn.Conv2d(inputs if k == 0 else config.channels, config.channels, 3, padding=1),
@@ -86,11 +99,13 @@ class DetailNet(nn.Module):
             layers[-1].bias.zero_()
 
     def features(self, up: torch.Tensor, rates: torch.Tensor) -> torch.Tensor:
-        """(B, 1 + 2K, H, W): the bilinear deviation from the block level, then per window the rate's
-        relative deviation from its block mean and the block's spike count (mu-law compressed)."""
+        """(B, 1 + 2K, H, W): the bilinear deviation from the block level, then per rate plane (each
+        window, then TFI, read as if over 2 * ``interval_reach`` planes) the rate's relative deviation
+        from its block mean and the block's spike count (mu-law compressed)."""
         level = F.interpolate(F.avg_pool2d(up, 2), scale_factor=2.0, mode="nearest")
         parts = [(up / level.clamp(min=1e-12) - 1.0).clamp(-1.0, 1.0) * (level > 0)]
-        for k, window in enumerate(self.config.windows):
+        windows = self.config.windows + ((2 * self.config.interval_reach,) if self.config.interval_reach else ())
+        for k, window in enumerate(windows):
             r = rates[:, k : k + 1].float()
             mean = block_mean(r)
             spikes = mean * (4 * window)  # spikes in the block over the window
@@ -100,7 +115,8 @@ class DetailNet(nn.Module):
 
     def forward(self, binned: torch.Tensor, rates: torch.Tensor) -> torch.Tensor:
         """``binned`` (B,1,h,w) linear; ``rates`` (B,K,2h,2w) raw spike rates per plane over each of the
-        config's windows -> (B,1,2h,2w) linear, >= 0 and finite."""
+        config's windows, then TFI when it reads it (``config.rate_channels``) -> (B,1,2h,2w) linear,
+        >= 0 and finite."""
         binned = torch.nan_to_num(binned.float(), nan=0.0, posinf=0.0, neginf=0.0).clamp(min=0.0)
         rates = torch.nan_to_num(rates.float(), nan=0.0, posinf=0.0, neginf=0.0).clamp(0.0, 1.0)
         up = upsample(binned)

@@ -14,7 +14,7 @@ texture); the 2x2 mean of the relative detail is 1, so averaging the full frame 
 the (upsampled) binned frame back. This is joint (guided) upsampling with a noise-aware gain.
 
 With a learned detail stage (``rmbvideo.net.detail.DetailNet``, ``detail=``) the factor is predicted
-instead, from TFP over each of the stage's windows.
+instead, from TFP over each of the stage's windows (and TFI when the stage reads it).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from rmbvideo.chunks import Frame, SpikeChunk
-from rmbvideo.recon.classical import Tfp
+from rmbvideo.recon.classical import Tfi, Tfp
 from rmbvideo.sensor.binning import StreamBinner
 from rmbvideo.sensor.readout import RmbReadout
 
@@ -101,9 +101,11 @@ class FullResolution:
         self.detail = detail
         self._binner = StreamBinner()
         windows = detail.config.windows if detail is not None else (settings.window,)
-        self._rates = [Tfp(window=w, step=step) for w in windows]
+        self._rates: list[Tfp | Tfi] = [Tfp(window=w, step=step) for w in windows]
+        if detail is not None and detail.config.interval_reach:
+            self._rates.append(Tfi(step=step, max_reach=detail.config.interval_reach))
         self._coarse: dict[int, Frame] = {}
-        self._fine: list[dict[int, Frame]] = [{} for _ in windows]
+        self._fine: list[dict[int, Frame]] = [{} for _ in self._rates]
         self.stage_seconds = getattr(binned, "stage_seconds", {})
 
     def push(self, chunk: SpikeChunk) -> list[Frame]:

@@ -27,6 +27,7 @@ from rmbvideo.evaluate.metrics import mu_law_psnr
 from rmbvideo.mulaw import mu_law
 from rmbvideo.net.detail import DetailConfig, DetailNet
 from rmbvideo.net.weights import ModelCard, save_model
+from rmbvideo.recon.classical import Tfi
 from rmbvideo.recon.full_resolution import DEFAULT_DETAIL_WINDOW, relative_detail, upsample
 from rmbvideo.scenes.random_scenes import EVAL_SEED_START
 from rmbvideo.scenes.video import VideoScene
@@ -43,6 +44,8 @@ from rmbvideo.train.loop import machine_description
 log = logging.getLogger(__name__)
 
 MU = 5000.0
+#: TFI's reach (raw planes each side of the frame centre) for a new detail stage: two frames' worth.
+INTERVAL_REACH = 40
 
 
 @dataclass(frozen=True)
@@ -51,7 +54,7 @@ class DetailTrainConfig:
     kept and ``new_per_step`` of them replaced every step (simulation is the slow part). Training stops
     at ``minutes`` of wall time or after ``steps`` steps in all (None: no step limit)."""
 
-    detail: DetailConfig = field(default_factory=DetailConfig)
+    detail: DetailConfig = field(default_factory=lambda: DetailConfig(interval_reach=INTERVAL_REACH))
     crop: int = 48
     batch: int = 8
     pool: int = 64
@@ -69,22 +72,32 @@ class DetailTrainConfig:
 
 @dataclass
 class DetailSample:
-    """``binned`` (h, w) ground-truth block means; ``rates`` (K, 2h, 2w) raw TFP rates; ``gt`` (2h, 2w)."""
+    """``binned`` (h, w) ground-truth block means; ``rates`` (K, 2h, 2w) raw TFP rates (then TFI when the
+    stage reads it); ``gt`` (2h, 2w)."""
 
     binned: np.ndarray
     rates: np.ndarray
     gt: np.ndarray
 
 
-def simulate_detail_sample(seed: int, crop: int, windows: tuple[int, ...], spikezoo_fraction: float) -> DetailSample:
-    """The sample of ``seed``: a frame at raw plane time ``max(windows)/2 + 10``, every window centred on it."""
+def simulate_detail_sample(seed: int, crop: int, windows: tuple[int, ...], spikezoo_fraction: float,
+                           interval_reach: int = 0) -> DetailSample:
+    """The sample of ``seed``: a frame at raw plane time ``max(windows)/2 + 10`` (at least
+    ``interval_reach`` + 1), every window centred on it; TFI there (``Tfi`` itself) when
+    ``interval_reach`` > 0."""
     rng = np.random.default_rng([seed, 0xDE7A])
     convention = "spikezoo" if rng.random() < spikezoo_fraction else "physical"
-    centre = max(windows) // 2 + 10
+    centre = max(max(windows) // 2 + 10, interval_reach + 1)
     planes = 2 * centre
     scene = VideoScene(seed, 2 * crop, 2 * crop, planes, convention=convention)
-    raw = np.concatenate([c.planes for c in capture_planes(scene, planes, RAW_RATE_HZ)]).astype(np.float32)
-    rates = np.stack([raw[centre - w // 2: centre - w // 2 + w].mean(axis=0) for w in windows])
+    chunks = list(capture_planes(scene, planes, RAW_RATE_HZ))
+    raw = np.concatenate([c.planes for c in chunks]).astype(np.float32)
+    rates = [raw[centre - w // 2: centre - w // 2 + w].mean(axis=0) for w in windows]
+    if interval_reach:
+        tfi = Tfi(step=2 * centre, max_reach=interval_reach)  # frame 0 is centred on plane time `centre`
+        frames = [f for c in chunks for f in tfi.push(c)] + tfi.flush()
+        rates.append(frames[0].image)
+    rates = np.stack(rates)
     gt = scene.render(float(centre)).astype(np.float32)
     binned = gt.reshape(crop, 2, crop, 2).mean(axis=(1, 3))
     return DetailSample(binned=binned, rates=rates, gt=gt)
@@ -138,7 +151,8 @@ def train_detail(config: DetailTrainConfig, out_dir: Path, name: str = "detail-b
     next_seed = iter(range(base + config.pool + state.step * config.new_per_step, EVAL_SEED_START))
 
     def simulate(seed: int) -> DetailSample:
-        return simulate_detail_sample(seed, config.crop, windows, config.spikezoo_fraction)
+        return simulate_detail_sample(seed, config.crop, windows, config.spikezoo_fraction,
+                                      config.detail.interval_reach)
 
     val = [simulate(EVAL_SEED_START + 500_000 + k) for k in range(config.val_count)]
     pool = [simulate(base + k) for k in range(config.pool)]
