@@ -134,10 +134,11 @@ def test_full_resolution_evaluation_against_exact_full_size_ground_truth(tmp_pat
             assert np.isfinite(value) and abs(value - checks[BINNED_UP]) < 0.3
 
 
-def test_learned_detail_stage_starts_as_bilinear_stays_finite_and_streams(tmp_path: Path) -> None:
-    """A new detail stage is plain bilinear upsampling; any stage gives finite, non-negative frames of the
-    camera's size, the same for every chunk size; weights round-trip through the safe loader, which
-    refuses an RMB-Net card."""
+@pytest.mark.parametrize("reach", [0, 30])
+def test_learned_detail_stage_starts_as_bilinear_stays_finite_and_streams(tmp_path: Path, reach: int) -> None:
+    """A new detail stage is plain bilinear upsampling; any stage (with or without the TFI input) gives
+    finite, non-negative frames of the camera's size, the same for every chunk size; weights round-trip
+    through the safe loader, which refuses an RMB-Net card."""
     import torch
 
     from rmbvideo.errors import ModelError
@@ -149,17 +150,19 @@ def test_learned_detail_stage_starts_as_bilinear_stays_finite_and_streams(tmp_pa
     from rmbvideo.io.dat import DatReader
     from rmbvideo.sensor.readout import RmbReadout
 
-    config = DetailConfig(windows=(20, 40), channels=8, layers=3)
+    config = DetailConfig(windows=(20, 40), channels=8, layers=3, interval_reach=reach)
+    assert config.rate_channels == 2 + bool(reach) and DetailConfig.from_dict(config.to_dict()) == config
+    assert ("interval_reach" in config.to_dict()) == bool(reach)
     fresh = DetailNet(config)
     binned = torch.rand(1, 1, 12, 16) * 3
-    rates = torch.rand(1, 2, 24, 32)
+    rates = torch.rand(1, config.rate_channels, 24, 32)
     with torch.inference_mode():
         np.testing.assert_allclose(fresh(binned, rates)[0, 0].numpy(), upsample(binned[0, 0].numpy()), rtol=1e-5, atol=1e-6)
     torch.manual_seed(1)
     stage = DetailNet(config)
     torch.nn.init.normal_(stage.body[-1].weight, std=0.3)
     with torch.inference_mode():
-        hard = stage(torch.tensor([[[[0.0, 1e30], [float("nan"), 5.0]]]]), torch.ones(1, 2, 4, 4))
+        hard = stage(torch.tensor([[[[0.0, 1e30], [float("nan"), 5.0]]]]), torch.ones(1, config.rate_channels, 4, 4))
     assert torch.isfinite(hard).all() and (hard >= 0).all()
     path = save_model(tmp_path / "detail.safetensors", stage, ModelCard(name="detail"))
     loaded, card = load_detail_model(path)
@@ -190,12 +193,28 @@ def test_detail_training_writes_a_loadable_stage_and_resumes(tmp_path: Path) -> 
 
     from dataclasses import replace
 
-    config = DetailTrainConfig(detail=DetailConfig(windows=(20, 40), channels=4, layers=2), crop=16, batch=2,
+    config = DetailTrainConfig(detail=DetailConfig(windows=(20, 40), channels=4, layers=2, interval_reach=12), crop=16,
+                               batch=2,
                                pool=3, val_count=1, val_every=2, checkpoint_every=1, minutes=60.0, steps=3)
     path = train_detail(config, tmp_path)
     model, card = load_detail_model(path)
     assert card.training["steps_done"] == 3 and np.isfinite(card.metrics["val_mu_psnr_learned"])
+    assert model.config.interval_reach == 12
     path = train_detail(replace(config, steps=5), tmp_path, resume=True)  # continues from step 3
     resumed, card = load_detail_model(path)
     assert card.training["steps_done"] == 5
     assert any(not torch.equal(a, b) for a, b in zip(model.state_dict().values(), resumed.state_dict().values()))
+
+
+def test_detail_sample_reads_tfi_at_the_frame_centre() -> None:
+    """The TFI plane of a training sample is 1 / the interval between the spikes around the centre: a
+    value in (0, 1] on every pixel, and on a bright static scene close to the 80-plane TFP rate."""
+    from rmbvideo.train.detail import simulate_detail_sample
+
+    sample = simulate_detail_sample(11, 16, (20, 80), 0.0, interval_reach=30)
+    tfi = sample.rates[-1]
+    assert sample.rates.shape == (3, 32, 32) and tfi.min() > 0 and tfi.max() <= 1
+    assert 1 / tfi.max() == int(round(1 / tfi.max()))  # intervals are whole planes
+    bright = sample.rates[1] > 0.2
+    assert bright.mean() > 0.5  # this seed's scene is mostly bright
+    assert abs(float(np.median(tfi[bright] / sample.rates[1][bright])) - 1.0) < 0.1
