@@ -53,7 +53,9 @@ INTERVAL_REACH = 40
 class DetailTrainConfig:
     """``crop``: binned size of a sample (the capture is twice that); a pool of ``pool`` samples is
     kept and ``new_per_step`` of them replaced every step (simulation is the slow part). Training stops
-    at ``minutes`` of wall time or after ``steps`` steps in all (None: no step limit)."""
+    at ``minutes`` of wall time or after ``steps`` steps in all (None: no step limit); the learning rate's
+    cosine runs over ``steps`` when it is given (the same schedule however busy the machine), else over
+    ``minutes``."""
 
     detail: DetailConfig = field(default_factory=lambda: DetailConfig(interval_reach=INTERVAL_REACH,
                                                                         convention_input=True))
@@ -172,7 +174,7 @@ def train_detail(config: DetailTrainConfig, out_dir: Path, name: str = "detail-b
     bar = tqdm(total=round(budget), initial=round(state.elapsed_s), disable=not progress, unit="s", desc=name)
     try:
         while time.monotonic() - start < budget and (config.steps is None or step < config.steps):
-            progress = min((time.monotonic() - start) / budget, 1.0)
+            progress = min(step / config.steps if config.steps else (time.monotonic() - start) / budget, 1.0)
             lr = config.lr_final + 0.5 * (config.lr - config.lr_final) * (1 + math.cos(math.pi * progress))
             for group in optimizer.param_groups:
                 group["lr"] = lr
@@ -211,7 +213,8 @@ def train_detail(config: DetailTrainConfig, out_dir: Path, name: str = "detail-b
                     + (" and the sensor convention" if config.detail.convention_input else ""),
         training={"config": {k: v for k, v in asdict(config).items() if k != "detail"}, "steps_done": step,
                   "wall_time_s": round(time.monotonic() - start, 1), "machine": machine_description(torch.device("cpu")),
-                  "optimizer": f"Adam, lr {config.lr} cosine to {config.lr_final} over the wall-time budget",
+                  "optimizer": f"Adam, lr {config.lr} cosine to {config.lr_final} over the "
+                               + (f"{config.steps}-step budget" if config.steps else "wall-time budget"),
                   "loss": "L1 of mu-law (mu=5000) frames after dividing by the ground truth's 99.9th percentile",
                   "checkpoint": str(checkpoint_paths(out_dir)[0].name)},
         data={"description": "video scenes (rmbvideo.scenes.video), 1-bit captures at twice the binned size "
