@@ -6,9 +6,7 @@ shared among the block's four pixels. It reads the raw TFP rates over a few wind
 follow motion, long ones resolve faint texture), each as its relative deviation from its block mean
 with the block's spike count (how far that deviation can be trusted), plus the bilinear upsampling's
 own deviation from the block level, and optionally (``interval_reach``) TFI, the inverse interval
-between the spikes around the frame's centre: the sharpest estimate of a moving bright pixel, exact on a
-noise-free stream and noisy on a camera's, so the stage can also be told the sensor convention
-(``convention_input``, as RMB-Net is). The predicted relative deviation d is made zero-mean over every
+between the spikes around the frame's centre: the sharpest estimate of a moving bright pixel. The predicted relative deviation d is made zero-mean over every
 2x2 block, and
 
     full = bilinear(binned) * max(1 + d, 0),
@@ -34,15 +32,13 @@ class DetailConfig:
     """``windows``: raw planes of the TFP rates the stage reads (centred on the frame; the 6-plane one
     follows fast motion, which blurs over 20 planes at a raw pixel per plane); ``interval_reach``: raw
     planes TFI searches on each side of the frame's centre (``rmbvideo.recon.classical.Tfi``'s
-    ``max_reach``), 0 for no TFI input; ``convention_input``: one more constant input plane, 0 for a
-    camera's stream and 1 for the rate convention of simulators such as spikezoo's (``rmbvideo.sensor.
-    conventions``); ``channels`` and ``layers``: the width and depth of its 3x3 convolution stack."""
+    ``max_reach``), 0 for no TFI input; ``channels`` and ``layers``: the width and depth of its 3x3
+    convolution stack."""
 
     windows: tuple[int, ...] = (6, 20, 40, 80)
     channels: int = 16
     layers: int = 4
     interval_reach: int = 0
-    convention_input: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "windows", tuple(int(w) for w in self.windows))
@@ -59,14 +55,11 @@ class DetailConfig:
         return len(self.windows) + int(self.interval_reach > 0)
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dictionary (no ``interval_reach`` key without TFI input and no ``convention_input``
-        key without it: older cards stay as they are)."""
+        """JSON-ready dictionary (no ``interval_reach`` key without TFI input: older cards stay valid)."""
         out = asdict(self)
         out["windows"] = list(self.windows)
         if not self.interval_reach:
             del out["interval_reach"]
-        if not self.convention_input:
-            del out["convention_input"]
         return out
 
     @classmethod
@@ -94,7 +87,7 @@ class DetailNet(nn.Module):
     def __init__(self, config: DetailConfig = DetailConfig()) -> None:
         super().__init__()
         self.config = config
-        inputs = 1 + 2 * config.rate_channels + int(config.convention_input)
+        inputs = 1 + 2 * config.rate_channels
         layers: list[nn.Module] = []
         for k in range(config.layers - 1):
             layers += [nn.Conv2d(inputs if k == 0 else config.channels, config.channels, 3, padding=1),
@@ -105,11 +98,10 @@ class DetailNet(nn.Module):
             layers[-1].weight.zero_()
             layers[-1].bias.zero_()
 
-    def features(self, up: torch.Tensor, rates: torch.Tensor, convention: torch.Tensor | float = 0.0) -> torch.Tensor:
-        """(B, 1 + 2K [+ 1], H, W): the bilinear deviation from the block level, then per rate plane (each
+    def features(self, up: torch.Tensor, rates: torch.Tensor) -> torch.Tensor:
+        """(B, 1 + 2K, H, W): the bilinear deviation from the block level, then per rate plane (each
         window, then TFI, read as if over 2 * ``interval_reach`` planes) the rate's relative deviation
-        from its block mean and the block's spike count (mu-law compressed), then the convention plane
-        when the config has it (``convention``: 0 or 1, a scalar or one per batch item)."""
+        from its block mean and the block's spike count (mu-law compressed)."""
         level = F.interpolate(F.avg_pool2d(up, 2), scale_factor=2.0, mode="nearest")
         parts = [(up / level.clamp(min=1e-12) - 1.0).clamp(-1.0, 1.0) * (level > 0)]
         windows = self.config.windows + ((2 * self.config.interval_reach,) if self.config.interval_reach else ())
@@ -119,18 +111,15 @@ class DetailNet(nn.Module):
             spikes = mean * (4 * window)  # spikes in the block over the window
             parts.append(((r - mean) / (mean + 1.0 / (4 * window))).clamp(-1.0, 3.0))
             parts.append(mu_law(spikes / (4 * window), 255.0))
-        if self.config.convention_input:
-            code = torch.as_tensor(convention, dtype=up.dtype, device=up.device).reshape(-1, 1, 1, 1)
-            parts.append(code.expand(up.shape[0], 1, *up.shape[2:]))
         return torch.cat(parts, dim=1)
 
-    def forward(self, binned: torch.Tensor, rates: torch.Tensor, convention: torch.Tensor | float = 0.0) -> torch.Tensor:
+    def forward(self, binned: torch.Tensor, rates: torch.Tensor) -> torch.Tensor:
         """``binned`` (B,1,h,w) linear; ``rates`` (B,K,2h,2w) raw spike rates per plane over each of the
-        config's windows, then TFI when it reads it (``config.rate_channels``); ``convention`` as in
-        ``features`` -> (B,1,2h,2w) linear, >= 0 and finite."""
+        config's windows, then TFI when it reads it (``config.rate_channels``) -> (B,1,2h,2w) linear,
+        >= 0 and finite."""
         binned = torch.nan_to_num(binned.float(), nan=0.0, posinf=0.0, neginf=0.0).clamp(min=0.0)
         rates = torch.nan_to_num(rates.float(), nan=0.0, posinf=0.0, neginf=0.0).clamp(0.0, 1.0)
         up = upsample(binned)
-        d = self.body(self.features(up, rates, convention))
+        d = self.body(self.features(up, rates))
         d = d - block_mean(d)
         return up * (1.0 + d).clamp(min=0.0)

@@ -27,7 +27,6 @@ import numpy as np
 from rmbvideo.chunks import Frame, SpikeChunk
 from rmbvideo.recon.classical import Tfi, Tfp
 from rmbvideo.sensor.binning import StreamBinner
-from rmbvideo.sensor.conventions import CONVENTIONS
 from rmbvideo.sensor.readout import RmbReadout
 
 DEFAULT_DETAIL_WINDOW = 20  # raw planes: the frame interval, so moving detail is not smeared
@@ -88,23 +87,18 @@ def upsample(image: np.ndarray) -> np.ndarray:
 
 
 class FullResolution:
-    """A method on the binned stream, made full resolution with the raw stream's detail (see module);
-    ``convention``: the sensor convention that made the stream (``CONVENTIONS``), for a detail stage
-    that reads it."""
+    """A method on the binned stream, made full resolution with the raw stream's detail (see module)."""
 
     input_kind: ClassVar[str] = "spikes"
 
     def __init__(self, binned: Any, readout: RmbReadout | None, step: int = 20,
-                 settings: DetailSettings = DetailSettings(), detail: Any = None, convention: str = "physical") -> None:
+                 settings: DetailSettings = DetailSettings(), detail: Any = None) -> None:
         if binned.input_kind != "rmb":
             raise ValueError(f"full resolution wraps a method on the binned stream, not {type(binned).__name__}")
         self.binned = binned
         self.readout = readout
         self.settings = settings
         self.detail = detail
-        if convention not in CONVENTIONS:
-            raise ValueError(f"convention must be one of {CONVENTIONS}, got {convention!r}")
-        self._convention = float(CONVENTIONS.index(convention))
         self._binner = StreamBinner()
         windows = detail.config.windows if detail is not None else (settings.window,)
         self._rates: list[Tfp | Tfi] = [Tfp(window=w, step=step) for w in windows]
@@ -157,5 +151,5 @@ class FullResolution:
 
         with torch.inference_mode():
             full = self.detail(torch.from_numpy(np.ascontiguousarray(coarse, np.float32))[None, None],
-                               torch.from_numpy(np.stack(rates).astype(np.float32))[None], self._convention)
+                               torch.from_numpy(np.stack(rates).astype(np.float32))[None])
         return full[0, 0].numpy()

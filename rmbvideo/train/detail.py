@@ -31,7 +31,6 @@ from rmbvideo.recon.classical import Tfi
 from rmbvideo.recon.full_resolution import DEFAULT_DETAIL_WINDOW, relative_detail, upsample
 from rmbvideo.scenes.random_scenes import EVAL_SEED_START
 from rmbvideo.scenes.video import VideoScene
-from rmbvideo.sensor.conventions import CONVENTIONS
 from rmbvideo.simulate.capture import capture_planes
 from rmbvideo.train.checkpoint import (
     CheckpointState,
@@ -57,8 +56,7 @@ class DetailTrainConfig:
     cosine runs over ``steps`` when it is given (the same schedule however busy the machine), else over
     ``minutes``."""
 
-    detail: DetailConfig = field(default_factory=lambda: DetailConfig(interval_reach=INTERVAL_REACH,
-                                                                        convention_input=True))
+    detail: DetailConfig = field(default_factory=lambda: DetailConfig(interval_reach=INTERVAL_REACH))
     crop: int = 48
     batch: int = 8
     pool: int = 64
@@ -77,12 +75,11 @@ class DetailTrainConfig:
 @dataclass
 class DetailSample:
     """``binned`` (h, w) ground-truth block means; ``rates`` (K, 2h, 2w) raw TFP rates (then TFI when the
-    stage reads it); ``gt`` (2h, 2w); ``convention``: 0 a camera's stream, 1 spikezoo's rate convention."""
+    stage reads it); ``gt`` (2h, 2w)."""
 
     binned: np.ndarray
     rates: np.ndarray
     gt: np.ndarray
-    convention: float = 0.0
 
 
 def simulate_detail_sample(seed: int, crop: int, windows: tuple[int, ...], spikezoo_fraction: float,
@@ -105,7 +102,7 @@ def simulate_detail_sample(seed: int, crop: int, windows: tuple[int, ...], spike
     rates = np.stack(rates)
     gt = scene.render(float(centre)).astype(np.float32)
     binned = gt.reshape(crop, 2, crop, 2).mean(axis=(1, 3))
-    return DetailSample(binned=binned, rates=rates, gt=gt, convention=float(CONVENTIONS.index(convention)))
+    return DetailSample(binned=binned, rates=rates, gt=gt)
 
 
 def detail_loss(pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
@@ -114,13 +111,12 @@ def detail_loss(pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
     return (mu_law(pred / scale, MU) - mu_law(gt / scale, MU)).abs().mean()
 
 
-def _batch(samples: list[DetailSample]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+def _batch(samples: list[DetailSample]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     def stack(name: str) -> torch.Tensor:
         return torch.from_numpy(np.stack([getattr(s, name) for s in samples]))
 
     binned, rates, gt = stack("binned"), stack("rates"), stack("gt")
-    convention = torch.tensor([s.convention for s in samples], dtype=torch.float32)
-    return binned[:, None], rates, gt[:, None], convention
+    return binned[:, None], rates, gt[:, None]
 
 
 @torch.no_grad()
@@ -132,8 +128,8 @@ def validate(model: DetailNet, samples: list[DetailSample], windows: tuple[int, 
     scores: dict[str, list[float]] = {"learned": [], "bilinear": [], "classical": []}
     k = windows.index(DEFAULT_DETAIL_WINDOW) if DEFAULT_DETAIL_WINDOW in windows else 0
     for s in samples:
-        binned, rates, _, convention = _batch([s])
-        scores["learned"].append(mu_law_psnr(model(binned, rates, convention)[0, 0].numpy(), s.gt))
+        binned, rates, _ = _batch([s])
+        scores["learned"].append(mu_law_psnr(model(binned, rates)[0, 0].numpy(), s.gt))
         up = upsample(s.binned)
         scores["bilinear"].append(mu_law_psnr(up, s.gt))
         scores["classical"].append(mu_law_psnr(up * relative_detail(s.rates[k], windows[k]), s.gt))
@@ -181,10 +177,10 @@ def train_detail(config: DetailTrainConfig, out_dir: Path, name: str = "detail-b
             for _ in range(config.new_per_step):
                 pool[int(rng.integers(len(pool)))] = simulate(next(next_seed))
             chosen = [pool[int(k)] for k in rng.choice(len(pool), config.batch, replace=False)]
-            binned, rates, gt, convention = _batch(chosen)
+            binned, rates, gt = _batch(chosen)
             if rng.random() < 0.5:  # flips: the same statistics, more variety
                 binned, rates, gt = binned.flip(-1), rates.flip(-1), gt.flip(-1)
-            loss = detail_loss(model(binned, rates, convention), gt)
+            loss = detail_loss(model(binned, rates), gt)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
@@ -208,9 +204,7 @@ def train_detail(config: DetailTrainConfig, out_dir: Path, name: str = "detail-b
     card = ModelCard(
         name=name,
         description="Detail stage for --resolution full: how each 2x2 block's level is shared among its pixels, "
-                    "from the raw TFP rates over " + "/".join(map(str, windows)) + " planes"
-                    + (f", TFI (reach {config.detail.interval_reach} planes)" if config.detail.interval_reach else "")
-                    + (" and the sensor convention" if config.detail.convention_input else ""),
+                    "from the raw TFP rates over " + "/".join(map(str, windows)) + " planes",
         training={"config": {k: v for k, v in asdict(config).items() if k != "detail"}, "steps_done": step,
                   "wall_time_s": round(time.monotonic() - start, 1), "machine": machine_description(torch.device("cpu")),
                   "optimizer": f"Adam, lr {config.lr} cosine to {config.lr_final} over the "
