@@ -11,7 +11,7 @@ import torch
 from rmbvideo.errors import ModelError
 from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.model import RmbNet
-from rmbvideo.net.weights import ModelCard, load_model, save_model
+from rmbvideo.net.weights import ModelCard, average_models, load_model, save_model
 
 
 def tiny(**kw) -> RmbNet:
@@ -95,3 +95,20 @@ def test_foreign_files_are_refused_without_running_code(tmp_path, kind):
     with pytest.raises(ModelError, match="refused: not a safetensors file"):
         load_model(path)
     assert not marker.exists()
+
+
+def test_average_models_is_the_weighted_sum_and_refuses_other_architectures():
+    torch.manual_seed(0)
+    first, second = RmbNet(RmbNetConfig(w=1, width=0.25)), RmbNet(RmbNetConfig(w=1, width=0.25))
+    for alpha in (0.0, 0.7, 1.0):
+        mixed = average_models(first, second, alpha).state_dict()
+        for key, a in first.state_dict().items():
+            b = second.state_dict()[key]
+            expected = alpha * a.float() + (1 - alpha) * b.float() if a.is_floating_point() else a
+            assert torch.allclose(mixed[key].float(), expected.float(), atol=1e-7), key
+    assert not torch.equal(average_models(first, second, 0.5).state_dict()["decoder.head.1.weight"],
+                           first.state_dict()["decoder.head.1.weight"])
+    with pytest.raises(ModelError, match="different architectures"):
+        average_models(first, RmbNet(RmbNetConfig(w=2, width=0.25)), 0.5)
+    with pytest.raises(ValueError, match="alpha"):
+        average_models(first, second, 1.5)

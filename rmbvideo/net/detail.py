@@ -6,8 +6,8 @@ shared among the block's four pixels. It reads the raw TFP rates over a few wind
 follow motion, long ones resolve faint texture), each as its relative deviation from its block mean
 with the block's spike count (how far that deviation can be trusted), plus the bilinear upsampling's
 own deviation from the block level, and optionally (``interval_reach``) TFI, the inverse interval
-between the spikes around the frame's centre: the sharpest estimate of a moving bright pixel. The predicted relative deviation d is made zero-mean over every
-2x2 block, and
+between the spikes around the frame's centre: the sharpest estimate of a moving bright pixel. The
+predicted relative deviation d is made zero-mean over every 2x2 block, and
 
     full = bilinear(binned) * max(1 + d, 0),
 

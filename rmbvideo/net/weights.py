@@ -186,6 +186,21 @@ def _check_safetensors_header(weights: Path) -> None:
         raise ModelError(f"{weights}: refused: not a safetensors file") from None
 
 
+def average_models(first: RmbNet, second: RmbNet, alpha: float) -> RmbNet:
+    """A copy of ``first`` with weights ``alpha * first + (1 - alpha) * second`` (integer buffers from
+    ``first``): a point on the straight path between two fine-tunings of one model (how stage 5 of the
+    shipped default was made). Models of different architectures are refused."""
+    if first.config != second.config:
+        raise ModelError("cannot average models of different architectures")
+    if not 0.0 <= alpha <= 1.0:
+        raise ValueError(f"alpha must be in [0, 1], got {alpha}")
+    mixed = RmbNet(first.config)
+    a, b = first.state_dict(), second.state_dict()
+    mixed.load_state_dict({k: (alpha * a[k].float() + (1 - alpha) * b[k].float()).to(a[k].dtype)
+                           if a[k].is_floating_point() else a[k] for k in a})
+    return mixed.eval()
+
+
 def load_model(
     path: str | os.PathLike[str],
     expect_input_mode: str | None = None,

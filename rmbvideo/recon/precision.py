@@ -2,7 +2,8 @@
 
 bf16 halves the bytes every convolution moves and doubles the multiply rate where the hardware has
 bf16 instructions (CUDA; x86 CPUs with AVX512-BF16 or AMX): on this project's AMD EPYC (Zen 4) it
-runs RMB-Net 1.3x faster than fp32 at the same accuracy (``rmbvideo bench``: 38.02 vs 38.01 dB).
+runs RMB-Net 1.3x faster than fp32 at the same accuracy (``rmbvideo bench``: 38.05 dB both). The
+encoders' first convolution still reads the inputs in fp32 (``rmbvideo.net.encoder``).
 Elsewhere oneDNN emulates bf16 through fp32 and it is slower, so "auto" keeps fp32 there.
 """
 
