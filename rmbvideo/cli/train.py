@@ -28,12 +28,15 @@ from rmbvideo.cli.options import DEVICE_CHOICE, AliasOption
               help="Override the recipe's wall-time budget.")
 @click.option("--steps", type=click.IntRange(min=1), default=None,
               help="Override the recipe's step budget (e.g. an ablation set at a longer equal budget).")
+@click.option("--workers", type=click.IntRange(min=1), default=None,
+              help="Override the recipe's simulation processes for video scenes (e.g. on a many-core GPU "
+                   "machine); the samples are the same for any count.")
 @click.option("--device", type=DEVICE_CHOICE, default="auto", show_default=True,
               help="Where to train (auto: CUDA when available, else CPU).")
 @quiet_option
 @verbose_option
 def train(recipe: str, out_dir: Path | None, cache_dir: Path | None, resume: bool, minutes: float | None,
-          steps: int | None, device: str, quiet: bool) -> None:
+          steps: int | None, workers: int | None, device: str, quiet: bool) -> None:
     """Train RMB-Net from RECIPE (a .toml file or a bundled recipe name)."""
     from rmbvideo.errors import InputError
     from rmbvideo.train.config import bundled_recipe, load_recipe
@@ -47,6 +50,8 @@ def train(recipe: str, out_dir: Path | None, cache_dir: Path | None, resume: boo
         config = config.with_minutes(minutes)
     if steps is not None:
         config = config.with_steps(steps)
+    if workers is not None:
+        config = config.with_workers(workers)
     import torch
 
     if device == "auto":

@@ -102,6 +102,10 @@ class TrainConfig:
         """The same recipe with another step budget (the learning-rate schedule spans it)."""
         return replace(self, optim=replace(self.optim, steps=steps))
 
+    def with_workers(self, workers: int) -> "TrainConfig":
+        """The same recipe simulated by another number of processes (the samples do not change)."""
+        return replace(self, data=replace(self.data, workers=workers))
+
 
 def _typed(cls: type, table: dict[str, Any], where: str, path: Path) -> Any:
     known = {f.name: f for f in fields(cls)}

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import torch
 
 from rmbvideo.chunks import RmbChunk, SpikeChunk
 from rmbvideo.io.atomic import atomic_path, atomic_write_text
@@ -222,7 +223,9 @@ def _simulate_video_sample(spec: SampleSpec, seed: int) -> Sample:
 
 
 def _worker_init() -> None:
+    """One thread per simulation process: the processes already fill the cores."""
     cv2.setNumThreads(1)
+    torch.set_num_threads(1)
 
 
 class SamplePrefetcher:
