@@ -179,7 +179,7 @@ def test_auto_precision_is_bf16_only_where_the_hardware_has_it(tmp_path, flags, 
     cpuinfo.write_text(f"processor\t: 0\nflags\t\t: {flags}\n\nprocessor\t: 1\nflags\t\t: {flags}\n")
     assert cpu_has_native_bf16(cpuinfo) is native
     assert cpu_has_native_bf16(tmp_path / "missing") is False
-    assert uses_bf16("auto", torch.device("cuda")) and not uses_bf16("fp32", torch.device("cuda"))
+    assert not uses_bf16("auto", torch.device("cuda")) and uses_bf16("bf16", torch.device("cuda"))
     assert uses_bf16("bf16", torch.device("cpu")) and not uses_bf16("fp32", torch.device("cpu"))
     assert uses_bf16("auto", torch.device("cpu")) is cpu_has_native_bf16()
     with pytest.raises(ValueError, match="precision"):

@@ -34,7 +34,7 @@ def rmbnet_options(func):
                      default="interp", show_default=True,
                      help="Dense multi-bit planes from the rolling band: flow-free interpolation or optical flow."),
         click.option("--precision", type=click.Choice(["auto", "fp32", "bf16"]), default="auto",
-                     show_default=True, help="Network precision (auto: bf16 where the hardware computes in bf16 natively: CUDA, CPUs with AVX512-BF16 or AMX; fp32 elsewhere)."),
+                     show_default=True, help="Network precision (auto: bf16 on CPUs with AVX512-BF16 or AMX, where it is faster; fp32 elsewhere, CUDA included)."),
         click.option("--threads", type=click.IntRange(min=1), default=None,
                      help="CPU threads for the network [default: the thread policy: 1 on a busy or 2-core machine, "
                   "else the idle cores, at most 8]."),

@@ -87,8 +87,8 @@ def resolve_device(device: str | torch.device) -> torch.device:
 class RmbNetReconstructor:
     """``push(chunk or prelim frames) -> list[Frame]``, ``flush() -> list[Frame]``.
 
-    ``precision``: "auto" uses bf16 autocast where the hardware computes in bf16 natively (CUDA, CPUs
-    with AVX512-BF16/AMX; ``rmbvideo.recon.precision``) and fp32 elsewhere; "bf16"/"fp32" force it.
+    ``precision``: "auto" uses bf16 autocast on CPUs with AVX512-BF16/AMX, where it is measured faster
+    (``rmbvideo.recon.precision``), and fp32 elsewhere, CUDA included; "bf16"/"fp32" force it.
     ``threads``: intra-op threads while the network runs (restored afterwards); None follows the
     project's thread policy (``rmbvideo.threads``: one thread on a busy or small machine).
     ``n`` is the readouts per preliminary frame when RmbChunks are pushed (default: the model's N)
