@@ -88,6 +88,20 @@ def test_interpolation_chunk_independent(size):
     assert starts == sorted(starts)
 
 
+def test_measured_fast_path_hands_over_the_interpolation_state():
+    """Pure-M readouts take a shortcut; a band readout after them must interpolate from the same held
+    samples as when the whole stream goes through the general path."""
+    full = _random_pure_m(t=80, h=11)
+    band = RmbReadout(band=3, shift=2).apply(full)
+    rows = band.multi_rows.copy()
+    rows[:30] = True  # the first 30 readouts read every row: pure-M
+    mixed = _chunk(full.single, full.multi, rows)
+    whole, valid_whole, _ = _upsample(TemporalInterpolation(), [mixed])
+    parts, valid_parts, _ = _upsample(TemporalInterpolation(), _split(mixed, 30))
+    assert np.array_equal(whole, parts) and np.array_equal(valid_whole, valid_parts)
+    assert np.array_equal(parts[:30], full.multi[:30].astype(np.float32))
+
+
 def _frames(prelim, chunks):
     return [f for c in chunks for f in prelim.push(c)] + prelim.flush()
 

@@ -135,6 +135,8 @@ class TemporalInterpolation:
         if count <= 0:
             return []
         rows, multi = self._buf.rows, self._buf.multi
+        if rows[:count].all():
+            return self._emit_measured(count)
         length, height = rows.shape
         index = np.arange(length, dtype=np.int64)[:, None]
         prev = np.maximum.accumulate(np.where(rows, index, -1), axis=0)[:count]
@@ -182,6 +184,29 @@ class TemporalInterpolation:
             last = count - 1 - np.argmax(rows[:count][::-1], axis=0)
             self._last_t = np.where(seen, self._buf.start + last, self._last_t)
             self._last_v = np.where(seen[:, None], multi[last, np.arange(height)].astype(np.float32), self._last_v)
+        self._buf.drop(count)
+        return out
+
+    def _emit_measured(self, count: int) -> list[DenseChunk]:
+        """The first ``count`` readouts when every row has its own sample at each (pure-M data): the
+        samples themselves, what interpolation gives there, without its gathers."""
+        multi, rows = self._buf.multi, self._buf.rows
+        rate_hz, level, raw_per_readout = self._buf.meta
+        out = [
+            DenseChunk(
+                single=self._buf.single[b0:b1],
+                multi=multi[b0:b1].astype(np.float32),
+                multi_rows=rows[b0:b1].copy(),
+                start=self._buf.start + b0,
+                rate_hz=rate_hz,
+                level=level,
+                raw_per_readout=raw_per_readout,
+                measured=rows[b0:b1].copy(),
+            )
+            for b0, b1 in ((b, min(b + _BLOCK_READOUTS, count)) for b in range(0, count, _BLOCK_READOUTS))
+        ]
+        self._last_t[:] = self._buf.start + count - 1
+        self._last_v = multi[count - 1].astype(np.float32)
         self._buf.drop(count)
         return out
 
