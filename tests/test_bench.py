@@ -127,3 +127,17 @@ def test_bench_simulate_reports_both_rates_on_the_same_work() -> None:
     # the reference is a real emitter: its firing rate follows the expected charge
     rates = reference_emission(np.array([[1.0, 30.0, 300.0]]), 400, 105.0) / 400
     assert rates[0, 0] < 0.02 < rates[0, 1] < rates[0, 2] <= 1.0
+
+
+def test_bench_sizes_times_each_size_and_precision_with_the_network_inside_the_run() -> None:
+    runner = CliRunner()
+    result = runner.invoke(main, ["bench", "sizes", "--size", "64x48", "--frames", "10", "--no-cli", "--json"])
+    assert result.exit_code == 0, result.output
+    rows = json.loads(result.output)
+    assert [(r["binned"], r["precision"]) for r in rows] == [("32x24", "fp32"), ("32x24", "bf16")]
+    for row in rows:
+        assert row["frames"] == 10 and row["cli_fps"] is None
+        assert 0 < row["fps"] <= row["network_fps"]  # the network is part of the end-to-end run
+        assert set(row["stage_ms"]) >= {"read", "preliminary frames", "network"}
+    bad = runner.invoke(main, ["bench", "sizes", "--size", "65x48"])
+    assert bad.exit_code != 0 and "even raw size" in bad.output

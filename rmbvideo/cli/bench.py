@@ -162,3 +162,34 @@ def simulate(scene_name: str, duration_s: float, as_json: bool) -> None:
 
     result = bench_simulate(scene_name, duration_s)
     click.echo(json.dumps(result, indent=2) if as_json else summary(result))
+
+
+def _size(text: str) -> tuple[int, int]:
+    width, _, height = text.lower().partition("x")
+    if not (width.isdigit() and height.isdigit()) or int(width) < 16 or int(height) < 16 or int(width) % 2 or int(height) % 2:
+        raise click.BadParameter(f"{text!r}: expected an even raw size WIDTHxHEIGHT, at least 16x16 (e.g. 400x250)")
+    return int(width), int(height)
+
+
+@bench.command("sizes")
+@click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True,
+              help="Device of the network.")
+@click.option("--size", "sizes", multiple=True, default=("400x250", "1000x1000"), show_default=True,
+              help="Raw capture size WIDTHxHEIGHT (repeatable); the network sees half of each side.")
+@click.option("--frames", type=click.IntRange(min=10), default=120, show_default=True,
+              help="Output frames per run (20 raw planes each).")
+@click.option("--no-cli", is_flag=True, help="Leave out the `reconstruct` run in a fresh process.")
+@click.option("--json", "as_json", is_flag=True, help="Print the results as JSON.")
+def sizes(device: str, sizes: tuple[str, ...], frames: int, no_cli: bool, as_json: bool) -> None:
+    """RMB-Net frames/s by frame size and precision (fp32, bf16): end to end and the network alone."""
+    import torch
+
+    from rmbvideo.bench.sizes import bench_sizes, sizes_table
+    from rmbvideo.errors import InputError
+
+    if device == "cuda" and not torch.cuda.is_available():
+        raise InputError("--device cuda: no CUDA device is available")
+    results = bench_sizes(device, tuple(_size(s) for s in sizes), frames=frames, cli=not no_cli)
+    name = torch.cuda.get_device_name(0) if device == "cuda" else "CPU"
+    click.echo(json.dumps([r.to_dict() for r in results], indent=2) if as_json
+               else f"RMB-Net (shipped default) on {name}:\n" + sizes_table(results))

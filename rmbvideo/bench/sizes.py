@@ -1,0 +1,90 @@
+"""RMB-Net's speed by frame size and precision on one device: the library run end to end (after a
+warm-up in the same process) with the network's share of it, and the ``reconstruct`` command end to end
+in a fresh process (its own start-up, lazy initialisation and autotuning included). Captures are random
+Bernoulli planes: the network's work does not depend on their content."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+import tempfile
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from rmbvideo.bench.memory import write_random_capture
+from rmbvideo.recon.run import run_reconstruction
+
+#: Raw sizes measured by default: 200x125 and 500x500 binned (a 1000x1000 camera).
+DEFAULT_SIZES = ((400, 250), (1000, 1000))
+_CLI_RATE = re.compile(r"\(([\d.]+) frames/s\)")
+
+
+@dataclass
+class SizeResult:
+    """One size and precision: frames/s of the library run end to end and of its network stage, of
+    the ``reconstruct`` command, and the library run's milliseconds per frame by stage."""
+
+    raw: str
+    binned: str
+    device: str
+    precision: str
+    frames: int
+    fps: float
+    network_fps: float
+    cli_fps: float | None
+    stage_ms: dict[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def _cli_fps(path: Path, width: int, height: int, device: str, precision: str, out: Path) -> float | None:
+    """Frames/s that ``rmbvideo reconstruct --format null`` reports for ``path`` (None if it failed)."""
+    done = subprocess.run([sys.executable, "-m", "rmbvideo", "reconstruct", str(path), "-o", str(out),
+                           "--format", "null", "--width", str(width), "--height", str(height), "--device", device,
+                           "--precision", precision, "--overwrite"], capture_output=True, text=True)
+    match = _CLI_RATE.search(done.stderr)
+    return float(match.group(1)) if done.returncode == 0 and match else None
+
+
+def bench_sizes(device: str, sizes: tuple[tuple[int, int], ...] = DEFAULT_SIZES,
+                precisions: tuple[str, ...] = ("fp32", "bf16"), frames: int = 120,
+                cli: bool = True) -> list[SizeResult]:
+    """Measure the default model at each raw ``size`` (width, height) and precision: ``frames`` output
+    frames per run (20 raw planes each)."""
+    results = []
+    with tempfile.TemporaryDirectory(prefix="rmbvideo-sizes-") as folder:
+        work = Path(folder)
+        for width, height in sizes:
+            path = write_random_capture(work / f"c{width}x{height}.dat", 20 * frames, width, height)
+            capture = dict(width=width, height=height)
+            for precision in precisions:
+                options = dict(device=device, precision=precision)
+                run_reconstruction(path, work / "warm", fmt="null", duration_s=0.02, capture=capture,
+                                   extra_options=options, overwrite=True)
+                summary = run_reconstruction(path, work / "out", fmt="null", capture=capture,
+                                             extra_options=options, overwrite=True)
+                network_s = summary.stages.get("network", 0.0)
+                results.append(SizeResult(
+                    raw=f"{width}x{height}", binned=f"{width // 2}x{height // 2}", device=device,
+                    precision=precision, frames=summary.frames, fps=summary.frames_per_second,
+                    network_fps=summary.frames / network_s if network_s > 0 else 0.0,
+                    cli_fps=_cli_fps(path, width, height, device, precision, work / "cli") if cli else None,
+                    stage_ms={k: 1e3 * v / max(summary.frames, 1) for k, v in summary.stages.items()},
+                ))
+            path.unlink()
+    return results
+
+
+def sizes_table(results: list[SizeResult]) -> str:
+    """Markdown table of ``results``."""
+    stages = ("read", "readout", "preliminary frames", "network")
+    lines = ["| binned (raw) | device | precision | frames/s end to end | frames/s network | frames/s `reconstruct` "
+             "| " + " | ".join(f"{s} ms/frame" for s in stages) + " |",
+             "|---|---|---|---:|---:|---:|" + "---:|" * len(stages)]
+    for r in results:
+        cli = f"{r.cli_fps:.1f}" if r.cli_fps is not None else "n/a"
+        lines.append(f"| {r.binned} ({r.raw}) | {r.device} | {r.precision} | {r.fps:.1f} | {r.network_fps:.1f} | {cli} | "
+                     + " | ".join(f"{r.stage_ms.get(s, 0.0):.2f}" for s in stages) + " |")
+    return "\n".join(lines) + "\n"
