@@ -13,7 +13,7 @@ from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.model import RmbNet
 from rmbvideo.recon.prelim import PreliminaryFrames, PrelimFrame
 from rmbvideo.recon.precision import cpu_has_native_bf16, uses_bf16
-from rmbvideo.recon.rmbnet import RmbNetReconstructor
+from rmbvideo.recon.rmbnet import RmbNetReconstructor, inference_copy
 from rmbvideo.sensor.readout import RmbReadout
 
 H, W = 20, 13
@@ -197,3 +197,18 @@ def test_bf16_engine_stays_close_to_fp32_and_finite():
     mu = model.config.output_mu
     compress = lambda x: np.log1p(mu * x) / np.log1p(mu)  # noqa: E731
     assert np.abs(compress(fast) - compress(exact)).max() < 0.03
+
+
+def test_bf16_weights_stored_once_give_what_autocast_casting_them_per_call_gives():
+    """Under bf16 the engine keeps the convolutions' weights in bf16 (the encoders' first convolution in
+    fp32): bit for bit the output of autocast casting fp32 weights at every call."""
+    model = tiny()
+    chunks = split(rmb_stream(60), 20)
+    stored, engine = stream(model, chunks, precision="bf16")
+    dtypes = {m.weight.dtype for m in engine._net.modules() if isinstance(m, torch.nn.Conv2d)}
+    assert dtypes == {torch.bfloat16, torch.float32}
+    assert engine._net.encoder_s.blocks[0][0].weight.dtype == torch.float32
+    reference = RmbNetReconstructor(model, device="cpu", precision="bf16")
+    reference._net = inference_copy(model)  # fp32 weights, cast by autocast at every call
+    cast = [f for c in chunks for f in reference.push(c)] + reference.flush()
+    assert np.array_equal(np.stack([f.image for f in stored]), np.stack([f.image for f in cast]))
