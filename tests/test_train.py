@@ -235,6 +235,11 @@ def test_bundled_recipes_parse_and_bad_keys_are_refused(tmp_path):
     assert configs["cpu"].model.input_mode == "binned" and configs["native-cpu"].model.input_mode == "native"
     assert configs["ablation-w0"].model.w == 0 and not configs["ablation-no-xba"].model.use_xba
     assert configs["ablation-pure-s"].data.readout == "pure-s"
+    repo = RECIPES_DIR.parents[2]
+    for name, config in configs.items():  # a stage's start is a file kept in the repository
+        assert not config.init or not config.init.endswith(".safetensors") or (repo / config.init).is_file(), name
+    gpu = configs["video-gpu"].with_workers(15)
+    assert gpu.data.workers == 15 and gpu.sample_spec() == configs["video-gpu"].sample_spec()
     bad = tmp_path / "bad.toml"
     bad.write_text('name = "x"\n[optim]\nlearning_rate = 1.0\n')
     with pytest.raises(InputError, match="learning_rate"):
