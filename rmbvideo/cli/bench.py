@@ -165,6 +165,7 @@ def simulate(scene_name: str, duration_s: float, as_json: bool) -> None:
 
 
 def _size(text: str) -> tuple[int, int]:
+    """``WIDTHxHEIGHT`` as (width, height); both even (the 2x2 binning) and at least 16."""
     width, _, height = text.lower().partition("x")
     if not (width.isdigit() and height.isdigit()) or int(width) < 16 or int(height) < 16 or int(width) % 2 or int(height) % 2:
         raise click.BadParameter(f"{text!r}: expected an even raw size WIDTHxHEIGHT, at least 16x16 (e.g. 400x250)")
