@@ -5,6 +5,7 @@ Bernoulli planes: the network's work does not depend on their content."""
 
 from __future__ import annotations
 
+import logging
 import re
 import subprocess
 import sys
@@ -18,6 +19,8 @@ from rmbvideo.recon.run import run_reconstruction
 #: Raw sizes measured by default: 200x125 and 500x500 binned (a 1000x1000 camera).
 DEFAULT_SIZES = ((400, 250), (1000, 1000))
 _CLI_RATE = re.compile(r"\(([\d.]+) frames/s\)")
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -45,7 +48,12 @@ def _cli_fps(path: Path, width: int, height: int, device: str, precision: str, o
                            "--format", "null", "--width", str(width), "--height", str(height), "--device", device,
                            "--precision", precision, "--overwrite"], capture_output=True, text=True)
     match = _CLI_RATE.search(done.stderr)
-    return float(match.group(1)) if done.returncode == 0 and match else None
+    if done.returncode == 0 and match:
+        return float(match.group(1))
+    last = done.stderr.strip().splitlines()[-1:] or ["no message"]
+    log.warning("reconstruct on %s (%s, %s) gave no rate (exit %d): %s", path.name, device, precision,
+                done.returncode, last[0])
+    return None
 
 
 def bench_sizes(device: str, sizes: tuple[tuple[int, int], ...] = DEFAULT_SIZES,

@@ -5,8 +5,8 @@ instructions (AVX512-BF16 or AMX): on this project's AMD EPYC (Zen 4) it runs RM
 than fp32 at the same accuracy (``rmbvideo bench``: 38.05 dB both). The encoders' first convolution
 still reads the inputs in fp32 (``rmbvideo.net.encoder``). Elsewhere oneDNN emulates bf16 through
 fp32 and it is slower, so "auto" keeps fp32 there. On CUDA the engine's frame-at-a-time kernels are
-too small for bf16 to pay: autocast's casts are extra launches, and an H100 ran the network at 0.67x
-(200x125) and 0.87x (500x500) of its fp32 rate, so "auto" is fp32 on CUDA too.
+too small for bf16 to pay: autocast's casts are extra launches, and an H100 ran the network at
+0.67-0.97x (200x125) and 0.72-0.87x (500x500) of its fp32 rate in two runs, so "auto" is fp32 on CUDA.
 """
 
 from __future__ import annotations
