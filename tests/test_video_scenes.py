@@ -51,6 +51,21 @@ def test_a_still_scene_is_still_and_textured_at_many_scales():
         assert np.mean(np.hypot(gx, gy) > 0.1) > 0.02
 
 
+def test_low_contrast_option_compresses_the_background_and_leaves_other_scenes_alone():
+    plain = dict(camera_speed=(0.0, 0.0), static_probability=1.0, max_objects=0, zoom_rate=0.0, shake_px=0.0,
+                 shadow_probability=0.0)
+    for seed in (5, 6, 7):
+        base = VideoScene(seed, 96, 96, 50, VideoSceneRanges(**plain)).render(10.0)
+        off = VideoScene(seed, 96, 96, 50, VideoSceneRanges(**plain, low_contrast_probability=0.0)).render(10.0)
+        low = VideoScene(seed, 96, 96, 50, VideoSceneRanges(**plain, low_contrast_probability=1.0,
+                                                            low_contrast_gamma=(0.3, 0.3))).render(10.0)
+        np.testing.assert_array_equal(base, off)
+        log_base, log_low = np.log(base + 1e-6), np.log(low + 1e-6)
+        # the log-contrast about the median shrinks by the factor, the median stays
+        assert np.std(log_low) == pytest.approx(0.3 * np.std(log_base), rel=0.05)
+        assert np.median(low) == pytest.approx(np.median(base), rel=0.05)
+
+
 def test_camera_speed_is_raw_pixels_per_plane():
     ranges = VideoSceneRanges(camera_speed=(1.0, 1.0), static_probability=0.0, max_objects=0, zoom_rate=0.0,
                               shake_px=0.0)

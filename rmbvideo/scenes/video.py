@@ -66,6 +66,8 @@ class VideoSceneRanges:
     flat_probability: float = 0.0    # a static, nearly flat field (a wall, the sky, a lens cap) instead
     flat_rate: tuple[float, float] = (1e-3, 1.0)  # its level, log-uniform: half of them darker than 0.03
     flat_gradient: float = 0.3       # +- relative brightness change across it
+    low_contrast_probability: float = 0.0  # the background's contrast compressed (gravel, foliage, haze)
+    low_contrast_gamma: tuple[float, float] = (0.1, 0.5)  # its log-contrast times this (uniform)
 
 
 def _log_uniform(rng: np.random.Generator, low: float, high: float) -> float:
@@ -153,6 +155,19 @@ def _panorama_canvas(rng: np.random.Generator, h: int, w: int, held_out: bool) -
     return np.ascontiguousarray(cv2.resize(crop, (w, h), interpolation=interpolation), dtype=np.float32)
 
 
+def _compress_contrast(image: np.ndarray, seed: int, ranges: VideoSceneRanges) -> np.ndarray:
+    """With probability ``low_contrast_probability``, ``image`` with its log-contrast about the median
+    scaled by a factor from ``low_contrast_gamma``: the low-contrast fine texture real surfaces have
+    (gravel, grass, asphalt, haze) that dead leaves with reflectances over 0.03-1 rarely give. Drawn
+    from its own stream, so scenes with the option off are unchanged."""
+    rng = np.random.default_rng([seed, 0xC047])
+    if not rng.random() < ranges.low_contrast_probability:
+        return image
+    median = max(float(np.median(image)), 1e-6)
+    gamma = rng.uniform(*ranges.low_contrast_gamma)
+    return (median * np.power(np.maximum(image, 1e-6) / median, gamma)).astype(np.float32)
+
+
 @dataclass
 class _Layer:
     """A static texture (value, coverage) and its affine pose over time (in raw pixels, raw planes)."""
@@ -209,6 +224,7 @@ class VideoScene:
             background = _panorama_canvas(rng, canvas_h, canvas_w, held_out=seed >= EVAL_SEED_START)
         else:
             background = dead_leaves(rng, canvas_h, canvas_w, rng.uniform(*ranges.coverage), 1.0, 0.5 * diag, ranges)
+        background = _compress_contrast(background, seed, ranges)
         if rng.random() < ranges.shadow_probability:
             shade = _shape_mask(rng, int(canvas_h * rng.uniform(0.3, 0.8)), int(canvas_w * rng.uniform(0.3, 0.8)))
             full = np.zeros_like(background)

@@ -32,7 +32,7 @@ class DataConfig:
     scenes (seeds from 1,000,000). ``scenes``: "panorama" (pans over the bundled panoramas, ``count``
     cached scenes) or "video" (dead-leaves video scenes, simulated afresh for every step, a fraction
     ``spikezoo_fraction`` in spikezoo's rate convention and ``flat_fraction`` static, nearly flat fields
-    (training seeds only), each used by ``reuse`` consecutive steps,
+    and ``low_contrast_fraction`` backgrounds of compressed contrast (both training seeds only), each used by ``reuse`` consecutive steps,
     simulated by ``workers`` processes;
     ``count`` and ``exposure`` do not apply)."""
 
@@ -48,6 +48,7 @@ class DataConfig:
     scenes: str = "panorama"
     spikezoo_fraction: float = 0.0
     flat_fraction: float = 0.0
+    low_contrast_fraction: float = 0.0
     reuse: int = 1
     workers: int = 1
 
@@ -92,7 +93,8 @@ class TrainConfig:
         return SampleSpec(mode=d.mode, readout=d.readout, crop=d.crop, frames=2 * self.model.w + d.steps,
                           n=d.n, warmup_frames=d.warmup_frames, level=self.model.level,
                           ranges=SceneRanges(exposure=d.exposure), scenes=d.scenes,
-                          spikezoo_fraction=d.spikezoo_fraction, flat_fraction=d.flat_fraction)
+                          spikezoo_fraction=d.spikezoo_fraction, flat_fraction=d.flat_fraction,
+                          low_contrast_fraction=d.low_contrast_fraction)
 
     def with_minutes(self, minutes: float) -> "TrainConfig":
         """The same recipe with another wall-time budget."""

@@ -338,6 +338,8 @@ class Trainer:
                     "(8-bit intensity, rate 0.6 x intensity, accumulate-and-subtract, no noise)"
                     + (f"; {cfg.data.flat_fraction:.0%} of the training scenes static, nearly flat fields "
                        "(level 1e-3..1, log-uniform; +-30 % gradient)" if cfg.data.flat_fraction else "")
+                    + (f"; {cfg.data.low_contrast_fraction:.0%} of the training scenes with the background's "
+                       "log-contrast scaled by 0.1-0.5" if cfg.data.low_contrast_fraction else "")
                     + f"; new scenes every step, each used in {cfg.data.reuse} steps"
                     + (f"; initialised from {cfg.init}" if cfg.init else "")
                 ) if cfg.data.scenes == "video" else (
