@@ -214,7 +214,9 @@ class VideoHeldout:
 
 
 #: Video-like held-out kinds: fast motion (camera ~1 raw px/plane and fast objects), dark (median
-#: 1e-3..5e-3 spikes per raw plane), both, and spikezoo's convention with fast motion.
+#: 1e-3..5e-3 spikes per raw plane), both, spikezoo's convention with fast motion, and low-contrast
+#: fine texture under slow to moderate motion (gravel, foliage: reflectances 0.35-0.6 only, no lights;
+#: made another way than the training scenes' contrast compression, so it tests more than that).
 VIDEO_KINDS = (
     VideoHeldout("fast", VideoSceneRanges(camera_speed=(0.8, 1.2), static_probability=0.0,
                                           object_speed=(0.5, 1.5), median_rate=(0.02, 0.3))),
@@ -223,6 +225,10 @@ VIDEO_KINDS = (
                                                object_speed=(0.5, 1.5), median_rate=(2e-3, 1e-2))),
     VideoHeldout("spikezoo-fast", VideoSceneRanges(camera_speed=(0.5, 1.2), static_probability=0.0,
                                                    object_speed=(0.3, 1.5)), convention="spikezoo"),
+    VideoHeldout("low-contrast", VideoSceneRanges(camera_speed=(0.02, 0.3), static_probability=0.0,
+                                                  object_speed=(0.02, 0.5), panorama_probability=0.0,
+                                                  reflectance=(0.35, 0.6), light_probability=0.0,
+                                                  median_rate=(0.02, 0.3))),
 )
 
 

@@ -53,12 +53,13 @@ def attend(logits: Sequence[torch.Tensor], values: Sequence[torch.Tensor],
     is subtracted first, so every weight is <= 1 and the denominator >= 1.
     """
     keys = [k for k in range(len(logits)) if valid is None or valid[k]]
-    peak = logits[keys[0]].float()
-    for k in keys[1:]:
-        peak = torch.maximum(peak, logits[k].float())
+    chosen = [logits[k].float() for k in keys]  # cast once (bf16 under autocast): read twice below
+    peak = chosen[0]
+    for z in chosen[1:]:
+        peak = torch.maximum(peak, z)
     numerator = denominator = None
-    for k in keys:
-        weight = torch.exp(logits[k].float() - peak)
+    for k, z in zip(keys, chosen):
+        weight = torch.exp(z - peak)
         term = weight * values[k].float()
         numerator = term if numerator is None else numerator + term
         denominator = weight if denominator is None else denominator + weight
