@@ -286,3 +286,20 @@ def test_regional_loss_asks_for_the_mean_not_the_median():
     linear = [parts(v)["linear"] for v in levels]
     assert int(np.argmin(regional)) == 2 and int(np.argmin(linear)) == 0
     assert reconstruction_loss(mu_law(truth, config.mu), truth, config)[1]["regional"] < 1e-3
+
+
+def test_display_referred_samples_weigh_their_linear_error_more():
+    """The extra linear weight applies to display-referred samples only: the loss of a batch grows by
+    display_linear x (that sample's relative L1) / B, and radiance samples are unchanged."""
+    from rmbvideo.mulaw import mu_law
+    from rmbvideo.train.loss import reconstruction_loss
+
+    rng = np.random.default_rng(1)
+    truth = torch.from_numpy(rng.uniform(0.1, 0.6, (2, 16, 16)).astype(np.float32))
+    pred = mu_law(truth * 1.1, 5000.0)  # 10 % too bright everywhere: relative L1 = 0.1 per sample
+    base = LossConfig(ssim=0.0, edge=0.0, linear=1.0)
+    weighted = LossConfig(ssim=0.0, edge=0.0, linear=1.0, display_linear=3.0)
+    plain = float(reconstruction_loss(pred, truth, base)[0])
+    assert float(reconstruction_loss(pred, truth, weighted, torch.tensor([0.0, 0.0]))[0]) == pytest.approx(plain)
+    one = float(reconstruction_loss(pred, truth, weighted, torch.tensor([1.0, 0.0]))[0])
+    assert one - plain == pytest.approx(3.0 * 0.1 / 2, rel=1e-3)

@@ -105,7 +105,7 @@ def segment_losses(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossCon
         for i in range(first, last + 1):
             window = [frames[j - lo] for j in window_indices(i, w, count)]
             t, state = model.step(window, state, cache, valid=window_valid(i, w, count), convention=batch.convention)
-            loss, step_parts = reconstruction_loss(t[:, 0], batch.gt[:, i], loss_config)
+            loss, step_parts = reconstruction_loss(t[:, 0], batch.gt[:, i], loss_config, batch.convention)
             segment_loss = segment_loss + loss
             parts["loss"] += float(loss.detach())
             for key, value in step_parts.items():
@@ -321,6 +321,8 @@ class Trainer:
                                           if cfg.loss.linear > 0 else "")
                         + (f" + {cfg.loss.regional:g} x linear L1 of 8x8 block means relative to their level"
                            if cfg.loss.regional > 0 else "")
+                        + (f" + {cfg.loss.display_linear:g} x the linear L1 again on spikezoo-convention "
+                           "(display-referred) samples" if cfg.loss.display_linear > 0 else "")
                         + f"; ground truth clipped at {cfg.loss.saturation:g} (sensor saturation)",
                 "lpips": "not used (no downloadable weights); replaced by the gradient L1 term"
                          if cfg.loss.edge > 0 else "not used (no downloadable weights), no replacement",

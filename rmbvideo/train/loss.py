@@ -1,7 +1,8 @@
 """Training loss of RMB-Net (paper Eqn. 13) on mu-law tone-mapped frames.
 
 L = L2(T(P), T(G)) + beta1 (1 - SSIM(T(P), T(G))) + beta_edge L1(grad T(P), grad T(G))
-  + beta_linear |P - G|_1 / |G|_1 (per sample) + beta_regional |B(P) - B(G)| / (B(G) + eps) (B: 8x8 block
+  + (beta_linear + beta_display d) |P - G|_1 / |G|_1 (per sample; d = 1 for display-referred samples)
+  + beta_regional |B(P) - B(G)| / (B(G) + eps) (B: 8x8 block
   means), with T(G) = log(1 + mu G) / log(1 + mu), mu = 5000. LPIPS (beta2 in the paper) needs pretrained
 weights that cannot be downloaded here; the edge term (L1 between horizontal and vertical finite
 differences) stands in for it as a cheap sharpness prior. The ground truth is clipped at
@@ -12,6 +13,13 @@ The regional term is there for tone bias: a pixel-wise L1 (or the mu-law domain)
 median (or a log mean) of what the evidence allows, which at a few spikes per pixel sits well below
 the mean; a block mean of 64 pixels is nearly Gaussian, so its L1 asks for the mean, relative to the
 block's level so dark regions count as much as bright ones.
+
+Display-referred samples (spikezoo's convention: the intensities are 8-bit video values, already
+gamma-encoded for a viewer) are judged by their linear error, which the mu-law terms barely see in
+bright regions: there a long box filter's motion blur of low-contrast texture costs little mu-law
+error, and a model trained on the mu-law terms alone blurs real video's bright texture (measured:
+200_part3, most of the blend's weight on 3- and 7-frame boxes over moving gravel). ``display_linear``
+adds weight to their linear term.
 """
 
 from __future__ import annotations
@@ -29,7 +37,8 @@ from rmbvideo.mulaw import inverse_mu_law, mu_law
 class LossConfig:
     """Weights and constants of the loss: ``ssim`` is beta1, ``edge`` replaces LPIPS (0: off),
     ``linear`` weighs the relative linear-domain L1 (0: off), ``regional`` the relative L1 of 8x8 block
-    means in linear units (0: off)."""
+    means in linear units (0: off), ``display_linear`` the extra weight of the linear L1 on display-referred
+    samples (0: off)."""
 
     mu: float = 5000.0
     ssim: float = 1.0
@@ -37,6 +46,7 @@ class LossConfig:
     saturation: float = 1.0
     linear: float = 0.0
     regional: float = 0.0
+    display_linear: float = 0.0
 
 #: Block size of the regional term and the floor of its denominator (the dark end of the targets).
 REGION = 8
@@ -53,8 +63,10 @@ def _gradients(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     return x[..., :, 1:] - x[..., :, :-1], x[..., 1:, :] - x[..., :-1, :]
 
 
-def reconstruction_loss(pred_t: torch.Tensor, gt: torch.Tensor, config: LossConfig) -> tuple[torch.Tensor, dict[str, float]]:
-    """Loss of mu-law-domain predictions ``pred_t`` (B, H, W) against linear ``gt`` (B, H, W).
+def reconstruction_loss(pred_t: torch.Tensor, gt: torch.Tensor, config: LossConfig,
+                        display: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, float]]:
+    """Loss of mu-law-domain predictions ``pred_t`` (B, H, W) against linear ``gt`` (B, H, W);
+    ``display`` (B,): 1 for display-referred samples (spikezoo's convention), 0 (or None) for radiance.
 
     Returns the scalar loss and its parts as floats (``l2``, ``ssim`` = 1 - SSIM, ``edge``, ``linear``).
     """
@@ -71,13 +83,18 @@ def reconstruction_loss(pred_t: torch.Tensor, gt: torch.Tensor, config: LossConf
         total = total + config.edge * edge
     linear = torch.zeros((), device=pred.device)
     regional = torch.zeros((), device=pred.device)
-    if config.linear > 0 or config.regional > 0:  # linear-domain terms, against the clipped ground truth
+    weight_display = config.display_linear if display is not None else 0.0
+    if config.linear > 0 or config.regional > 0 or weight_display > 0:  # linear-domain terms, vs the clipped truth
         truth = torch.nan_to_num(gt.float(), nan=0.0, posinf=0.0, neginf=0.0).clamp(0.0, config.saturation)
         guess = inverse_mu_law(pred, config.mu).clamp(max=config.saturation)
-        if config.linear > 0:
+        if config.linear > 0 or weight_display > 0:
             scale = truth.flatten(1).mean(dim=1).clamp(min=1e-4)
-            linear = ((guess - truth).abs().flatten(1).mean(dim=1) / scale).mean()
+            per_sample = (guess - truth).abs().flatten(1).mean(dim=1) / scale
+            linear = per_sample.mean()
             total = total + config.linear * linear
+            if weight_display > 0:
+                assert display is not None
+                total = total + weight_display * (per_sample * display.to(per_sample.dtype)).mean()
         if config.regional > 0:
             block_p = F.avg_pool2d(guess[:, None], REGION, ceil_mode=True)
             block_g = F.avg_pool2d(truth[:, None], REGION, ceil_mode=True)
