@@ -31,9 +31,9 @@ class DataConfig:
     ``exposure`` range (electrons per raw readout at median radiance), ``val_count`` held-out
     scenes (seeds from 1,000,000). ``scenes``: "panorama" (pans over the bundled panoramas, ``count``
     cached scenes) or "video" (dead-leaves video scenes, simulated afresh for every step, a fraction
-    ``spikezoo_fraction`` in spikezoo's rate convention and ``flat_fraction`` static, nearly flat fields
-    and ``low_contrast_fraction`` backgrounds of compressed contrast (both training seeds only), each used by ``reuse`` consecutive steps,
-    simulated by ``workers`` processes;
+    ``spikezoo_fraction`` in spikezoo's rate convention, ``flat_fraction`` static, nearly flat fields and
+    ``low_contrast_fraction`` backgrounds of compressed contrast (the last two training seeds only), each
+    used by ``reuse`` consecutive steps, simulated by ``workers`` processes;
     ``count`` and ``exposure`` do not apply)."""
 
     mode: str = "binned"

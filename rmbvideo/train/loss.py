@@ -92,8 +92,7 @@ def reconstruction_loss(pred_t: torch.Tensor, gt: torch.Tensor, config: LossConf
             per_sample = (guess - truth).abs().flatten(1).mean(dim=1) / scale
             linear = per_sample.mean()
             total = total + config.linear * linear
-            if weight_display > 0:
-                assert display is not None
+            if display is not None and weight_display > 0:
                 total = total + weight_display * (per_sample * display.to(per_sample.dtype)).mean()
         if config.regional > 0:
             block_p = F.avg_pool2d(guess[:, None], REGION, ceil_mode=True)
