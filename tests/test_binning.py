@@ -89,6 +89,17 @@ def test_fused_path_is_bit_exact(shape: tuple[int, int, int], header_cols: int, 
     np.testing.assert_array_equal(multi, ref_multi)
 
 
+@pytest.mark.parametrize("flip", [True, False])
+def test_fused_path_every_bin_pattern_at_every_byte_position(flip: bool) -> None:
+    """All 256 patterns of a bin's 8 bits, each in all four bins of a stored byte (the SWAR lanes)."""
+    patterns = np.repeat(np.arange(256, dtype=np.uint8), 4)  # bin k holds pattern k // 4, lane k % 4
+    bits = np.unpackbits(patterns[:, None], axis=1, bitorder="little").reshape(-1, 2, 2, 2)  # (bin, t, i, j)
+    planes = bits.transpose(1, 2, 0, 3).reshape(2, 2, 2 * len(patterns))
+    single, multi = bin_packed(pack_stored(planes, 0, flip), planes.shape[2], flip)
+    np.testing.assert_array_equal(multi[0, 0], np.minimum(bits.sum(axis=(1, 2, 3)), MULTI_LEVEL))
+    np.testing.assert_array_equal(single[0, 0], bits[:, 0, 0, 0])
+
+
 def test_fused_path_spans_several_blocks() -> None:
     planes = random_planes(np.random.default_rng(7), (133, 10, 64), 0.4)  # > 2 fused blocks, odd T
     fused = bin_packed(pack_stored(planes, 0, True), 64, True)

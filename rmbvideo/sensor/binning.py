@@ -28,9 +28,11 @@ _FUSED_BLOCK_PLANES = 64
 _PAIR_BITS = np.uint8(0x55)  # bit 0 of each 2-bit field
 _NIBBLE_FIELDS = np.uint8(0x33)  # low 2 bits of each 4-bit field
 _NIBBLE_BIT0 = np.uint8(0x11)
-_SPREAD_NIBBLES = np.uint32(0x000F000F)
-_SPREAD_EVEN_BITS_1 = np.uint32(0x00050005)
-_SPREAD_EVEN_BITS_2 = np.uint32(0x01010101)
+_TIMES_256 = np.uint16(1 << 8)
+_SPREAD_NIBBLES = np.uint32(1 + (1 << 12))
+_SPREAD_EVEN_BITS = np.uint32(1 + (1 << 6) + (1 << 12) + (1 << 18))
+_MULTI_BITS = np.uint32(0x07070707)
+_SINGLE_BITS = np.uint32(0x01010101)
 
 
 def bin_2x2x2(planes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -71,11 +73,9 @@ def bin_packed(packed: np.ndarray, image_width: int, flip: bool) -> tuple[np.nda
     first_row = 1 if (flip and height % 2) else 0
     single = np.empty((t2, h2, image_width // 2), np.uint8)
     multi = np.empty((t2, h2, image_width // 2), np.uint8)
-    # Each image byte becomes 4 output bytes: write through uint32 views, flipped by row order.
+    # Each image byte becomes 4 output bytes: written through uint32 views.
     single32 = single.view(np.uint32)
     multi32 = multi.view(np.uint32)
-    if flip:
-        single32, multi32 = single32[:, ::-1], multi32[:, ::-1]
     # Within each stored row pair, the image's top row is the stored second row when flipped.
     keep_row = 1 if flip else 0
     block_pairs = _FUSED_BLOCK_PLANES // 2
@@ -84,8 +84,7 @@ def bin_packed(packed: np.ndarray, image_width: int, flip: bool) -> tuple[np.nda
         p1 = min(p0 + block_pairs, t2)
         x = packed[2 * p0 : 2 * p1, first_row : first_row + 2 * h2, :image_bytes]
         x = x.reshape(p1 - p0, 2, h2, 2, image_bytes)
-        work.bin_multi(x, out=multi32[p0:p1])
-        work.spread_even_bits(x[:, 0, :, keep_row], out=single32[p0:p1])
+        work.bin(x, keep_row, flip, multi_out=multi32[p0:p1], single_out=single32[p0:p1])
     return single, multi
 
 
@@ -97,60 +96,58 @@ class _FusedWorkspace:
     """
 
     def __init__(self, pairs: int, h2: int, n_bytes: int) -> None:
-        self.fields = np.empty((2, pairs, 2, h2, 2, n_bytes), np.uint8)  # even/odd column pairs
+        self.pair_counts = np.empty((pairs, 2, h2, 2, n_bytes), np.uint8)
         self.shifted = np.empty((pairs, 2, h2, 2, n_bytes), np.uint8)
-        self.plane_sum = np.empty((pairs, h2, 2, n_bytes), np.uint8)
+        self.fields = np.empty((2, pairs, 2, h2, 2, n_bytes), np.uint8)  # even/odd column pairs
+        self.plane_sum = np.empty((2, pairs, h2, 2, n_bytes), np.uint8)
         self.counts = np.empty((2, pairs, h2, n_bytes), np.uint8)
-        self.carry = np.empty((pairs, h2, n_bytes), np.uint8)
-        self.wide = np.empty((2, pairs, h2, n_bytes), np.uint32)
-        self.wide_shifted = np.empty((pairs, h2, n_bytes), np.uint32)
+        self.carry = np.empty((2, pairs, h2, n_bytes), np.uint8)
+        self.kept = np.empty((pairs, h2, n_bytes), np.uint8)
+        self.packed16 = np.empty((pairs, h2, n_bytes), np.uint16)
+        self.odd16 = np.empty((pairs, h2, n_bytes), np.uint16)
+        self.wide = np.empty((pairs, h2, n_bytes), np.uint32)
 
-    def bin_multi(self, x: np.ndarray, out: np.ndarray) -> None:
-        """Clamped counts of a (P, 2 planes, H2, 2 rows, B bytes) block into ``out`` (P, H2, B) uint32."""
+    def bin(self, x: np.ndarray, keep_row: int, flip: bool, multi_out: np.ndarray, single_out: np.ndarray) -> None:
+        """Bin a (P, 2 planes, H2, 2 rows, B bytes) block into (P, H2, B) uint32 outputs, 4 bins each.
+
+        ``flip`` reverses the row order, once per output, when spreading to bytes.
+        """
         p = len(x)
-        even, odd = self.fields[0, :p], self.fields[1, :p]
-        shifted = self.shifted[:p]
-        # 2-bit fields: spikes in each column pair (0..2).
-        np.bitwise_and(x, _PAIR_BITS, out=even)
+        counts2, shifted = self.pair_counts[:p], self.shifted[:p]
+        # 2-bit fields: spikes in each column pair (0..2), as x - ((x >> 1) & 0b01010101).
         np.right_shift(x, 1, out=shifted)
         np.bitwise_and(shifted, _PAIR_BITS, out=shifted)
-        np.add(even, shifted, out=even)
+        np.subtract(x, shifted, out=counts2)
         # 4-bit fields: column pairs 0 and 2 of each byte in ``even``, pairs 1 and 3 in ``odd``.
-        np.right_shift(even, 2, out=odd)
-        np.bitwise_and(odd, _NIBBLE_FIELDS, out=odd)
-        np.bitwise_and(even, _NIBBLE_FIELDS, out=even)
-        plane_sum, carry = self.plane_sum[:p], self.carry[:p]
-        for k, fields in enumerate((even, odd)):
-            counts = self.counts[k, :p]
-            np.add(fields[:, 0], fields[:, 1], out=plane_sum)  # the two planes
-            np.add(plane_sum[:, :, 0], plane_sum[:, :, 1], out=counts)  # the two rows: 0..8
-            np.right_shift(counts, 3, out=carry)
-            np.bitwise_and(carry, _NIBBLE_BIT0, out=carry)
-            np.subtract(counts, carry, out=counts)  # clamp 8 -> 7
-            self._spread_nibbles(counts, out=self.wide[k, :p])
-        # Byte b of a row holds bins 4b..4b+3: even fields give bins 4b, 4b+2; odd 4b+1, 4b+3.
-        np.left_shift(self.wide[1, :p], 8, out=self.wide[1, :p])
-        np.bitwise_or(self.wide[0, :p], self.wide[1, :p], out=out)
-
-    def _spread_nibbles(self, v: np.ndarray, out: np.ndarray) -> None:
-        """Each uint8 ``lo | hi << 4`` -> uint32 with ``lo`` in byte 0 and ``hi`` in byte 2."""
-        shifted = self.wide_shifted[: len(v)]
-        np.copyto(out, v)
-        np.left_shift(out, 12, out=shifted)
-        np.bitwise_or(out, shifted, out=out)
-        np.bitwise_and(out, _SPREAD_NIBBLES, out=out)
-
-    def spread_even_bits(self, v: np.ndarray, out: np.ndarray) -> None:
-        """Bits 0, 2, 4, 6 of each uint8 -> bytes 0..3 of a uint32: the kept left pixel of each pair."""
-        wide, shifted = self.wide[0, : len(v)], self.wide_shifted[: len(v)]
-        np.bitwise_and(v, _PAIR_BITS, out=self.carry[: len(v)])
-        np.copyto(wide, self.carry[: len(v)])
-        np.left_shift(wide, 12, out=shifted)
-        np.bitwise_or(wide, shifted, out=wide)
-        np.bitwise_and(wide, _SPREAD_EVEN_BITS_1, out=wide)
-        np.left_shift(wide, 6, out=shifted)
-        np.bitwise_or(wide, shifted, out=wide)
-        np.bitwise_and(wide, _SPREAD_EVEN_BITS_2, out=out)
+        fields = self.fields[:, :p]
+        np.right_shift(counts2, 2, out=fields[1])
+        np.bitwise_and(fields[1], _NIBBLE_FIELDS, out=fields[1])
+        np.bitwise_and(counts2, _NIBBLE_FIELDS, out=fields[0])
+        plane_sum, counts, carry = self.plane_sum[:, :p], self.counts[:, :p], self.carry[:, :p]
+        np.add(fields[:, :, 0], fields[:, :, 1], out=plane_sum)  # the two planes
+        np.add(plane_sum[:, :, :, 0], plane_sum[:, :, :, 1], out=counts)  # the two rows: 0..8
+        np.right_shift(counts, 3, out=carry)
+        np.bitwise_and(carry, _NIBBLE_BIT0, out=carry)
+        np.subtract(counts, carry, out=counts)  # clamp 8 -> 7
+        # Nibbles even-lo, even-hi, odd-lo, odd-hi (bins 0, 2, 1, 3) of a uint16 -> bytes 0..3 of a
+        # uint32: w + (w << 12) moves the odd nibbles two bytes up (no carries: nibbles are <= 7).
+        # Shifts left are multiplies: numpy's uint8 left shift is not vectorised.
+        packed16, odd16 = self.packed16[:p], self.odd16[:p]
+        np.copyto(odd16, counts[1])
+        np.multiply(odd16, _TIMES_256, out=odd16)
+        np.copyto(packed16, counts[0])
+        np.bitwise_or(packed16, odd16, out=packed16)
+        wide = self.wide[:p]
+        np.copyto(wide, packed16[:, ::-1] if flip else packed16)
+        np.multiply(wide, _SPREAD_NIBBLES, out=wide)
+        np.bitwise_and(wide, _MULTI_BITS, out=multi_out)
+        # The kept pixels (bits 0, 2, 4, 6) -> bytes 0..3: shifts by 0, 6, 12 and 18 in one multiply
+        # (the only carry, bits 6 + 6, lands in bit 7, which is masked off).
+        kept = self.kept[:p]
+        np.bitwise_and(x[:, 0, :, keep_row], _PAIR_BITS, out=kept)
+        np.copyto(wide, kept[:, ::-1] if flip else kept)
+        np.multiply(wide, _SPREAD_EVEN_BITS, out=wide)
+        np.bitwise_and(wide, _SINGLE_BITS, out=single_out)
 
 
 def binned_rmb_chunk(single: np.ndarray, multi: np.ndarray, raw_start: int, raw_rate_hz: float) -> RmbChunk:
