@@ -211,6 +211,22 @@ def test_cli_train_resume_and_card(tmp_path):
     assert loaded.config.w == 1 and loaded.config.n == 4
 
 
+def test_trainable_prefixes_freeze_the_rest_batchnorm_included(tmp_path):
+    recipe = tmp_path / "tiny.toml"
+    recipe.write_text(TINY_RECIPE.format(steps=2).replace("threads = 1", 'threads = 1\ntrainable = ["decoder.head"]'))
+    config = load_recipe(recipe)
+    trainer = Trainer(config, tmp_path / "out", cache_dir=tmp_path / "cache")
+    before = {k: v.clone() for k, v in trainer.model.state_dict().items()}
+    trainer.run()
+    changed = {k for k, v in trainer.model.state_dict().items() if not torch.equal(before[k], v)}
+    assert changed and all(k.startswith("decoder.head.") for k in changed)  # BN running stats included
+    card = json.loads((tmp_path / "out" / "tiny.json").read_text())
+    assert "trained only decoder.head" in card["training"]["optimizer"]
+    recipe.write_text(TINY_RECIPE.format(steps=2).replace("threads = 1", 'threads = 1\ntrainable = ["decoder.nothing"]'))
+    with pytest.raises(InputError, match="decoder.nothing"):
+        Trainer(load_recipe(recipe), tmp_path / "out2", cache_dir=tmp_path / "cache")
+
+
 def test_time_budget_stops_cleanly_and_still_saves(tmp_path):
     recipe = tmp_path / "tiny.toml"
     recipe.write_text(TINY_RECIPE.format(steps=100))

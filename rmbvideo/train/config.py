@@ -56,7 +56,8 @@ class DataConfig:
 @dataclass(frozen=True)
 class OptimConfig:
     """Adam with learning rate ``lr`` (cosine decay to ``lr_final`` over ``steps``), ``batch``
-    samples per step, truncated back-propagation over ``tbptt`` consecutive outputs."""
+    samples per step, truncated back-propagation over ``tbptt`` consecutive outputs. ``trainable``:
+    prefixes of the parameter names that train (empty: all); the rest is frozen, BatchNorm included."""
 
     lr: float = 1e-3
     lr_final: float = 1e-4
@@ -68,6 +69,7 @@ class OptimConfig:
     val_every: int = 250
     checkpoint_every: int = 50
     edges: float = 0.0  # fraction of steps that also supervise a sample's first/last w outputs as a clip's edges
+    trainable: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -125,7 +127,7 @@ def _typed(cls: type, table: dict[str, Any], where: str, path: Path) -> Any:
             if ok and isinstance(default, int) and not isinstance(value, int):
                 ok = False
         elif isinstance(default, tuple):
-            ok = isinstance(value, list) and (len(value) == len(default) or name in ("base_channels", "pooled_windows", "centre_windows"))
+            ok = isinstance(value, list) and (len(value) == len(default) or name in ("base_channels", "pooled_windows", "centre_windows", "trainable"))
             value = tuple(value) if ok else value
         else:
             ok = isinstance(value, type(default))

@@ -24,8 +24,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from torch import nn
 from tqdm import tqdm
 
+from rmbvideo.errors import InputError
 from rmbvideo.net.decoder import DecoderState
 from rmbvideo.net.model import RmbNet, window_indices, window_valid
 from rmbvideo.net.weights import ModelCard, default_model_path, load_model, save_model
@@ -114,11 +116,34 @@ def segment_losses(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossCon
         state = detach_state(state)
 
 
+def freeze_except(model: nn.Module, prefixes: tuple[str, ...]) -> list[nn.Parameter]:
+    """Freeze every parameter whose name starts with none of ``prefixes`` (none frozen when empty);
+    the trainable ones, in ``model.parameters()`` order. ``InputError`` if a prefix names nothing."""
+    if not prefixes:
+        return list(model.parameters())
+    names = [name for name, _ in model.named_parameters()]
+    unmatched = [p for p in prefixes if not any(name.startswith(p) for name in names)]
+    if unmatched:
+        raise InputError(f"trainable prefixes match no parameter: {', '.join(unmatched)}")
+    for name, param in model.named_parameters():
+        param.requires_grad_(any(name.startswith(p) for p in prefixes))
+    return [p for p in model.parameters() if p.requires_grad]
+
+
+def train_mode(model: nn.Module) -> None:
+    """``model.train()``, except BatchNorm layers that are frozen: they keep normalising with their
+    running statistics (as at inference) and do not update them."""
+    model.train()
+    for module in model.modules():
+        if isinstance(module, nn.modules.batchnorm._BatchNorm) and not any(p.requires_grad for p in module.parameters()):
+            module.eval()
+
+
 def train_batch(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossConfig,
                 edges: bool = False) -> dict[str, float]:
     """Forward and backward one batch with TBPTT (gradients accumulate in ``.grad``; the caller
     steps the optimizer). Returns the mean loss and its parts over the supervised outputs."""
-    model.train()
+    train_mode(model)
     outputs = len(output_range(batch.i_s.shape[1], model.config.w, edges))
     totals = {"loss": 0.0, "l2": 0.0, "ssim": 0.0, "edge": 0.0, "linear": 0.0, "regional": 0.0}
     for segment in segment_losses(model, batch, tbptt, loss_config, edges):
@@ -180,7 +205,7 @@ class Trainer:
         self.model = RmbNet(config.model).to(self.device)
         if config.init and not resume:
             self.warm_start(config.init)
-        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=config.optim.lr)
+        self.optimizer = torch.optim.Adam(freeze_except(self.model, config.optim.trainable), lr=config.optim.lr)
         self._prefetcher = (SamplePrefetcher(config.sample_spec(), self.step_seeds, depth=max(3, config.data.workers),
                                              workers=config.data.workers)
                             if config.data.scenes == "video" else None)
@@ -313,7 +338,8 @@ class Trainer:
                 "wall_time_s": round(elapsed_s, 1),
                 "machine": machine_description(self.device),
                 "optimizer": f"Adam, lr {cfg.optim.lr} cosine to {cfg.optim.lr_final} over steps or wall time, batch {cfg.optim.batch}, "
-                             f"grad-norm clip {cfg.optim.grad_clip}",
+                             f"grad-norm clip {cfg.optim.grad_clip}"
+                             + (f"; trained only {', '.join(cfg.optim.trainable)} (the rest frozen)" if cfg.optim.trainable else ""),
                 "tbptt": f"{cfg.data.steps} consecutive outputs per sample, back-propagated in segments of "
                          f"{cfg.optim.tbptt}",
                 "loss": f"mu-law (mu={cfg.loss.mu:g}) L2 + {cfg.loss.ssim:g} x (1 - SSIM) + {cfg.loss.edge:g} x "
