@@ -21,8 +21,9 @@ from rmbvideo.cli.options import AliasOption
 log = logging.getLogger(__name__)
 
 
-def _real_video(folder: Path, model: Path, device: str, out_dir: Path) -> list[Path]:
-    """Score the real-video streams in ``folder``; write ``real_video.md`` and ``real_video.png``."""
+def _real_video(folder: Path, model: Path, device: str, out_dir: Path, stem: str = "real_video",
+                title: str = "Real-video streams") -> list[Path]:
+    """Score the real-video streams in ``folder``; write ``STEM.md`` and ``STEM.png``."""
     from rmbvideo.evaluate.real_video import (
         BEST_RAW,
         binned_reference,
@@ -37,12 +38,12 @@ def _real_video(folder: Path, model: Path, device: str, out_dir: Path) -> list[P
 
     streams = find_streams(folder)
     results = evaluate_streams(streams, real_video_rows(model, device))
-    md = out_dir / "real_video.md"
-    atomic_write_text(md, "# Real-video streams (reference frame, least-squares gain, binned resolution)\n\n"
+    md = out_dir / f"{stem}.md"
+    atomic_write_text(md, f"# {title} (reference frame, least-squares gain, binned resolution)\n\n"
                       + markdown_table(results) + "\nCells: linear PSNR (dB) / SSIM at the reference plane; raw "
                       "rows are 2x2 area-averaged; the best raw row is chosen per stream.\n")
     references = {s.name: binned_reference(s) for s in streams}
-    png = write_png(out_dir / "real_video.png",
+    png = write_png(out_dir / f"{stem}.png",
                     comparison_image(results, references, ["TFW-L", "GC20", "MG20", "RMB-Net", BEST_RAW]))
     return [md, png]
 
@@ -111,14 +112,17 @@ FIGURE_COLUMNS = ("TFW-L", "GC20", "MG20", "RMB-Net", "TFP-41 (raw)", "TFI (raw)
 @click.option("--real-video", "real_video", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Also score every method on a folder of real-video spike streams with reference frames "
                    "(NAME.dat + NAME.png, spikezoo's format): real_video.md and real_video.png.")
+@click.option("--texture-pans", is_flag=True,
+              help="Also score the development clips: textures panned at known speeds in spikezoo's convention, "
+                   "written once into the cache (texture_pans.md/.png).")
 @click.option("--full-resolution", is_flag=True,
               help="Also score --resolution full against TFP and TFI at the camera's full resolution "
                    "(full_resolution.md/png; the real-video streams too when given).")
 @quiet_option
 @verbose_option
 def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Path | None, device: str,
-             as_json: bool, real_path: Path | None, real_video: Path | None, full_resolution: bool,
-             quiet: bool) -> None:
+             as_json: bool, real_path: Path | None, real_video: Path | None, texture_pans: bool,
+             full_resolution: bool, quiet: bool) -> None:
     """Score TFW-S/L, TFI, GC20, MG20, RMB-Net, its ablations and the classical methods on the raw
     capture (2x2-averaged) on the held-out synthetic set, and optionally on real-video streams."""
     from rmbvideo.errors import OutputError
@@ -169,6 +173,13 @@ def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Pat
                                                 "device": resolved, "threads": 1}, video, quick)
     if real_video is not None:
         written += _real_video(real_video, models_dir / "rmbnet-binned.safetensors", resolved, out_dir)
+    if texture_pans:
+        from rmbvideo.evaluate.heldout import default_cache_dir
+        from rmbvideo.evaluate.texture_pans import texture_pan_folder
+
+        folder = texture_pan_folder(cache_dir if cache_dir is not None else default_cache_dir())
+        written += _real_video(folder, models_dir / "rmbnet-binned.safetensors", resolved, out_dir, "texture_pans",
+                               "Development clips: textures panned in spikezoo's convention")
     if full_resolution:
         from rmbvideo.evaluate.full_resolution import write_full_resolution
         from rmbvideo.evaluate.real_video import find_streams
