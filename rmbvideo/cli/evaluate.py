@@ -22,8 +22,9 @@ log = logging.getLogger(__name__)
 
 
 def _real_video(folder: Path, model: Path, device: str, out_dir: Path, stem: str = "real_video",
-                title: str = "Real-video streams") -> list[Path]:
-    """Score the real-video streams in ``folder``; write ``STEM.md`` and ``STEM.png``."""
+                title: str = "Real-video streams", pictured: tuple[str, ...] = ("",)) -> list[Path]:
+    """Score the real-video streams in ``folder``; write ``STEM.md`` and ``STEM.png`` (of the streams whose
+    name contains one of ``pictured``)."""
     from rmbvideo.evaluate.real_video import (
         BEST_RAW,
         binned_reference,
@@ -42,9 +43,9 @@ def _real_video(folder: Path, model: Path, device: str, out_dir: Path, stem: str
     atomic_write_text(md, f"# {title} (reference frame, least-squares gain, binned resolution)\n\n"
                       + markdown_table(results) + "\nCells: linear PSNR (dB) / SSIM at the reference plane; raw "
                       "rows are 2x2 area-averaged; the best raw row is chosen per stream.\n")
-    references = {s.name: binned_reference(s) for s in streams}
+    references = {s.name: binned_reference(s) for s in streams if any(p in s.name for p in pictured)}
     png = write_png(out_dir / f"{stem}.png",
-                    comparison_image(results, references, ["TFW-L", "GC20", "MG20", "RMB-Net", BEST_RAW]))
+                    comparison_image({name: results[name] for name in references}, references, ["TFW-L", "GC20", "MG20", "RMB-Net", BEST_RAW]))
     return [md, png]
 
 
@@ -179,7 +180,7 @@ def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Pat
 
         folder = texture_pan_folder(cache_dir if cache_dir is not None else default_cache_dir())
         written += _real_video(folder, models_dir / "rmbnet-binned.safetensors", resolved, out_dir, "texture_pans",
-                               "Development clips: textures panned in spikezoo's convention")
+                               "Development clips: textures panned in spikezoo's convention", pictured=("c16-v14", "c16-v28"))
     if full_resolution:
         from rmbvideo.evaluate.full_resolution import write_full_resolution
         from rmbvideo.evaluate.real_video import find_streams
