@@ -10,7 +10,7 @@ import pytest
 from rmbvideo.net.attention import PairProjection, attend
 from rmbvideo.net.encoder import MaxPool2x2
 from rmbvideo.net.config import RmbNetConfig
-from rmbvideo.net.model import RmbNet, window_indices, window_valid
+from rmbvideo.net.model import RmbNet, canonical_batch, window_indices, window_valid
 from rmbvideo.mulaw import inverse_mu_law, mu_law
 
 
@@ -294,3 +294,28 @@ def test_centre_candidate_passes_the_frame_centre_through_exactly():
     rate = (i_c[:, :, 1] / (7 * 4)).clamp(0, 1) * (7 / BIN_TRIALS)
     torch.testing.assert_close(spikezoo, rate, rtol=2e-5, atol=1e-6)
     torch.testing.assert_close(camera, rate / (1 - rate / 2), rtol=2e-5, atol=1e-6)
+
+
+def test_canonical_batch_keeps_a_sliced_channels_last_frame_channels_last_through_cat():
+    """A frame taken from an unflattened channels-last batch (stride C on its size-1 batch dim) is not
+    read as channels-last by cat, which then writes NCHW (and the next conv copies it back)."""
+    batch = torch.rand(3, 4, 6, 5).contiguous(memory_format=torch.channels_last)
+    frame = batch.unflatten(0, (3, -1))[1, :]  # (1, 4, 6, 5)
+    other = torch.rand(1, 2, 6, 5).contiguous(memory_format=torch.channels_last)
+    fixed = canonical_batch(frame)
+    assert torch.equal(fixed, frame) and fixed.data_ptr() == frame.data_ptr()
+    assert torch.cat([fixed, other], dim=1).is_contiguous(memory_format=torch.channels_last)
+    assert canonical_batch(batch) is batch
+
+
+@pytest.mark.parametrize("valid", [[True] * 7, [False, False, True, True, True, True, True],
+                                   [True, True, True, True, False, False, False]])
+def test_pooled_rates_are_the_means_over_the_valid_frames_of_each_window(valid):
+    model = small(w=3, pooled_windows=(7, 3, 5))
+    with torch.inference_mode():
+        frames = model.encode(torch.rand(7, 16, 16) * 10, torch.rand(7, 16, 16) * 70, range(7))
+        pooled = model._pooled_rates(frames, valid)
+    for size, got in zip((1, 7, 3, 5), pooled):
+        half = size // 2
+        expected = torch.stack([frames[j].rates for j in range(3 - half, 4 + half) if valid[j]]).mean(dim=0)
+        torch.testing.assert_close(got, expected)

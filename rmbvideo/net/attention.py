@@ -58,11 +58,13 @@ def attend(logits: Sequence[torch.Tensor], values: Sequence[torch.Tensor],
     for z in chosen[1:]:
         peak = torch.maximum(peak, z)
     numerator = denominator = None
-    for k, z in zip(keys, chosen):
-        weight = torch.exp(z - peak)
-        term = weight * values[k].float()
-        numerator = term if numerator is None else numerator + term
-        denominator = weight if denominator is None else denominator + weight
+    for n, (k, z) in enumerate(zip(keys, chosen)):
+        weight = (z - peak).exp_()
+        if n == 0:  # float32 weights times the values promote to float32
+            numerator, denominator = weight * values[k], weight
+        else:  # accumulate in place (one pass each, no new tensors); the first weight is kept for autograd
+            numerator = numerator.addcmul_(weight, values[k])
+            denominator = denominator + weight if n == 1 else denominator.add_(weight)
     return (numerator / denominator).to(values[keys[0]].dtype)
 
 

@@ -42,26 +42,23 @@ def candidate_count(pooled_windows: Sequence[int], centre_windows: Sequence[int]
 def box_intensity(rate: torch.Tensor, convention: torch.Tensor | float) -> torch.Tensor:
     """Intensity (charge per raw plane / threshold) of mean rate ``rate`` under the sensor convention
     (0 = a camera's reset-to-zero pixel, 1 = spikezoo's rate convention; scalar or one per batch item)."""
+    if isinstance(convention, (int, float)) and convention in (0, 1):  # one convention: no per-item mix
+        return rate if convention == 1 else rate / (1.0 - 0.5 * rate.clamp(max=_MAX_PHYSICAL_RATE))
     code = torch.as_tensor(convention, dtype=rate.dtype, device=rate.device).reshape(-1, 1, 1, 1)
     physical = rate / (1.0 - 0.5 * rate.clamp(max=_MAX_PHYSICAL_RATE))
     return code * rate + (1.0 - code) * physical
 
 
-def box_candidates(rates: Sequence[torch.Tensor], valid: Sequence[bool], w: int, pooled_windows: Sequence[int],
-                   level: int, convention: torch.Tensor | float,
+def box_candidates(pooled: Sequence[torch.Tensor], level: int, convention: torch.Tensor | float,
                    centre: torch.Tensor | None = None) -> list[torch.Tensor]:
     """Box-filter intensities of the reference frame, of each pooled window and of each central
     sub-window, (B,1,Hp,Wp) each.
 
-    ``rates``: the window's normalised (I_s/N, I_m/(level N)) per frame (``EncodedFrame.rates``);
-    ``centre``: the reference frame's central multi-bit rates I_c/(level k), (B,C,Hp,Wp), or None.
+    ``pooled``: the reference frame's normalised multi-bit rate I_m/(level N), then its means over each
+    pooled window (valid frames only), (B,1,Hp,Wp) each; ``centre``: the reference frame's central
+    multi-bit rates I_c/(level k), (B,C,Hp,Wp), or None.
     """
-    out = []
-    for size in (1, *pooled_windows):
-        half = size // 2
-        chosen = [rates[j][:, 1:2].float() for j in range(w - half, w + half + 1) if valid[j]]
-        rate = torch.stack(chosen).mean(dim=0) * (level / BIN_TRIALS)
-        out.append(box_intensity(rate, convention))
+    out = [box_intensity(rate.float() * (level / BIN_TRIALS), convention) for rate in pooled]
     if centre is not None:
         out += [box_intensity(c * (level / BIN_TRIALS), convention) for c in centre.float().split(1, dim=1)]
     return out

@@ -90,6 +90,15 @@ def window_valid(i: int, w: int, count: int | None) -> list[bool]:
     return [0 <= j <= last for j in range(i - w, i + w + 1)]
 
 
+def canonical_batch(t: torch.Tensor) -> torch.Tensor:
+    """``t`` (B,C,H,W) as a view whose batch stride is C*H*W when B = 1: indexing an unflattened stack can leave
+    a size-1 batch dim with stride C, and cat/conv then no longer read a channels-last tensor as one (they
+    copy it to NCHW and back, a third of a frame's time at batch 1)."""
+    if t.dim() == 4 and t.shape[0] == 1 and t.stride(0) != t.numel():
+        return t.as_strided(t.shape, (t.numel(), *t.stride()[1:]))
+    return t
+
+
 def _stack(tensors: Sequence[torch.Tensor]) -> torch.Tensor:
     """``torch.stack`` along a new dim 0, a view (no copy) for a single tensor."""
     return tensors[0].unsqueeze(0) if len(tensors) == 1 else torch.stack(list(tensors))
@@ -180,7 +189,9 @@ class RmbNet(nn.Module):
             ms_all = [fuse(fs, fm) for fuse, fs, fm in zip(self.bit_fusion, f_s_all, f_m_all)]
 
         def split(t: torch.Tensor) -> tuple[torch.Tensor, ...]:
-            return t.unflatten(0, (count, -1)).unbind(0)
+            # slices along dim 0 keep the batch stride of a channels-last tensor (an unflattened size-1 batch
+            # dim gets stride C, which stack/cat no longer read as channels-last: 3x slower 1x1 convs after)
+            return t.split(t.shape[0] // count)
 
         per = {name: [split(t) for t in ts] for name, ts in
                (("f_s", f_s_all), ("f_m", f_m_all), ("q", q_all), ("k", k_all), ("ms", ms_all))}
@@ -237,19 +248,32 @@ class RmbNet(nn.Module):
         f_s = _stack([q.f_s[scale] for q in queries])
         return self.xba[scale].fuse(f_s, [k.f_m[scale] for k in window], logits, valid)
 
+    def _pooled_rates(self, window: Sequence[EncodedFrame], valid: Sequence[bool]) -> list[torch.Tensor]:
+        """The reference's rates, then their means over each pooled window (valid frames only), (B,2,Hp,Wp)
+        each: one running sum grows from the narrowest window to the widest, shared by the head's
+        inputs and the blend's box candidates."""
+        w = self.config.w
+        total, count, half = window[w].rates, 1, 0
+        means = {1: total}
+        for size in sorted(set(self.config.pooled_windows)):
+            for j in [*range(w - size // 2, w - half), *range(w + half + 1, w + size // 2 + 1)]:
+                if valid[j]:
+                    total, count = total + window[j].rates, count + 1
+            half = size // 2
+            means[size] = total / count
+        return [means[size] for size in (1, *self.config.pooled_windows)]
+
     def _head_inputs(self, window: Sequence[EncodedFrame], valid: Sequence[bool],
-                     convention: torch.Tensor | float) -> torch.Tensor:
+                     convention: torch.Tensor | float, pooled: Sequence[torch.Tensor] | None = None) -> torch.Tensor:
         """The reference's compressed inputs plus its mean rates over each pooled window (valid
-        frames only), mu-law compressed, plus the convention plane when the config has it:
-        then the reference's central rates (mu-law compressed) when the config has centre windows:
+        frames only; ``pooled``, from ``_pooled_rates`` when None), mu-law compressed, plus the
+        convention plane when the config has it: then the reference's central rates (mu-law
+        compressed) when the config has centre windows:
         (B, 2 + 2 len(pooled_windows) [+ 1] + len(centre_windows), Hp, Wp)."""
         w = self.config.w
         inputs = window[w].inputs
-        parts = [inputs]
-        for size in self.config.pooled_windows:
-            half = size // 2
-            chosen = [window[j].rates for j in range(w - half, w + half + 1) if valid[j]]
-            parts.append(mu_law(torch.stack(chosen).mean(dim=0), self.config.input_mu))
+        pooled = self._pooled_rates(window, valid) if pooled is None else pooled
+        parts = [inputs, *(mu_law(mean, self.config.input_mu) for mean in pooled[1:])]
         if self.config.convention_input:
             code = torch.as_tensor(convention, dtype=inputs.dtype, device=inputs.device).reshape(-1, 1, 1, 1)
             parts.append(code.expand(inputs.shape[0], 1, *inputs.shape[2:]))
@@ -277,16 +301,16 @@ class RmbNet(nn.Module):
         cache = {} if cache is None else cache
         ref = window[self.config.w]
         mask = None if all(valid) else valid
-        reference = [self._bit_fused(s, [ref], window, cache, mask)[0] for s in range(2)]
+        reference = [canonical_batch(self._bit_fused(s, [ref], window, cache, mask)[0]) for s in range(2)]
         f_ms_coarse = self._bit_fused(2, window, window, cache, mask)
-        reference.append(f_ms_coarse[self.config.w])
-        fused = self.time_fusion(f_ms_coarse, mask)
-        z, state = self.decoder(fused, reference, self._head_inputs(window, valid, convention), state)
+        reference.append(canonical_batch(f_ms_coarse[self.config.w]))
+        fused = self.time_fusion(f_ms_coarse, mask).contiguous(memory_format=torch.channels_last)
+        pooled = self._pooled_rates(window, valid)
+        z, state = self.decoder(fused, reference, self._head_inputs(window, valid, convention, pooled), state)
         t = F.softplus(z[:, :1].float()).clamp(max=self.config.output_max)
         if self.config.blend:
             cfg = self.config
-            candidates = box_candidates([f.rates for f in window], valid, cfg.w, cfg.pooled_windows, cfg.level,
-                                        convention, ref.centre)
+            candidates = box_candidates([mean[:, 1:2] for mean in pooled], cfg.level, convention, ref.centre)
             mixed = blend(self.to_linear(t), candidates, z[:, 1:])
             t = mu_law(mixed, cfg.output_mu).clamp(max=cfg.output_max)
         h, w = ref.size
