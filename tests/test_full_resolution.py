@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from rmbvideo.io.dat import DatGeometry, write_dat
-from rmbvideo.recon.full_resolution import block_mean, relative_detail
+from rmbvideo.recon.full_resolution import block_exact, block_mean, relative_detail, upsample
 from rmbvideo.recon.run import prepare_run, reconstruct_frames
 
 
@@ -30,6 +30,26 @@ def test_detail_keeps_every_block_mean_and_ignores_pure_noise() -> None:
     assert np.median(np.abs(noise_detail - 1)) < 0.02
     # No spikes at all: factor 1, finite.
     assert np.array_equal(relative_detail(np.zeros((8, 8)), window), np.ones((8, 8), np.float32))
+
+
+def test_block_exact_upsampling_keeps_each_binned_level_where_bilinear_blurs_it() -> None:
+    """An edge between two binned columns and a bright point among dark blocks: bilinear upsampling moves
+    each block's mean towards its neighbours'; the block-exact base gives every 2x2 block its binned level
+    back (black blocks stay black) and stays >= 0, and the torch twin used by the learned stage agrees."""
+    import torch
+
+    from rmbvideo.net.detail import block_exact as block_exact_torch
+
+    binned = np.zeros((6, 8), np.float32)
+    binned[:, 4:] = 1.0
+    binned[2, 1] = 50.0
+    means = lambda image: image.reshape(6, 2, 8, 2).mean(axis=(1, 3))  # noqa: E731
+    assert np.abs(means(upsample(binned)) - binned).max() > 0.1
+    exact = block_exact(binned)
+    assert exact.shape == (12, 16) and (exact >= 0).all()
+    np.testing.assert_allclose(means(exact), binned, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(block_exact_torch(torch.from_numpy(binned)[None, None])[0, 0].numpy(), exact,
+                               rtol=1e-5, atol=1e-5)
 
 
 def _capture(path: Path, planes: int = 400) -> Path:
@@ -66,11 +86,14 @@ def test_the_readout_follows_the_model_and_native_captures_keep_their_size(tmp_p
 
     dat = _capture(tmp_path / "c.dat", planes=200)
     pure_m = MODELS_DIR / "ablations" / "rmbnet-binned-pure-m.safetensors"
-    run = prepare_run(dat, capture={"width": 64, "height": 48}, extra_options={"model": pure_m, "threads": 1})
+    geometry = {"width": 64, "height": 48}
+    run = prepare_run(dat, capture=geometry, extra_options={"model": pure_m, "threads": 1})
+    assert run.readout is None and run.method.readout.mode.value == "pure-m"  # full resolution: inside the wrapper
+    run = prepare_run(dat, capture=geometry, resolution="binned", extra_options={"model": pure_m, "threads": 1})
     assert run.readout is not None and run.readout.mode.value == "pure-m"
-    run = prepare_run(dat, capture={"width": 64, "height": 48}, extra_options={"threads": 1})
+    run = prepare_run(dat, capture=geometry, resolution="binned", extra_options={"threads": 1})
     assert run.readout.mode.value == "rmb" or run.readout.mode.value == run.method.network.config.readout
-    run = prepare_run(dat, capture={"width": 64, "height": 48}, readout="pure-s", extra_options={"threads": 1})
+    run = prepare_run(dat, capture=geometry, resolution="binned", readout="pure-s", extra_options={"threads": 1})
     assert run.readout.mode.value == "pure-s"
 
 
@@ -145,7 +168,7 @@ def test_learned_detail_stage_starts_as_bilinear_stays_finite_and_streams(tmp_pa
     from rmbvideo.net.detail import DetailConfig, DetailNet
     from rmbvideo.net.weights import ModelCard, load_detail_model, load_model, save_model
     from rmbvideo.recon.classical import Tfw
-    from rmbvideo.recon.full_resolution import FullResolution, upsample
+    from rmbvideo.recon.full_resolution import FullResolution, block_exact
     from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
     from rmbvideo.io.dat import DatReader
     from rmbvideo.sensor.readout import RmbReadout
@@ -157,13 +180,17 @@ def test_learned_detail_stage_starts_as_bilinear_stays_finite_and_streams(tmp_pa
     binned = torch.rand(1, 1, 12, 16) * 3
     rates = torch.rand(1, config.rate_channels, 24, 32)
     with torch.inference_mode():
-        np.testing.assert_allclose(fresh(binned, rates)[0, 0].numpy(), upsample(binned[0, 0].numpy()), rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(fresh(binned, rates)[0, 0].numpy(), block_exact(binned[0, 0].numpy()), rtol=1e-5, atol=1e-6)
     torch.manual_seed(1)
     stage = DetailNet(config)
     torch.nn.init.normal_(stage.body[-1].weight, std=0.3)
     with torch.inference_mode():
         hard = stage(torch.tensor([[[[0.0, 1e30], [float("nan"), 5.0]]]]), torch.ones(1, config.rate_channels, 4, 4))
     assert torch.isfinite(hard).all() and (hard >= 0).all()
+    with torch.inference_mode():  # with detail added, every 2x2 block still averages to its binned pixel
+        shaped = stage(binned, rates)
+    assert not torch.allclose(shaped, fresh(binned, rates))
+    torch.testing.assert_close(torch.nn.functional.avg_pool2d(shaped, 2), binned, rtol=1e-5, atol=1e-6)
     path = save_model(tmp_path / "detail.safetensors", stage, ModelCard(name="detail"))
     loaded, card = load_detail_model(path)
     assert card.name == "detail" and loaded.config == config

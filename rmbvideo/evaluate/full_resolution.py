@@ -74,8 +74,9 @@ def full_rows(model: Path | None = None, threads: int | None = 1) -> list[FullRo
 
 def run_row(row: FullRow, source: Any, keep: list[int] | None = None,
             convention: str = "physical") -> tuple[dict[int, np.ndarray], float, int]:
-    """Frames (index -> full-resolution image) of ``row`` on ``source`` (a stream made in ``convention``),
-    seconds, frames emitted. RMB-Net reads the binned stream through the readout its model was trained on."""
+    """Frames (index -> image) of ``row`` on ``source`` (a stream made in ``convention``), seconds, frames
+    emitted: full resolution, except a "binned-up" row's binned frames (``at_full_resolution`` upsamples
+    them). RMB-Net reads the binned stream through the readout its model was trained on."""
     options = {**row.options, "convention": convention} if row.method == "rmbnet" else row.options
     recon = make_reconstructor(row.method, **options)
     readout = RmbReadout(mode=ReadoutMode(trained_readout(recon)))
@@ -88,10 +89,12 @@ def run_row(row: FullRow, source: Any, keep: list[int] | None = None,
     began = time.perf_counter()
     summary = reconstruct_stream(source, recon, sink, chunk_planes=128, readout=readout)
     seconds = time.perf_counter() - began
-    frames = {i: f.image for i, f in sink.frames.items()}
-    if row.kind == "binned-up":
-        frames = {i: upsample(image) for i, image in frames.items()}
-    return frames, seconds, summary.frames
+    return {i: f.image for i, f in sink.frames.items()}, seconds, summary.frames
+
+
+def at_full_resolution(row: FullRow, image: np.ndarray) -> np.ndarray:
+    """A frame of ``row`` from ``run_row`` at full resolution (a "binned-up" row's upsampled bilinearly)."""
+    return upsample(image) if row.kind == "binned-up" else image
 
 
 def full_ground_truth(seq: Sequence) -> dict[int, np.ndarray]:
@@ -138,16 +141,20 @@ def score_sequences(sequences: Seq[Sequence], rows: Seq[FullRow], scores: FullSc
         binned_truth = {i: np.minimum(seq.gt[i], SATURATION) for i in truth}
         psnr, ssim_ = {}, {}
         for row in rows:
-            frames, seconds, emitted = run_row(row, seq, convention=sequence_convention(seq))
-            missing = sorted(set(truth) - set(frames))
+            produced, seconds, emitted = run_row(row, seq, convention=sequence_convention(seq))
+            missing = sorted(set(truth) - set(produced))
             if missing:
                 raise ValueError(f"{row.name} on {seq.name}: no frame {missing[0]}")
+            frames = {i: at_full_resolution(row, produced[i]) for i in truth}
             psnr[row.name] = float(np.mean([mu_law_psnr(frames[i], truth[i]) for i in truth]))
             ssim_[row.name] = float(np.mean([mu_law_ssim(frames[i], truth[i]) for i in truth]))
             scores.fps.setdefault(row.name, []).append(emitted / seconds if seconds > 0 else math.inf)
-            if row.kind != "raw":  # full outputs 2x2-averaged, and the binned output itself
+            if row.kind != "raw":  # full outputs 2x2-averaged, and the binned output itself as it was made
+                binned = {i: produced[i][: seq.shape[0], : seq.shape[1]] if row.kind == "binned-up"
+                          else downsample_2x(frames[i], seq.shape)
+                          for i in truth}
                 scores.binned_check.setdefault(seq.name, {})[row.name] = float(np.mean(
-                    [mu_law_psnr(downsample_2x(frames[i], seq.shape), binned_truth[i]) for i in truth]))
+                    [mu_law_psnr(binned[i], binned_truth[i]) for i in truth]))
             log.info("%s: %s %.2f dB", seq.name, row.name, psnr[row.name])
         _add_best_raw(psnr, ssim_)
         scores.psnr[seq.name], scores.ssim[seq.name] = psnr, ssim_
@@ -161,7 +168,7 @@ def score_streams(streams: Seq[RealStream], rows: Seq[FullRow], scores: FullScor
         for row in rows:
             frames, _, _ = run_row(row, DatReader(stream.capture, stream.geometry), keep=[stream.frame],
                                    convention=CONVENTION)
-            image = frames[stream.frame][: reference.shape[0], : reference.shape[1]]
+            image = at_full_resolution(row, frames[stream.frame])[: reference.shape[0], : reference.shape[1]]
             scaled = (least_squares_gain(image, reference) * image).astype(np.float32)
             psnr[row.name] = scaled_psnr(image, reference)
             ssim_[row.name] = ssim(np.clip(scaled, 0, 1), reference)

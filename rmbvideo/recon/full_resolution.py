@@ -5,13 +5,15 @@ camera's resolution; the raw 1-bit planes still hold the detail inside each 2x2 
 runs both on one stream: the binned method on the binned readouts, TFP over ``detail_window`` raw planes
 on the raw ones, and per frame
 
-    full = upsample(binned) * detail,   detail = 1 + g * (tfp / block_mean(tfp) - 1)
+    full = to_block_levels(upsample(binned) * detail, binned),   detail = 1 + g * (tfp / block_mean(tfp) - 1)
 
 where ``block_mean`` is the 2x2 block mean spread back to its pixels and ``g`` a per-block Wiener gain
 (0..1): the share of the TFP variance inside the block that is not Bernoulli noise of ``detail_window``
 samples. A block whose raw counts cannot tell its pixels apart keeps the binned value (no invented
-texture); the 2x2 mean of the relative detail is 1, so averaging the full frame over 2x2 blocks gives
-the (upsampled) binned frame back. This is joint (guided) upsampling with a noise-aware gain.
+texture); ``to_block_levels`` rescales each 2x2 block of the product so that its mean is the binned pixel
+(bilinear upsampling alone blurs the levels of neighbouring blocks into each other), so averaging the
+full frame over 2x2 blocks gives the binned frame back. This is joint (guided) upsampling with a
+noise-aware gain.
 
 With a learned detail stage (``rmbvideo.net.detail.DetailNet``, ``detail=``) the factor is predicted
 instead, from TFP over each of the stage's windows (and TFI when the stage reads it).
@@ -86,6 +88,19 @@ def upsample(image: np.ndarray) -> np.ndarray:
     return cv2.resize(image.astype(np.float32), (2 * w, 2 * h), interpolation=cv2.INTER_LINEAR)
 
 
+def to_block_levels(image: np.ndarray, binned: np.ndarray) -> np.ndarray:
+    """``image`` (2h, 2w), >= 0, rescaled per 2x2 block so that every block's mean is its ``binned`` pixel:
+    the numpy twin of ``rmbvideo.net.detail.to_block_levels``."""
+    level = np.repeat(np.repeat(binned.astype(np.float32), 2, axis=0), 2, axis=1)
+    return (image * (level / np.maximum(block_mean(image), 1e-30))).astype(np.float32)
+
+
+def block_exact(binned: np.ndarray) -> np.ndarray:
+    """``upsample`` rescaled per 2x2 block to the binned levels: the numpy twin of
+    ``rmbvideo.net.detail.block_exact``."""
+    return to_block_levels(upsample(binned), binned)
+
+
 class FullResolution:
     """A method on the binned stream, made full resolution with the raw stream's detail (see module)."""
 
@@ -139,7 +154,8 @@ class FullResolution:
             h, w = coarse.image.shape
             rates = [store.pop(index).image[: 2 * h, : 2 * w] for store in self._fine]
             if self.detail is None:
-                image = upsample(coarse.image) * relative_detail(rates[0], self.settings.window, self.settings)
+                detail = relative_detail(rates[0], self.settings.window, self.settings)
+                image = to_block_levels(upsample(coarse.image) * detail, coarse.image)
             else:
                 image = self._learned(coarse.image, rates)
             out.append(Frame(index=index, time_s=coarse.time_s, image=image))

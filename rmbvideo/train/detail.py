@@ -28,7 +28,7 @@ from rmbvideo.mulaw import mu_law
 from rmbvideo.net.detail import DetailConfig, DetailNet
 from rmbvideo.net.weights import ModelCard, save_model
 from rmbvideo.recon.classical import Tfi
-from rmbvideo.recon.full_resolution import DEFAULT_DETAIL_WINDOW, relative_detail, upsample
+from rmbvideo.recon.full_resolution import DEFAULT_DETAIL_WINDOW, relative_detail, to_block_levels, upsample
 from rmbvideo.scenes.random_scenes import EVAL_SEED_START
 from rmbvideo.scenes.video import VideoScene
 from rmbvideo.simulate.capture import capture_planes
@@ -130,9 +130,9 @@ def validate(model: DetailNet, samples: list[DetailSample], windows: tuple[int, 
     for s in samples:
         binned, rates, _ = _batch([s])
         scores["learned"].append(mu_law_psnr(model(binned, rates)[0, 0].numpy(), s.gt))
-        up = upsample(s.binned)
-        scores["bilinear"].append(mu_law_psnr(up, s.gt))
-        scores["classical"].append(mu_law_psnr(up * relative_detail(s.rates[k], windows[k]), s.gt))
+        scores["bilinear"].append(mu_law_psnr(upsample(s.binned), s.gt))
+        detail = relative_detail(s.rates[k], windows[k])
+        scores["classical"].append(mu_law_psnr(to_block_levels(upsample(s.binned) * detail, s.binned), s.gt))
     model.train()
     return {k: float(np.mean(v)) for k, v in scores.items()}
 
