@@ -11,6 +11,8 @@ or fewer, 1. ``--threads`` overrides it wherever a command offers it.
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 MAX_THREADS = 8
 
@@ -33,3 +35,20 @@ def default_threads() -> int:
     except OSError:
         busy = 0.0
     return int(max(1, min(MAX_THREADS, cores - round(busy))))
+
+
+@contextmanager
+def torch_threads(count: int | None = None) -> Iterator[None]:
+    """torch's intra-op threads set to ``count`` (None: ``default_threads()``) inside the block, the
+    previous count restored after it."""
+    import torch
+
+    previous = torch.get_num_threads()
+    wanted = default_threads() if count is None else count
+    if wanted != previous:
+        torch.set_num_threads(wanted)
+    try:
+        yield
+    finally:
+        if torch.get_num_threads() != previous:
+            torch.set_num_threads(previous)

@@ -80,3 +80,18 @@ def test_one_thread_policy(monkeypatch):
     assert threads.default_threads() == 1
     monkeypatch.setattr(threads.os, "getloadavg", lambda: (2.0, 0.0, 0.0))
     assert threads.default_threads() == threads.MAX_THREADS
+
+
+def test_torch_threads_applies_the_policy_inside_the_block_and_restores_the_count(monkeypatch):
+    import torch
+
+    from rmbvideo import threads
+
+    before = torch.get_num_threads()
+    monkeypatch.setattr(threads, "available_cores", lambda: 2)
+    with threads.torch_threads():
+        assert torch.get_num_threads() == 1
+        with threads.torch_threads(3):
+            assert torch.get_num_threads() == 3
+        assert torch.get_num_threads() == 1
+    assert torch.get_num_threads() == before

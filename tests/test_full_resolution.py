@@ -52,6 +52,29 @@ def test_block_exact_upsampling_keeps_each_binned_level_where_bilinear_blurs_it(
                                rtol=1e-5, atol=1e-5)
 
 
+def test_fast_detail_copy_agrees_with_the_stage_and_leaves_it_unchanged() -> None:
+    """The inference copy (channels-last; bf16 convolutions where the precision policy says so) gives the
+    stage's frames: to float rounding in fp32, within 1 % in bf16; the stage keeps its fp32 weights."""
+    import torch
+
+    from rmbvideo.net.detail import DetailConfig, DetailNet
+    from rmbvideo.recon.full_resolution import detail_inference_copy
+
+    torch.manual_seed(2)
+    stage = DetailNet(DetailConfig(windows=(20, 40), channels=8, layers=3)).eval()
+    torch.nn.init.normal_(stage.body[-1].weight, std=0.3)
+    binned, rates = torch.rand(1, 1, 12, 16) * 3, torch.rand(1, 2, 24, 32)
+    with torch.inference_mode():
+        expected = stage(binned, rates)
+        fp32 = detail_inference_copy(stage, "fp32")(binned, rates)
+        with torch.autocast("cpu", torch.bfloat16):
+            bf16 = detail_inference_copy(stage, "bf16")(binned, rates)
+    assert all(p.dtype == torch.float32 for p in stage.parameters())
+    assert bf16.dtype == torch.float32 and not torch.equal(bf16, expected)
+    torch.testing.assert_close(fp32, expected, rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(bf16, expected, rtol=1e-2, atol=1e-3)
+
+
 def _capture(path: Path, planes: int = 400) -> Path:
     """64x48 raw, a bright vertical stripe every other column on the left half: detail finer than a bin."""
     rng = np.random.default_rng(1)

@@ -82,7 +82,8 @@ def run_row(row: FullRow, source: Any, keep: list[int] | None = None,
     readout = RmbReadout(mode=ReadoutMode(trained_readout(recon)))
     if row.kind in ("full", "full-learned"):
         stage = detail_stage("learned" if row.kind == "full-learned" else "classical")
-        recon, readout = FullResolution(recon, readout, step=RAW_STEP, detail=stage), None
+        recon = FullResolution(recon, readout, step=RAW_STEP, detail=stage, threads=options.get("threads"))
+        readout = None
     elif row.kind == "raw":
         readout = None
     sink = FrameCollector(keep=keep)

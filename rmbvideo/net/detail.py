@@ -137,6 +137,6 @@ class DetailNet(nn.Module):
         binned = torch.nan_to_num(binned.float(), nan=0.0, posinf=0.0, neginf=0.0).clamp(min=0.0)
         rates = torch.nan_to_num(rates.float(), nan=0.0, posinf=0.0, neginf=0.0).clamp(0.0, 1.0)
         up = upsample(binned)
-        d = self.body(self.features(up, rates))
+        d = self.body(self.features(up, rates)).float()  # float32 whatever the body ran in: 1 + d keeps its digits
         d = d - block_mean(d)  # mean 1 + d over a block is 1, so no block of the factor is 0 throughout
         return to_block_levels(up * (1.0 + d).clamp(min=0.0), binned)

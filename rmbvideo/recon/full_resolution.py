@@ -58,6 +58,24 @@ def detail_stage(kind: str = "auto") -> Any:
     return load_detail_model(path)[0]
 
 
+def detail_inference_copy(detail: Any, precision: str = "auto") -> Any:
+    """An eval-mode copy of a detail stage for fast CPU inference: channels-last convolutions (1.7x faster
+    here), their weights in bf16 where the project's precision policy runs bf16 (``rmbvideo.recon.precision``:
+    2.8x faster than channels-last fp32 on this project's CPU). ``detail`` itself is left unchanged."""
+    import copy
+
+    import torch
+
+    from rmbvideo.recon.precision import uses_bf16
+
+    fast = copy.deepcopy(detail).eval().to(memory_format=torch.channels_last)
+    if uses_bf16(precision, torch.device("cpu")):
+        for layer in fast.body:
+            if isinstance(layer, torch.nn.Conv2d):
+                layer.to(torch.bfloat16)
+    return fast
+
+
 def block_mean(image: np.ndarray) -> np.ndarray:
     """2x2 block means of ``image`` (even sides), spread back to every pixel of the block."""
     h, w = image.shape
@@ -107,13 +125,15 @@ class FullResolution:
     input_kind: ClassVar[str] = "spikes"
 
     def __init__(self, binned: Any, readout: RmbReadout | None, step: int = 20,
-                 settings: DetailSettings = DetailSettings(), detail: Any = None) -> None:
+                 settings: DetailSettings = DetailSettings(), detail: Any = None, threads: int | None = None,
+                 precision: str = "auto") -> None:
         if binned.input_kind != "rmb":
             raise ValueError(f"full resolution wraps a method on the binned stream, not {type(binned).__name__}")
         self.binned = binned
         self.readout = readout
         self.settings = settings
-        self.detail = detail
+        self.detail = None if detail is None else detail_inference_copy(detail, precision)
+        self.threads = threads
         self._binner = StreamBinner()
         windows = detail.config.windows if detail is not None else (settings.window,)
         self._rates: list[Tfp | Tfi] = [Tfp(window=w, step=step) for w in windows]
@@ -165,7 +185,10 @@ class FullResolution:
     def _learned(self, coarse: np.ndarray, rates: list[np.ndarray]) -> np.ndarray:
         import torch
 
-        with torch.inference_mode():
+        from rmbvideo.threads import torch_threads
+
+        bf16 = self.detail.body[0].weight.dtype == torch.bfloat16
+        with torch_threads(self.threads), torch.inference_mode(), torch.autocast("cpu", torch.bfloat16, enabled=bf16):
             full = self.detail(torch.from_numpy(np.ascontiguousarray(coarse, np.float32))[None, None],
                                torch.from_numpy(np.stack(rates).astype(np.float32))[None])
-        return full[0, 0].numpy()
+        return full[0, 0].float().numpy()

@@ -17,8 +17,8 @@ from __future__ import annotations
 import copy
 import logging
 import time
-from collections.abc import Iterable, Iterator
-from contextlib import contextmanager, nullcontext
+from collections.abc import Iterable
+from contextlib import nullcontext
 from pathlib import Path
 from typing import ClassVar, Protocol
 
@@ -40,7 +40,7 @@ from rmbvideo.net.model import (
 from rmbvideo.recon.precision import PRECISIONS, uses_bf16
 from rmbvideo.recon.prelim import MultiUpsampler, PreliminaryFrames, select_centre
 from rmbvideo.sensor.conventions import CONVENTIONS
-from rmbvideo.threads import default_threads
+from rmbvideo.threads import default_threads, torch_threads
 
 log = logging.getLogger(__name__)
 
@@ -188,17 +188,6 @@ class RmbNetReconstructor:
         """The inference copy of the model that actually runs (BatchNorm folded, channels-last)."""
         return self._net
 
-    @contextmanager
-    def _thread_limit(self) -> Iterator[None]:
-        previous = torch.get_num_threads()
-        if self._threads is not None and self._threads != previous:
-            torch.set_num_threads(self._threads)
-        try:
-            yield
-        finally:
-            if torch.get_num_threads() != previous:
-                torch.set_num_threads(previous)
-
     def _precision(self):
         if self._autocast:
             return torch.autocast(self.device.type, dtype=torch.bfloat16)
@@ -214,7 +203,7 @@ class RmbNetReconstructor:
             self.stage_seconds["network"] += time.perf_counter() - began
 
     def _network(self, frames: list[PrelimLike], final: bool) -> list[Frame]:
-        with self._thread_limit(), torch.inference_mode(), self._precision():
+        with torch_threads(self._threads), torch.inference_mode(), self._precision():
             self._accept(frames)
             count = self._received if final else None
             out = []

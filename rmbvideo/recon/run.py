@@ -82,7 +82,9 @@ def prepare_run(input_path: Path, *, method: str = DEFAULT_METHOD, window: int |
     readout = readout or trained_readout(recon)
     rmb_readout = RmbReadout(mode=ReadoutMode(readout)) if recon.input_kind == "rmb" and not native else None
     if resolution == "full" and rmb_readout is not None:
-        recon, rmb_readout = FullResolution(recon, rmb_readout, step=step, detail=detail_stage(detail)), None
+        recon, rmb_readout = FullResolution(recon, rmb_readout, step=step, detail=detail_stage(detail),
+                                            threads=options.get("threads"),
+                                            precision=options.get("precision", "auto")), None
     return PreparedRun(reader, recon, start, stop, step, rmb_readout)
 
 
