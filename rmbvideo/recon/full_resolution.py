@@ -27,6 +27,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from rmbvideo.chunks import Frame, SpikeChunk
+from rmbvideo.io.dat import PackedChunk
 from rmbvideo.recon.classical import Tfi, Tfp
 from rmbvideo.sensor.binning import StreamBinner
 from rmbvideo.sensor.readout import RmbReadout
@@ -123,6 +124,8 @@ class FullResolution:
     """A method on the binned stream, made full resolution with the raw stream's detail (see module)."""
 
     input_kind: ClassVar[str] = "spikes"
+    #: Stored bits come undecoded: TFP sums them bit-sliced; binning and TFI get them decoded once.
+    accepts_packed: ClassVar[bool] = True
 
     def __init__(self, binned: Any, readout: RmbReadout | None, step: int = 20,
                  settings: DetailSettings = DetailSettings(), detail: Any = None, threads: int | None = None,
@@ -143,14 +146,15 @@ class FullResolution:
         self._fine: list[dict[int, Frame]] = [{} for _ in self._rates]
         self.stage_seconds = getattr(binned, "stage_seconds", {})
 
-    def push(self, chunk: SpikeChunk) -> list[Frame]:
-        binned = self._binner.push(chunk)
+    def push(self, chunk: SpikeChunk | PackedChunk) -> list[Frame]:
+        spikes = chunk.unpack() if isinstance(chunk, PackedChunk) else chunk
+        binned = self._binner.push(spikes)
         if binned is not None:
             if self.readout is not None:
                 binned = self.readout.apply(binned)
             self._keep(self._coarse, self.binned.push(binned))
-        for tfp, store in zip(self._rates, self._fine):
-            self._keep(store, tfp.push(chunk))
+        for rate, store in zip(self._rates, self._fine):
+            self._keep(store, rate.push(chunk if getattr(rate, "accepts_packed", False) else spikes))
         return self._combine()
 
     def flush(self) -> list[Frame]:
