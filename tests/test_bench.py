@@ -63,6 +63,22 @@ def test_default_configs_cover_the_issue():
         assert {c.width for c in mine} == {0.5, 1.0} and {c.precision for c in mine} == {"auto", "fp32", "bf16"}
     assert len(set(names)) == len(names)
     assert len([c for c in default_configs(("cpu",), full_grid=True) if c.is_rmbnet]) == 48
+    full = [c for c in rmb if c.resolution == "full"]  # reconstruct's default output, on the CPU
+    assert len(full) == 1 and full[0].device == "cpu" and full[0].name.endswith("full res")
+
+
+def test_full_resolution_row_scores_its_2x2_average_which_is_the_binned_output(tmp_path):
+    """The full-resolution row times the default job (binned network + raw detail) and is scored after
+    2x2 averaging, which gives the binned output back: the same accuracy as the binned row."""
+    models = tmp_path / "models"
+    (models / "ablations").mkdir(parents=True)
+    torch.manual_seed(1)
+    save_model(models / "ablations" / "tiny-w1", RmbNet(RmbNetConfig(w=1, width=0.25)), ModelCard(name="tiny"))
+    sequences = [tiny_sequence(0)]
+    binned, full = (run_config(rmbnet_config(w=1, width=0.25, resolution=r), sequences, tmp_path, models)
+                    for r in ("binned", "full"))
+    assert full.name.endswith("full res") and full.frames == binned.frames and full.net_fps > 0
+    assert full.psnr == pytest.approx(binned.psnr, abs=0.02) and full.ssim == pytest.approx(binned.ssim, abs=1e-3)
 
 
 def test_run_config_records_are_complete_and_finite(tmp_path):

@@ -41,6 +41,7 @@ class BenchConfig:
     width: float | None = None
     precision: str | None = None
     device: str = "cpu"
+    resolution: str = "binned"  # "full": the default of reconstruct, binned network + the raw stream's detail
 
     @property
     def is_rmbnet(self) -> bool:
@@ -56,11 +57,13 @@ def precision_label(precision: str, device: str) -> str:
 
 
 def rmbnet_config(w: int = 3, align: str = "none", width: float = DEFAULT_WIDTH, precision: str = "auto",
-                  device: str = "cpu") -> BenchConfig:
-    """An RMB-Net row named after its knobs, e.g. ``RMB-Net w3 none x1 auto=bf16 cpu``."""
+                  device: str = "cpu", resolution: str = "binned") -> BenchConfig:
+    """An RMB-Net row named after its knobs, e.g. ``RMB-Net w3 none x1 auto=bf16 cpu`` (`` full res`` added
+    for the camera's resolution: the binned network plus the learned detail stage, scored 2x2-averaged)."""
     name = f"RMB-Net w{w} {align} x{width:g} {precision_label(precision, device)} {device}"
+    name += " full res" if resolution == "full" else ""
     return BenchConfig(name=name, method="rmbnet", w=w, align=align, width=width, precision=precision,
-                       device=device)
+                       device=device, resolution=resolution)
 
 
 def default_configs(devices: tuple[str, ...] = ("cpu",), full_grid: bool = False,
@@ -79,6 +82,8 @@ def default_configs(devices: tuple[str, ...] = ("cpu",), full_grid: bool = False
             rows += [rmbnet_config(w, a, wd, p, device) for w, a, wd, p in combos]
             continue
         rows.append(default)
+        if device == "cpu":  # what reconstruct writes by default; its detail stage runs on the CPU
+            rows.append(rmbnet_config(device=device, resolution="full"))
         rows += [rmbnet_config(w, "none", DEFAULT_WIDTH, "auto", device) for w in W_VALUES if w != 3]
         rows += [rmbnet_config(3, a, DEFAULT_WIDTH, "auto", device) for a in alignments if a != "none"]
         rows += [rmbnet_config(3, "none", wd, "auto", device) for wd in WIDTHS if wd != DEFAULT_WIDTH]

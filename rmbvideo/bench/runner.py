@@ -112,8 +112,15 @@ def _make(config: BenchConfig, network, threads: int):
         return make_reconstructor(config.method, **config.options)
     from rmbvideo.recon.rmbnet import RmbNetReconstructor
 
-    return RmbNetReconstructor(network, device=config.device, align=config.align or "none",
-                               precision=config.precision or "auto", threads=threads)
+    engine = RmbNetReconstructor(network, device=config.device, align=config.align or "none",
+                                 precision=config.precision or "auto", threads=threads)
+    if config.resolution != "full":
+        return engine
+    from rmbvideo.recon.full_resolution import FullResolution, detail_stage
+
+    readout = RmbReadout(mode=ReadoutMode(trained_readout(engine)))
+    return FullResolution(engine, readout, detail=detail_stage("auto"), threads=threads,
+                          precision=config.precision or "auto")
 
 
 def _sync(device: str) -> None:
@@ -143,7 +150,8 @@ def run_config(config: BenchConfig, sequences: list[Sequence], workdir: Path, mo
         scored = {i: sequence.frame_time(i) for i in sequence.scored_frames}
         sink = _KeepFrames(scored)
         recon = _make(config, network, threads)
-        design = trained_readout(recon) if config.is_rmbnet else model_readout(models_dir / "rmbnet-binned.safetensors")
+        design = trained_readout(getattr(recon, "binned", recon)) if config.is_rmbnet \
+            else model_readout(models_dir / "rmbnet-binned.safetensors")
         readout = RmbReadout(mode=ReadoutMode(design)) if recon.input_kind == "rmb" else None
         with PeakRss() as rss:
             summary = reconstruct_stream(reader, recon, sink, chunk_planes=CHUNK_PLANES, readout=readout)
