@@ -50,6 +50,9 @@ def test_pareto_front_marks_only_undominated_points():
     points = [(1.0, 30.0), (2.0, 35.0), (3.0, 34.0), (0.5, 20.0), (1.0, 30.0), (None, 40.0), (4.0, math.nan)]
     assert pareto_front(points) == [True, True, False, True, True, False, False]
     assert pareto_front([]) == []
+    # equal to the shown 0.01 dB: the slower one is dominated however the floats fall
+    assert pareto_front([(1.0, 30.001), (2.0, 30.004)], resolution=0.01) == [True, False]
+    assert pareto_front([(1.0, 30.001), (2.0, 30.004)]) == [True, True]
 
 
 def test_default_configs_cover_the_issue():
