@@ -97,7 +97,8 @@ class Method:
 
 METHODS: dict[str, Method] = {m.name: m for m in (
     Method("rmbnet", "rmbvideo.recon.rmbnet:make_rmbnet", "rmb",
-           "RMB-Net on the binned RMB stream, half resolution (shipped model)", "half-width w", 3, (0, 3),
+           "RMB-Net on the binned RMB stream (shipped model); from a 1-bit capture at the camera's resolution, "
+           "the raw stream's detail added (--resolution binned: half)", "half-width w", 3, (0, 3),
            fixed_readouts=10,
            extra_options=("model", "align", "device", "upsampling", "precision", "threads", "input_mode",
                           "convention", "readout")),
