@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from rmbvideo.io.dat import DatGeometry, write_dat
-from rmbvideo.recon.full_resolution import block_exact, block_mean, relative_detail, upsample
+from rmbvideo.recon.full_resolution import block_mean, relative_detail, to_block_levels, upsample
 from rmbvideo.recon.run import prepare_run, reconstruct_frames
 
 
@@ -32,23 +32,24 @@ def test_detail_keeps_every_block_mean_and_ignores_pure_noise() -> None:
     assert np.array_equal(relative_detail(np.zeros((8, 8)), window), np.ones((8, 8), np.float32))
 
 
-def test_block_exact_upsampling_keeps_each_binned_level_where_bilinear_blurs_it() -> None:
+def test_block_levels_keep_each_binned_level_where_bilinear_upsampling_blurs_it() -> None:
     """An edge between two binned columns and a bright point among dark blocks: bilinear upsampling moves
     each block's mean towards its neighbours'; the block-exact base gives every 2x2 block its binned level
     back (black blocks stay black) and stays >= 0, and the torch twin used by the learned stage agrees."""
     import torch
 
-    from rmbvideo.net.detail import block_exact as block_exact_torch
+    from rmbvideo.net.detail import to_block_levels as to_block_levels_torch, upsample as upsample_torch
 
     binned = np.zeros((6, 8), np.float32)
     binned[:, 4:] = 1.0
     binned[2, 1] = 50.0
     means = lambda image: image.reshape(6, 2, 8, 2).mean(axis=(1, 3))  # noqa: E731
     assert np.abs(means(upsample(binned)) - binned).max() > 0.1
-    exact = block_exact(binned)
+    exact = to_block_levels(upsample(binned), binned)
     assert exact.shape == (12, 16) and (exact >= 0).all()
     np.testing.assert_allclose(means(exact), binned, rtol=1e-5, atol=1e-6)
-    np.testing.assert_allclose(block_exact_torch(torch.from_numpy(binned)[None, None])[0, 0].numpy(), exact,
+    tensor = torch.from_numpy(binned)[None, None]
+    np.testing.assert_allclose(to_block_levels_torch(upsample_torch(tensor), tensor)[0, 0].numpy(), exact,
                                rtol=1e-5, atol=1e-5)
 
 
@@ -191,7 +192,7 @@ def test_learned_detail_stage_starts_as_bilinear_stays_finite_and_streams(tmp_pa
     from rmbvideo.net.detail import DetailConfig, DetailNet
     from rmbvideo.net.weights import ModelCard, load_detail_model, load_model, save_model
     from rmbvideo.recon.classical import Tfw
-    from rmbvideo.recon.full_resolution import FullResolution, block_exact
+    from rmbvideo.recon.full_resolution import FullResolution
     from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
     from rmbvideo.io.dat import DatReader
     from rmbvideo.sensor.readout import RmbReadout
@@ -203,7 +204,9 @@ def test_learned_detail_stage_starts_as_bilinear_stays_finite_and_streams(tmp_pa
     binned = torch.rand(1, 1, 12, 16) * 3
     rates = torch.rand(1, config.rate_channels, 24, 32)
     with torch.inference_mode():
-        np.testing.assert_allclose(fresh(binned, rates)[0, 0].numpy(), block_exact(binned[0, 0].numpy()), rtol=1e-5, atol=1e-6)
+        plain = binned[0, 0].numpy()
+        np.testing.assert_allclose(fresh(binned, rates)[0, 0].numpy(), to_block_levels(upsample(plain), plain),
+                                   rtol=1e-5, atol=1e-6)
     torch.manual_seed(1)
     stage = DetailNet(config)
     torch.nn.init.normal_(stage.body[-1].weight, std=0.3)

@@ -91,13 +91,6 @@ def to_block_levels(image: torch.Tensor, binned: torch.Tensor) -> torch.Tensor:
     return image * (level / block_mean(image).clamp(min=1e-30))
 
 
-def block_exact(binned: torch.Tensor) -> torch.Tensor:
-    """Bilinear 2x upsampling rescaled per 2x2 block to the binned levels (``to_block_levels``): smooth,
-    and averaging it over 2x2 blocks gives ``binned`` back. (A block's bilinear values are each at
-    least 9/16 of its own binned pixel, so only a black block is 0.)"""
-    return to_block_levels(upsample(binned), binned)
-
-
 class DetailNet(nn.Module):
     """The detail stage; ``forward(binned, rates)`` -> the full-resolution linear frame."""
 
@@ -111,7 +104,7 @@ class DetailNet(nn.Module):
                        nn.ReLU(inplace=True)]
         layers.append(nn.Conv2d(config.channels, 1, 3, padding=1))
         self.body = nn.Sequential(*layers)
-        with torch.no_grad():  # start as the block-exact upsampling
+        with torch.no_grad():  # start as bilinear upsampling rescaled to the block levels
             layers[-1].weight.zero_()
             layers[-1].bias.zero_()
 

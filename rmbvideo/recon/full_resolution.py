@@ -114,12 +114,6 @@ def to_block_levels(image: np.ndarray, binned: np.ndarray) -> np.ndarray:
     return (image * (level / np.maximum(block_mean(image), 1e-30))).astype(np.float32)
 
 
-def block_exact(binned: np.ndarray) -> np.ndarray:
-    """``upsample`` rescaled per 2x2 block to the binned levels: the numpy twin of
-    ``rmbvideo.net.detail.block_exact``."""
-    return to_block_levels(upsample(binned), binned)
-
-
 class FullResolution:
     """A method on the binned stream, made full resolution with the raw stream's detail (see module)."""
 
