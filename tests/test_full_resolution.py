@@ -121,7 +121,7 @@ def test_the_readout_follows_the_model_and_native_captures_keep_their_size(tmp_p
     assert run.readout.mode.value == "pure-s"
 
 
-@pytest.mark.parametrize("fmt", ["exr", "mp4"])
+@pytest.mark.parametrize("fmt", ["exr", "mp4", "png", "hdr10"])
 def test_cli_writes_full_resolution_frames(tmp_path: Path, fmt: str) -> None:
     from click.testing import CliRunner
 
@@ -137,6 +137,10 @@ def test_cli_writes_full_resolution_frames(tmp_path: Path, fmt: str) -> None:
 
         image, _ = read_exr(sorted(out.glob("*.exr"))[0])
         assert image.shape == (48, 64) and np.isfinite(image).all()
+    elif fmt == "png":
+        import cv2
+
+        assert cv2.imread(str(sorted(out.glob("*.png"))[0]), cv2.IMREAD_UNCHANGED).shape == (48, 64)
     else:
         import imageio_ffmpeg
 
