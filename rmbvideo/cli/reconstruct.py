@@ -81,7 +81,7 @@ def rmbnet_options(func):
 @click.option("--resolution", type=click.Choice(RESOLUTIONS), default=DEFAULT_RESOLUTION, show_default=True,
               help="Output size of methods on the binned stream from a real 1-bit capture: full (the camera's: the "
                    "binned result's levels with the raw stream's detail inside each 2x2 block) or binned (half the "
-                   "camera's, about 2.5x faster).")
+                   "camera's, about 1.8x faster).")
 @click.option("--detail", type=click.Choice(DETAIL_KINDS), default="auto", show_default=True,
               help="With --resolution full: how the detail inside each 2x2 block is found: learned (the shipped "
                    "detail stage), classical (noise-gated TFP ratio); auto: learned when installed.")

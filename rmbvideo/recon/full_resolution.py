@@ -31,6 +31,7 @@ from rmbvideo.io.dat import PackedChunk
 from rmbvideo.recon.classical import Tfi, Tfp
 from rmbvideo.sensor.binning import StreamBinner
 from rmbvideo.sensor.readout import RmbReadout
+from rmbvideo.threads import default_threads, torch_threads
 
 DEFAULT_DETAIL_WINDOW = 20  # raw planes: the frame interval, so moving detail is not smeared
 #: How the detail inside each 2x2 block is found: "learned" (the shipped detail stage), "classical"
@@ -130,7 +131,8 @@ class FullResolution:
         self.readout = readout
         self.settings = settings
         self.detail = None if detail is None else detail_inference_copy(detail, precision)
-        self.threads = threads
+        # resolved once, as the RMB-Net engine does: the policy, not the load of each frame's moment
+        self.threads = threads if threads is not None else default_threads()
         self._binner = StreamBinner()
         windows = detail.config.windows if detail is not None else (settings.window,)
         self._rates: list[Tfp | Tfi] = [Tfp(window=w, step=step) for w in windows]
@@ -183,9 +185,7 @@ class FullResolution:
     def _learned(self, coarse: np.ndarray, rates: list[np.ndarray]) -> np.ndarray:
         import torch
 
-        from rmbvideo.threads import torch_threads
-
-        bf16 = self.detail.body[0].weight.dtype == torch.bfloat16
+        bf16 = self.detail.body[0].weight.dtype == torch.bfloat16  # as detail_inference_copy chose
         with torch_threads(self.threads), torch.inference_mode(), torch.autocast("cpu", torch.bfloat16, enabled=bf16):
             full = self.detail(torch.from_numpy(np.ascontiguousarray(coarse, np.float32))[None, None],
                                torch.from_numpy(np.stack(rates).astype(np.float32))[None])
