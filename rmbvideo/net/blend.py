@@ -34,9 +34,10 @@ CENTRE_LOGIT_INIT = -2.0
 _MAX_PHYSICAL_RATE = 0.98
 
 
-def candidate_count(pooled_windows: Sequence[int], centre_windows: Sequence[int] = ()) -> int:
-    """Box-filter candidates: the reference frame, each pooled window and each central sub-window."""
-    return 1 + len(pooled_windows) + len(centre_windows)
+def candidate_count(pooled_windows: Sequence[int], centre_windows: Sequence[int] = (), aligned: bool = False) -> int:
+    """Box-filter candidates: the reference frame, each pooled window, each central sub-window and the
+    motion-compensated window mean (``aligned``)."""
+    return 1 + len(pooled_windows) + len(centre_windows) + int(aligned)
 
 
 def box_intensity(rate: torch.Tensor, convention: torch.Tensor | float) -> torch.Tensor:
@@ -50,17 +51,20 @@ def box_intensity(rate: torch.Tensor, convention: torch.Tensor | float) -> torch
 
 
 def box_candidates(pooled: Sequence[torch.Tensor], level: int, convention: torch.Tensor | float,
-                   centre: torch.Tensor | None = None) -> list[torch.Tensor]:
-    """Box-filter intensities of the reference frame, of each pooled window and of each central
-    sub-window, (B,1,Hp,Wp) each.
+                   centre: torch.Tensor | None = None, aligned: torch.Tensor | None = None) -> list[torch.Tensor]:
+    """Box-filter intensities of the reference frame, of each pooled window, of each central
+    sub-window and of the motion-compensated window mean, (B,1,Hp,Wp) each.
 
     ``pooled``: the reference frame's normalised multi-bit rate I_m/(level N), then its means over each
     pooled window (valid frames only), (B,1,Hp,Wp) each; ``centre``: the reference frame's central
-    multi-bit rates I_c/(level k), (B,C,Hp,Wp), or None.
+    multi-bit rates I_c/(level k), (B,C,Hp,Wp), or None; ``aligned``: the aligned mean rate
+    I_a/(level N), (B,1,Hp,Wp), or None.
     """
     out = [box_intensity(rate.float() * (level / BIN_TRIALS), convention) for rate in pooled]
     if centre is not None:
         out += [box_intensity(c * (level / BIN_TRIALS), convention) for c in centre.float().split(1, dim=1)]
+    if aligned is not None:
+        out.append(box_intensity(aligned.float() * (level / BIN_TRIALS), convention))
     return out
 
 

@@ -33,6 +33,9 @@ class RmbNetConfig:
     ``centre_windows``: even readout counts (< N, N - k even) of central sub-windows of each frame
     whose multi-bit rates the head also sees and blends as box filters: fast motion, where a frame's N
     readouts already blur, is read at the reference frame's centre time more finely; needs ``blend``.
+    ``aligned``: the head also sees and blends the window's motion-compensated mean multi-bit rate
+    (``rmbvideo.recon.aligned_box``, given to ``RmbNet.step``): a long average where the flow is right,
+    so moving texture need not choose between noise (one frame) and blur (the plain window); needs ``blend``.
     ``output_mu``/``output_max``: the decoder predicts the mu-law domain T(G) (the training loss
     domain, mu = 5000) through a softplus, capped at ``output_max`` so the inverse cannot overflow.
     """
@@ -57,6 +60,7 @@ class RmbNetConfig:
     readout: str = "rmb"
     blend: bool = False
     centre_windows: tuple[int, ...] = ()
+    aligned: bool = False
 
     def __post_init__(self) -> None:
         if not 0 <= self.w <= 3:
@@ -82,6 +86,8 @@ class RmbNetConfig:
                 raise ValueError(f"centre_windows must be lengths in 1..{self.n - 1} of the parity of n, got {k}")
         if self.centre_windows and not self.blend:
             raise ValueError("centre_windows need the blend output")
+        if self.aligned and not self.blend:
+            raise ValueError("aligned needs the blend output")
         if self.blend and (self.input_mode != "binned" or self.readout != "pure-m"):
             raise ValueError("blend needs every bin count: input_mode \"binned\" and readout \"pure-m\"")
 
@@ -98,7 +104,7 @@ class RmbNetConfig:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary (tuples become lists; no ``pooled_windows`` key when there are none, no
         ``convention_input`` key when it is off, no ``readout`` key for the RMB design, no ``blend`` key
-        when it is off, no ``centre_windows`` key when there are none)."""
+        when it is off, no ``centre_windows`` key when there are none, no ``aligned`` key when it is off)."""
         out = asdict(self)
         out["base_channels"] = list(self.base_channels)
         out["pooled_windows"] = list(self.pooled_windows)
@@ -113,6 +119,8 @@ class RmbNetConfig:
         out["centre_windows"] = list(self.centre_windows)
         if not self.centre_windows:
             del out["centre_windows"]
+        if not self.aligned:
+            del out["aligned"]
         return out
 
     @classmethod

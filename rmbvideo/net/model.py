@@ -29,6 +29,10 @@ Choices where the paper and supplement are silent:
 - Centre windows (``config.centre_windows``): the reference frame's multi-bit rates over its central
   2/4/6 readouts (``I_c``) join the head inputs (mu-law compressed) and the blend candidates, so a
   pixel in fast motion can be read at the frame's centre time instead of over all N readouts.
+- Aligned window mean (``config.aligned``): the reference's mean multi-bit rate over the window with
+  the neighbours warped onto it by optical flow and merged where they agree (computed outside the
+  network, ``rmbvideo.recon.aligned_box``; ``step(aligned=...)``) joins the head inputs (mu-law
+  compressed) and the blend candidates (last of each).
 """
 
 from __future__ import annotations
@@ -126,8 +130,10 @@ class RmbNet(nn.Module):
             )
         else:
             self.time_fusion = TemporalMean()
-        outputs = 2 + candidate_count(config.pooled_windows, config.centre_windows) if config.blend else 1
-        head_inputs = 2 + 2 * len(config.pooled_windows) + int(config.convention_input) + len(config.centre_windows)
+        outputs = (2 + candidate_count(config.pooled_windows, config.centre_windows, config.aligned)
+                   if config.blend else 1)
+        head_inputs = (2 + 2 * len(config.pooled_windows) + int(config.convention_input) + len(config.centre_windows)
+                       + int(config.aligned))
         self.decoder = Decoder(channels, config.lstm_kernel, input_channels=head_inputs, outputs=outputs)
         if config.blend:  # start from the network's own estimate (weight ~0.98), whatever the input
             last = self.decoder.head[-1]
@@ -135,8 +141,9 @@ class RmbNet(nn.Module):
                 last.weight[1:].zero_()
                 last.bias[1:].zero_()
                 last.bias[1] = OWN_LOGIT_INIT
-                if config.centre_windows:
-                    last.bias[-len(config.centre_windows):] = CENTRE_LOGIT_INIT
+                extra = len(config.centre_windows) + int(config.aligned)
+                if extra:  # noisy or possibly misaligned candidates start nearly unused
+                    last.bias[-extra:] = CENTRE_LOGIT_INIT
 
     def normalise_inputs(self, i_s: torch.Tensor, i_m: torch.Tensor) -> torch.Tensor:
         """(B,H,W) preliminary sums -> (B,2,H,W) rates I_s/N and I_m/(level N), clipped to [0, 1]."""
@@ -160,6 +167,18 @@ class RmbNet(nn.Module):
             raise ValueError(f"the model reads central sums over {list(windows)} readouts, got {found}")
         scale = torch.tensor([self.config.level * k for k in windows], dtype=torch.float32, device=i_c.device)
         return torch.nan_to_num(i_c.float() / scale.reshape(1, -1, 1, 1), nan=0.0).clamp(0.0, 1.0)
+
+    def normalise_aligned(self, i_a: torch.Tensor | None, size: tuple[int, int]) -> torch.Tensor | None:
+        """(B,H,W) aligned window mean of the multi-bit sums -> (B,1,Hp,Wp) rate I_a/(level N) in [0, 1],
+        padded like the inputs (None without ``config.aligned``; missing when it is on is an error)."""
+        if not self.config.aligned:
+            return None
+        if i_a is None:
+            raise ValueError("the model reads the aligned window mean (aligned=...), got none")
+        rate = torch.nan_to_num(i_a.float() / (self.config.level * self.config.n), nan=0.0).clamp(0.0, 1.0)
+        pad_h, pad_w = (-size[0]) % PAD_MULTIPLE, (-size[1]) % PAD_MULTIPLE
+        rate = rate.unsqueeze(1)
+        return F.pad(rate, (0, pad_w, 0, pad_h), mode="replicate") if pad_h or pad_w else rate
 
     def encode(self, i_s: torch.Tensor, i_m: torch.Tensor, indices: Sequence[int],
                i_c: torch.Tensor | None = None) -> list[EncodedFrame]:
@@ -264,12 +283,13 @@ class RmbNet(nn.Module):
         return [means[size] for size in (1, *self.config.pooled_windows)]
 
     def _head_inputs(self, window: Sequence[EncodedFrame], valid: Sequence[bool],
-                     convention: torch.Tensor | float, pooled: Sequence[torch.Tensor] | None = None) -> torch.Tensor:
+                     convention: torch.Tensor | float, pooled: Sequence[torch.Tensor] | None = None,
+                     aligned: torch.Tensor | None = None) -> torch.Tensor:
         """The reference's compressed inputs plus its mean rates over each pooled window (valid
         frames only; ``pooled``, from ``_pooled_rates`` when None), mu-law compressed, plus the
         convention plane when the config has it: then the reference's central rates (mu-law
-        compressed) when the config has centre windows:
-        (B, 2 + 2 len(pooled_windows) [+ 1] + len(centre_windows), Hp, Wp)."""
+        compressed) when the config has centre windows, then the aligned mean rate (mu-law compressed)
+        when given: (B, 2 + 2 len(pooled_windows) [+ 1] + len(centre_windows) [+ 1], Hp, Wp)."""
         w = self.config.w
         inputs = window[w].inputs
         pooled = self._pooled_rates(window, valid) if pooled is None else pooled
@@ -279,11 +299,14 @@ class RmbNet(nn.Module):
             parts.append(code.expand(inputs.shape[0], 1, *inputs.shape[2:]))
         if window[w].centre is not None:
             parts.append(mu_law(window[w].centre, self.config.input_mu))
+        if aligned is not None:
+            parts.append(mu_law(aligned, self.config.input_mu).to(inputs.dtype))
         return torch.cat(parts, dim=1) if len(parts) > 1 else parts[0]
 
     def step(
         self, window: Sequence[EncodedFrame], state: DecoderState | None, cache: PairCache | None = None,
         valid: Sequence[bool] | None = None, convention: torch.Tensor | float = 0.0,
+        aligned: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, DecoderState]:
         """One output step for the window of 2w+1 encoded frames centred on the reference.
 
@@ -291,7 +314,8 @@ class RmbNet(nn.Module):
         ``cache`` holds XBA pair logits reused across overlapping windows (the caller evicts).
         ``valid`` marks the positions that hold real frames (default: all; see ``window_valid``).
         ``convention``: 0 (a camera) or 1 (the rate convention), a scalar or one per batch item; used
-        only when ``config.convention_input``.
+        only when ``config.convention_input``. ``aligned``: the reference's aligned window mean of the
+        multi-bit sums (B,H,W), needed when ``config.aligned``.
         """
         if len(window) != self.config.window:
             raise ValueError(f"window has {len(window)} frames, the model needs {self.config.window}")
@@ -306,11 +330,14 @@ class RmbNet(nn.Module):
         reference.append(canonical_batch(f_ms_coarse[self.config.w]))
         fused = self.time_fusion(f_ms_coarse, mask).contiguous(memory_format=torch.channels_last)
         pooled = self._pooled_rates(window, valid)
-        z, state = self.decoder(fused, reference, self._head_inputs(window, valid, convention, pooled), state)
+        aligned_rate = self.normalise_aligned(aligned, ref.size)
+        z, state = self.decoder(fused, reference, self._head_inputs(window, valid, convention, pooled, aligned_rate),
+                                state)
         t = F.softplus(z[:, :1].float()).clamp(max=self.config.output_max)
         if self.config.blend:
             cfg = self.config
-            candidates = box_candidates([mean[:, 1:2] for mean in pooled], cfg.level, convention, ref.centre)
+            candidates = box_candidates([mean[:, 1:2] for mean in pooled], cfg.level, convention, ref.centre,
+                                        aligned_rate)
             mixed = blend(self.to_linear(t), candidates, z[:, 1:])
             t = mu_law(mixed, cfg.output_mu).clamp(max=cfg.output_max)
         h, w = ref.size
@@ -328,11 +355,13 @@ class RmbNet(nn.Module):
         linear: bool = True,
         convention: torch.Tensor | float = 0.0,
         i_c: torch.Tensor | None = None,
+        i_a: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, DecoderState | None]:
         """Reconstruct a whole sequence (B,K,H,W) of preliminary sums -> (B,K,H,W) and final state.
 
         Linear HDR by default; ``linear=False`` returns the mu-law domain (the training loss domain).
-        ``i_c`` (B,K,C,H,W): central sums, when the config has centre windows.
+        ``i_c`` (B,K,C,H,W): central sums, when the config has centre windows; ``i_a`` (B,K,H,W): each
+        frame's aligned window mean of the multi-bit sums, when the config has ``aligned``.
         """
         batch, count = i_s.shape[:2]
         frames = self.encode(
@@ -342,7 +371,8 @@ class RmbNet(nn.Module):
         outputs = []
         for i in range(count):
             window = [frames[j] for j in window_indices(i, self.config.w, count)]
-            t, state = self.step(window, state, valid=window_valid(i, self.config.w, count), convention=convention)
+            t, state = self.step(window, state, valid=window_valid(i, self.config.w, count), convention=convention,
+                                 aligned=None if i_a is None else i_a[:, i])
             outputs.append(t[:, 0])
         out = torch.stack(outputs, dim=1)
         return (self.to_linear(out) if linear else out), state

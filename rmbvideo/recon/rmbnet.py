@@ -7,6 +7,9 @@ input is chunked, and equal to ``RmbNet.forward_sequence`` over the whole captur
 needs frames up to i+w, so output lags input by w frames until ``flush``. At the edges of the
 capture the window's positions past the edge are left out (``window_valid``).
 
+A model with ``config.aligned`` also gets each reference frame's motion-compensated window mean
+(``rmbvideo.recon.aligned_box``: consecutive DIS flows, computed once per frame and kept while needed).
+
 With ``align`` other than "none", the window's frames are warped to the reference frame's time
 with optical flow before encoding (paper Fig. 6); encodings then depend on the reference, so each
 window is encoded afresh and only the flow fields are cached.
@@ -29,6 +32,7 @@ from torch.nn.utils.fusion import fuse_conv_bn_eval
 
 from rmbvideo.chunks import Frame, RmbChunk
 from rmbvideo.errors import InputError
+from rmbvideo.net.blend import BIN_TRIALS
 from rmbvideo.net.encoder import Encoder
 from rmbvideo.net.model import (
     EncodedFrame,
@@ -37,6 +41,7 @@ from rmbvideo.net.model import (
     window_indices,
     window_valid,
 )
+from rmbvideo.recon.aligned_box import AlignedBox
 from rmbvideo.recon.precision import PRECISIONS, uses_bf16
 from rmbvideo.recon.prelim import MultiUpsampler, PreliminaryFrames, select_centre
 from rmbvideo.sensor.conventions import CONVENTIONS
@@ -141,6 +146,7 @@ class RmbNetReconstructor:
         self._encoded: dict[int, EncodedFrame] = {}
         self._pair_cache: PairCache = {}
         self._flow_cache: dict = {}
+        self._aligned_box = AlignedBox() if self._net.config.aligned else None
         self._received = 0
         self._next_out = 0
         self._state = None
@@ -225,6 +231,8 @@ class RmbNetReconstructor:
         ids = list(range(self._received, self._received + len(frames)))
         for fid, frame in zip(ids, frames):
             self._raw[fid] = frame
+            if self._aligned_box is not None:
+                self._aligned_box.add(fid, np.asarray(frame.i_m, np.float32) / (BIN_TRIALS * self.n))
         self._received += len(frames)
         if self.align == "none":
             for a in range(0, len(frames), ENCODE_BATCH):
@@ -259,10 +267,18 @@ class RmbNetReconstructor:
             raise InputError(f"preliminary frame {frames[0].index}: {exc}") from None
         return torch.from_numpy(sums).to(self.device)
 
+    def _aligned(self, i: int, count: int | None) -> torch.Tensor | None:
+        """Frame ``i``'s aligned window mean of the multi-bit sums, (1,H,W), for a model that reads it."""
+        if self._aligned_box is None:
+            return None
+        last = self._received - 1 if count is None else count - 1
+        mean = self._aligned_box.mean(i, range(max(0, i - self._w), min(last, i + self._w) + 1))
+        return torch.from_numpy(mean * (BIN_TRIALS * self.n)).unsqueeze(0).to(self.device)
+
     def _emit(self, i: int, count: int | None) -> Frame:
         cache = self._pair_cache if self.align == "none" else None
         t, state = self._net.step(self._window(i, count), self._state, cache, valid=window_valid(i, self._w, count),
-                                  convention=self._convention)
+                                  convention=self._convention, aligned=self._aligned(i, count))
         if not bool(torch.isfinite(t).all()):
             self.nonfinite_frames += 1
             log.warning("RMB-Net produced NaN/Inf in frame %d; replaced by 0 and reset the recurrent state", i)
@@ -281,6 +297,8 @@ class RmbNetReconstructor:
             del self._pair_cache[key]
         for key in [k for k in self._flow_cache if min(k[:2]) < oldest_needed]:
             del self._flow_cache[key]
+        if self._aligned_box is not None:
+            self._aligned_box.evict(oldest_needed)
 
 
 def make_rmbnet(

@@ -8,6 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from rmbvideo.net.blend import BIN_TRIALS
+from rmbvideo.recon.aligned_box import aligned_means
 from rmbvideo.recon.prelim import select_centre
 from rmbvideo.train.dataset import Sample
 
@@ -15,20 +17,24 @@ from rmbvideo.train.dataset import Sample
 @dataclass
 class Batch:
     """Samples stacked on a device: ``i_s``, ``i_m``, ``gt`` (B, F, H, W) float32, ``convention`` (B,),
-    ``i_c`` (B, F, C, H, W): central sums over the model's centre windows, or None when it has none."""
+    ``i_c`` (B, F, C, H, W): central sums over the model's centre windows, or None when it has none;
+    ``i_a`` (B, F, H, W): each frame's aligned window mean of the multi-bit sums (windows cut at the
+    sample's ends, as at a clip's), or None when the model does not read it."""
 
     i_s: torch.Tensor
     i_m: torch.Tensor
     gt: torch.Tensor
     convention: torch.Tensor
     i_c: torch.Tensor | None = None
+    i_a: torch.Tensor | None = None
 
     @classmethod
     def from_samples(cls, samples: list[Sample], device: torch.device, flips: list[bool] | None = None,
-                     centre: tuple[int, ...] = (), n: int = 10) -> "Batch":
+                     centre: tuple[int, ...] = (), n: int = 10, aligned_w: int | None = None) -> "Batch":
         """Stack samples, mirroring sample j left-right where ``flips[j]`` (rows, hence the
         rolling band, are unchanged by a horizontal mirror); ``centre``: the model's centre windows
-        (frames of ``n`` readouts)."""
+        (frames of ``n`` readouts); ``aligned_w``: the window half-width of the aligned means to add
+        (None: none; they are computed after the mirror, as the engine would on a mirrored clip)."""
         flips = flips or [False] * len(samples)
 
         def stack(arrays: list[np.ndarray]) -> torch.Tensor:
@@ -37,7 +43,13 @@ class Batch:
 
         convention = torch.tensor([float(s.convention) for s in samples], dtype=torch.float32, device=device)
         i_c = stack([select_centre(s.i_c, n, centre) for s in samples]) if centre else None
-        return cls(*(stack([getattr(s, name) for s in samples]) for name in ("i_s", "i_m", "gt")), convention, i_c)
+        i_s, i_m, gt = (stack([getattr(s, name) for s in samples]) for name in ("i_s", "i_m", "gt"))
+        i_a = None
+        if aligned_w is not None:
+            scale = BIN_TRIALS * n
+            means = [aligned_means(m / scale, aligned_w) * scale for m in i_m.cpu().numpy()]
+            i_a = torch.from_numpy(np.stack(means).astype(np.float32)).to(device)
+        return cls(i_s, i_m, gt, convention, i_c, i_a)
 
 
 def output_range(count: int, w: int, edges: bool) -> range:

@@ -106,7 +106,8 @@ def segment_losses(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossCon
         parts = {"loss": 0.0, "l2": 0.0, "ssim": 0.0, "edge": 0.0, "linear": 0.0, "regional": 0.0}
         for i in range(first, last + 1):
             window = [frames[j - lo] for j in window_indices(i, w, count)]
-            t, state = model.step(window, state, cache, valid=window_valid(i, w, count), convention=batch.convention)
+            t, state = model.step(window, state, cache, valid=window_valid(i, w, count), convention=batch.convention,
+                                  aligned=None if batch.i_a is None else batch.i_a[:, i])
             loss, step_parts = reconstruction_loss(t[:, 0], batch.gt[:, i], loss_config, batch.convention)
             segment_loss = segment_loss + loss
             parts["loss"] += float(loss.detach())
@@ -281,7 +282,8 @@ class Trainer:
                     break
                 samples = self.batch_samples(step)
                 flips = [bool(np.random.default_rng([cfg.seed, step, j, 1]).integers(2)) for j in range(len(samples))]
-                batch = Batch.from_samples(samples, self.device, flips, cfg.model.centre_windows, cfg.model.n)
+                batch = Batch.from_samples(samples, self.device, flips, cfg.model.centre_windows, cfg.model.n,
+                                           cfg.model.w if cfg.model.aligned else None)
                 lr = learning_rate(step, time.monotonic() - started, cfg)
                 for group in self.optimizer.param_groups:
                     group["lr"] = lr

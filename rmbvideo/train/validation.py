@@ -34,13 +34,15 @@ def validate(model: RmbNet, samples: list[Sample], quanta: int | None, saturatio
     w, n = model.config.w, model.config.n
     psnr, ssim, tfw = [], [], []
     for sample in samples:
-        batch = Batch.from_samples([sample], device, centre=model.config.centre_windows, n=n)
+        batch = Batch.from_samples([sample], device, centre=model.config.centre_windows, n=n,
+                                   aligned_w=model.config.w if model.config.aligned else None)
         count = batch.i_s.shape[1]
         frames = model.encode(batch.i_s[0], batch.i_m[0], range(count), None if batch.i_c is None else batch.i_c[0])
         state = None
         for i in output_range(count, w, edges):
             window = [frames[j] for j in window_indices(i, w, count)]
-            t, state = model.step(window, state, valid=window_valid(i, w, count), convention=batch.convention)
+            t, state = model.step(window, state, valid=window_valid(i, w, count), convention=batch.convention,
+                                  aligned=None if batch.i_a is None else batch.i_a[:, i])
             pred = model.to_linear(t)[0, 0].float().cpu().numpy()
             gt = np.clip(sample.gt[i], 0.0, saturation)
             psnr.append(mu_law_psnr(pred, gt))

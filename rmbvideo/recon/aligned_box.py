@@ -1,0 +1,146 @@
+"""Motion-compensated box filter of a window's multi-bit rates: the evidence of the neighbouring frames
+moved onto the reference frame's grid with optical flow, and merged only where it agrees.
+
+A plain mean over 2w+1 frames blurs anything that moves; the reference frame alone is noisy. Like
+MG20's align-and-merge (Ma et al. 2020), each neighbour's rate image is warped to the reference with
+OpenCV DIS flow and weighted per pixel by a robust test: the local (``patch`` x ``patch``) means of the
+warped neighbour and of the reference are compared on the variance-stabilised arcsine-sqrt scale, and
+the weight is ``min(1, tau / z^2)`` (pixels the flow maps outside the frame carry no evidence). RMB-Net
+gets the result as one more input and blend candidate (``RmbNetConfig.aligned``), so it can use a
+longer, motion-compensated average where the flow is right and ignore it where it is not.
+
+Cost: flow is computed only between consecutive frames (forward and backward, once per frame and
+cached); a neighbour k frames away is reached by composing k consecutive flows.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+#: OpenCV DIS presets by name.
+DIS_PRESETS = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
+               "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
+
+
+@dataclass(frozen=True)
+class AlignedBoxConfig:
+    """DIS preset, the blur of the images flow is computed on, the robust merge's patch and threshold,
+    and ``trials``: Bernoulli trials behind one pixel's rate per frame (N readouts x 8 raw pixel-planes)."""
+
+    preset: str = "medium"
+    sigma: float = 1.0
+    patch: int = 5
+    tau: float = 4.0
+    trials: int = 80
+
+    def __post_init__(self) -> None:
+        if self.preset not in DIS_PRESETS:
+            raise ValueError(f"preset must be one of {sorted(DIS_PRESETS)}, got {self.preset!r}")
+        if self.patch < 1 or self.tau <= 0 or self.sigma < 0 or self.trials < 1:
+            raise ValueError(f"patch, tau and trials must be positive and sigma >= 0, got {self}")
+
+
+def _arcsine_sqrt(p: np.ndarray) -> np.ndarray:
+    """Variance-stabilised proportion: 2 asin(sqrt(p)) has variance ~1/n for n trials."""
+    return 2.0 * np.arcsin(np.sqrt(np.clip(p, 0.0, 1.0)))
+
+
+class AlignedBox:
+    """Aligned, robustly merged means of rate images keyed by frame index (``add``, ``mean``, ``evict``).
+
+    Rates are fractions in [0, 1] (a pixel's fired share of its trials), (H, W) float32 each.
+    """
+
+    def __init__(self, config: AlignedBoxConfig | None = None) -> None:
+        self.config = config or AlignedBoxConfig()
+        self._dis = cv2.DISOpticalFlow_create(DIS_PRESETS[self.config.preset])
+        self._rates: dict[int, np.ndarray] = {}
+        self._images: dict[int, np.ndarray] = {}
+        self._whites: dict[int, float] = {}
+        self._flows: dict[tuple[int, int], np.ndarray] = {}
+        self._grid: tuple[np.ndarray, np.ndarray] | None = None
+
+    def add(self, index: int, rate: np.ndarray) -> None:
+        """Keep frame ``index``'s rate image (clipped to [0, 1], NaN as 0)."""
+        rate = np.clip(np.nan_to_num(np.asarray(rate, np.float32), nan=0.0), 0.0, 1.0)
+        self._rates[index] = rate
+        blurred = cv2.GaussianBlur(rate, (0, 0), self.config.sigma) if self.config.sigma > 0 else rate
+        self._images[index] = np.sqrt(np.maximum(blurred, 0.0))
+        # white of the 8-bit flow images: a high percentile, so a few bright lights do not darken the rest
+        self._whites[index] = float(np.percentile(self._images[index], 99.5))
+        if self._grid is None or self._grid[0].shape != rate.shape:
+            h, w = rate.shape
+            self._grid = tuple(np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32)))
+
+    def evict(self, oldest_needed: int) -> None:
+        """Forget frames (and flows) older than ``oldest_needed``."""
+        for store in (self._rates, self._images, self._whites):
+            for key in [k for k in store if k < oldest_needed]:
+                del store[key]
+        for key in [k for k in self._flows if min(k) < oldest_needed]:
+            del self._flows[key]
+
+    def _step_flow(self, a: int, b: int) -> np.ndarray:
+        """Flow from frame ``a`` to its neighbour ``b`` (a(x) ~ b(x + F(x))), on square-root images
+        scaled to 8 bits by the pair's joint white."""
+        if (a, b) not in self._flows:
+            ia, ib = self._images[a], self._images[b]
+            scale = 255.0 / max(self._whites[a], self._whites[b], 1e-3)
+            a8 = np.clip(ia * scale + 0.5, 0, 255).astype(np.uint8)
+            b8 = np.clip(ib * scale + 0.5, 0, 255).astype(np.uint8)
+            flow = self._dis.calc(a8, b8, None)
+            self._flows[(a, b)] = np.nan_to_num(flow, nan=0.0, posinf=0.0, neginf=0.0)
+        return self._flows[(a, b)]
+
+    def _flow(self, i: int, j: int) -> np.ndarray:
+        """Flow from frame ``i`` to frame ``j``, composed of consecutive flows."""
+        gx, gy = self._grid  # type: ignore[misc]
+        d = 1 if j > i else -1
+        flow = self._step_flow(i, i + d)
+        for k in range(i + d, j, d):
+            nxt = self._step_flow(k, k + d)
+            flow = flow + cv2.remap(nxt, gx + flow[..., 0], gy + flow[..., 1], cv2.INTER_LINEAR,
+                                    borderMode=cv2.BORDER_REPLICATE)
+        return flow
+
+    def mean(self, i: int, neighbours: Sequence[int]) -> np.ndarray:
+        """Frame ``i``'s rate averaged with the ``neighbours`` warped onto it, each pixel weighted by
+        the robust agreement test; (H, W) float32 in [0, 1]."""
+        cfg = self.config
+        ref = self._rates[i]
+        gx, gy = self._grid  # type: ignore[misc]
+        h, w = ref.shape
+        size = (cfg.patch, cfg.patch)
+
+        def local(a: np.ndarray) -> np.ndarray:
+            return cv2.boxFilter(a, -1, size, normalize=True, borderType=cv2.BORDER_REPLICATE)
+
+        ref_angle = _arcsine_sqrt(local(ref))
+        variance = 2.0 / (cfg.trials * cfg.patch * cfg.patch)
+        total, weights = ref.copy(), np.ones_like(ref)
+        for j in neighbours:
+            if j == i:
+                continue
+            flow = self._flow(i, j)
+            map_x, map_y = gx + flow[..., 0], gy + flow[..., 1]
+            inside = (map_x >= 0) & (map_x <= w - 1) & (map_y >= 0) & (map_y <= h - 1)
+            warped = cv2.remap(self._rates[j], map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            z2 = (_arcsine_sqrt(local(warped)) - ref_angle) ** 2 / variance
+            weight = np.where(inside, np.minimum(1.0, cfg.tau / np.maximum(z2, 1e-12)), 0.0).astype(np.float32)
+            total += weight * warped
+            weights += weight
+        return (total / weights).astype(np.float32)
+
+
+def aligned_means(rates: np.ndarray, w: int, config: AlignedBoxConfig | None = None) -> np.ndarray:
+    """Every frame's aligned mean over its window of half-width ``w`` cut at the sequence's ends:
+    ``rates`` (F, H, W) -> (F, H, W) float32 (what the streaming engine computes for a clip)."""
+    box = AlignedBox(config)
+    count = len(rates)
+    for k, rate in enumerate(rates):
+        box.add(k, rate)
+    return np.stack([box.mean(i, range(max(0, i - w), min(count, i + w + 1))) for i in range(count)])
