@@ -319,3 +319,27 @@ def test_pooled_rates_are_the_means_over_the_valid_frames_of_each_window(valid):
         half = size // 2
         expected = torch.stack([frames[j].rates for j in range(3 - half, 4 + half) if valid[j]]).mean(dim=0)
         torch.testing.assert_close(got, expected)
+
+
+def test_aligned_candidate_is_checked_round_trips_and_passes_through_exactly():
+    """``aligned``: one more head input and the last blend candidate; with the logits forced onto it the
+    output is the box intensity of the aligned mean the caller gives, not of the frame's own counts."""
+    from rmbvideo.net.blend import BIN_TRIALS
+
+    assert "aligned" not in blend_model().config.to_dict()
+    model = blend_model(aligned=True)
+    assert RmbNetConfig.from_dict(model.config.to_dict()) == model.config
+    with pytest.raises(ValueError, match="blend"):
+        RmbNetConfig(readout="pure-m", aligned=True)
+    head = model.decoder.head[-1]
+    assert head.out_channels == 1 + 1 + 3 + 1 and head.bias[-1] < 0  # starts little used
+    i_s, i_m = random_inputs(k=9, h=16, w=16)
+    i_a = torch.rand(1, 9, 16, 16, generator=torch.Generator().manual_seed(5)) * 50
+    with torch.no_grad():
+        head.weight[1:].zero_()
+        head.bias[1:] = torch.tensor([-50.0, -50.0, -50.0, -50.0, 50.0])  # own, box 1/3/7, aligned
+    with torch.inference_mode():
+        out = model.forward_sequence(i_s, i_m, convention=1.0, i_a=i_a)[0]
+        with pytest.raises(ValueError, match="aligned window mean"):
+            model.forward_sequence(i_s, i_m, convention=1.0)
+    torch.testing.assert_close(out, (i_a / (7 * 10)).clamp(0, 1) * (7 / BIN_TRIALS), rtol=2e-5, atol=1e-6)

@@ -212,3 +212,34 @@ def test_bf16_weights_stored_once_give_what_autocast_casting_them_per_call_gives
     reference._net = inference_copy(model)  # fp32 weights, cast by autocast at every call
     cast = [f for c in chunks for f in reference.push(c)] + reference.flush()
     assert np.array_equal(np.stack([f.image for f in stored]), np.stack([f.image for f in cast]))
+
+
+def test_aligned_model_stream_equals_forward_sequence_with_the_aligned_means():
+    """A model with the aligned window mean: the engine computes it per reference frame (windows cut at
+    the capture's edges) and matches the plain forward pass given ``aligned_means``, whatever the chunking."""
+    from rmbvideo.net.blend import BIN_TRIALS
+    from rmbvideo.recon.aligned_box import aligned_means
+
+    torch.manual_seed(0)
+    model = RmbNet(RmbNetConfig(w=2, width=0.25, readout="pure-m", blend=True, aligned=True)).eval()
+    with torch.no_grad():  # make the aligned candidate count, so a wrong one shows
+        model.decoder.head[-1].bias[-1] = 3.0
+    rng = np.random.default_rng(6)
+    multi = rng.integers(0, 8, (95, H, W)).astype(np.uint8)
+    data = RmbChunk((multi > 3).astype(np.uint8), multi, np.ones((95, H), bool), start=0, rate_hz=10_000.0)
+    prelim = PreliminaryFrames(n=10)
+    pframes = prelim.push(data) + prelim.flush()
+    i_m = np.stack([p.i_m for p in pframes]).astype(np.float32)
+    i_a = aligned_means(i_m / (BIN_TRIALS * 10), w=2) * (BIN_TRIALS * 10)
+    with torch.inference_mode():
+        reference = model.forward_sequence(torch.from_numpy(np.stack([p.i_s for p in pframes]))[None],
+                                           torch.from_numpy(i_m)[None], i_a=torch.from_numpy(i_a)[None])[0][0]
+        plain = model.forward_sequence(torch.from_numpy(np.stack([p.i_s for p in pframes]))[None],
+                                       torch.from_numpy(i_m)[None], i_a=torch.from_numpy(i_m)[None])[0][0]
+    assert not np.allclose(reference.numpy(), plain.numpy())
+    for size in (7, 95):
+        images = np.stack([f.image for f in stream(model, split(data, size))[0]])
+        assert np.isfinite(images).all()
+        np.testing.assert_allclose(images, reference.numpy(), rtol=1e-4, atol=1e-6 * float(reference.max()))
+    with pytest.raises(ValueError, match="aligned window mean"):
+        model.forward_sequence(torch.from_numpy(np.stack([p.i_s for p in pframes]))[None], torch.from_numpy(i_m)[None])

@@ -141,6 +141,24 @@ def test_loss_is_finite_and_decreases_on_a_fixed_batch(tmp_path):
     assert losses[-1] < 0.9 * losses[0]
 
 
+def test_aligned_model_trains_on_batches_with_their_aligned_means(tmp_path):
+    """A model that reads the aligned window mean gets it from the batch (computed on the mirrored
+    counts, windows cut at the sample's ends) and trains with a finite loss and gradients on the head."""
+    from rmbvideo.recon.aligned_box import aligned_means
+
+    samples = [SampleCache(tmp_path, TINY_SPEC).get(k) for k in (0, 1)]
+    batch = Batch.from_samples(samples, torch.device("cpu"), flips=[True, False], n=4, aligned_w=1)
+    scale = 8 * 4
+    expected = aligned_means(samples[0].i_m[..., ::-1] / scale, 1) * scale
+    np.testing.assert_allclose(batch.i_a[0].numpy(), expected, rtol=1e-5, atol=1e-5)
+    assert Batch.from_samples(samples, torch.device("cpu"), n=4).i_a is None
+    torch.manual_seed(0)
+    model = RmbNet(RmbNetConfig(w=1, width=0.25, n=4, readout="pure-m", blend=True, aligned=True))
+    parts = train_batch(model, batch, tbptt=2, loss_config=LossConfig())
+    assert all(np.isfinite(v) for v in parts.values())
+    assert model.decoder.head[-1].weight.grad is not None and model.decoder.head[-1].weight.grad.abs().sum() > 0
+
+
 def _graph_size(tensor: torch.Tensor) -> int:
     seen, stack = set(), [tensor.grad_fn]
     while stack:

@@ -1,0 +1,82 @@
+"""The motion-compensated window mean (``recon.aligned_box``): it averages where frames agree, follows
+motion, drops evidence the flow maps outside the frame, and stays finite on black and saturated input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rmbvideo.recon.aligned_box import AlignedBox, AlignedBoxConfig, aligned_means
+
+H, W = 48, 64
+
+
+def texture(seed: int = 0, size: tuple[int, int] = (H, W + 40)) -> np.ndarray:
+    """A smooth random texture of rates in [0.1, 0.7] (flow needs structure at a few pixels' scale)."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    noise = cv2.GaussianBlur(rng.random(size).astype(np.float32), (0, 0), 2.0)
+    noise = (noise - noise.min()) / (noise.max() - noise.min())
+    return (0.1 + 0.6 * noise).astype(np.float32)
+
+
+def noisy(rate: np.ndarray, rng: np.random.Generator, trials: int = 80) -> np.ndarray:
+    """A frame's measured rate: binomial counts over ``trials`` raw pixel-planes."""
+    return (rng.binomial(trials, rate) / trials).astype(np.float32)
+
+
+def test_static_frames_average_like_the_plain_window():
+    clean = texture()[:, :W]
+    rng = np.random.default_rng(1)
+    frames = np.stack([noisy(clean, rng) for _ in range(7)])
+    out = aligned_means(frames, w=3)[3]
+    plain = frames.mean(axis=0)
+    single_error = np.abs(frames[3] - clean).mean()
+    assert np.abs(out - clean).mean() < 0.6 * single_error  # 7 frames of evidence, not 1
+    assert np.abs(out - plain).mean() < 0.25 * single_error
+
+
+def test_moving_texture_is_followed_not_blurred():
+    wide = texture(2)
+    speed = 3  # pixels per frame
+    rng = np.random.default_rng(3)
+    clean = [wide[:, 20 + speed * (k - 3): 20 + speed * (k - 3) + W] for k in range(7)]
+    frames = np.stack([noisy(c, rng) for c in clean])
+    out = aligned_means(frames, w=3)[3]
+    inner = (slice(6, -6), slice(12, -12))
+    aligned_error = np.abs(out - clean[3])[inner].mean()
+    assert aligned_error < 0.7 * np.abs(frames[3] - clean[3])[inner].mean()  # better than the frame alone
+    assert aligned_error < 0.5 * np.abs(frames.mean(axis=0) - clean[3])[inner].mean()  # and than the blur
+
+
+def test_window_cut_at_the_ends_and_neighbours_only_where_they_exist():
+    clean = texture(4)[:, :W]
+    rng = np.random.default_rng(5)
+    frames = np.stack([noisy(clean, rng) for _ in range(5)])
+    means = aligned_means(frames, w=3)
+    assert means.shape == frames.shape and np.isfinite(means).all()
+    box = AlignedBox()
+    for k, frame in enumerate(frames):
+        box.add(k, frame)
+    np.testing.assert_allclose(means[0], box.mean(0, range(0, 4)), rtol=1e-6)
+    np.testing.assert_array_equal(box.mean(2, [2]), frames[2])  # no neighbours: the frame itself
+    box.evict(2)
+    with pytest.raises(KeyError):
+        box.mean(1, [0, 1])
+
+
+@pytest.mark.parametrize("level", [0.0, 1.0])
+def test_black_and_saturated_frames_stay_finite_and_exact(level):
+    frames = np.full((7, H, W), level, np.float32)
+    frames[2, 0, 0] = np.nan  # a non-finite input pixel counts as 0
+    means = aligned_means(frames, w=3)
+    assert np.isfinite(means).all() and (means >= 0).all() and (means <= 1).all()
+    np.testing.assert_allclose(means[:, 5:, 5:], level, atol=1e-6)
+
+
+def test_config_is_checked():
+    with pytest.raises(ValueError, match="preset"):
+        AlignedBoxConfig(preset="slow")
+    with pytest.raises(ValueError, match="positive"):
+        AlignedBoxConfig(tau=0.0)
