@@ -1,6 +1,6 @@
 """Where RMB-Net's end-to-end time goes, per stage and output frame: decode + binning, preliminary
 frames (band upsampling), encoders, attention (XBA + XTA), decoder with ConvLSTMs, the rest of the
-network step, tone mapping and the sinks. Each stage is timed on its own, in order, on one capture."""
+network step, the aligned window mean (models that read it), tone mapping and the sinks. Each stage is timed on its own, in order, on one capture."""
 
 from __future__ import annotations
 
@@ -79,6 +79,8 @@ def stage_breakdown(network, planes: int = 2000, width: int = 400, height: int =
             result[part] = clock.seconds[part]
         result["network other (stacking, caches, output)"] = max(
             0.0, stages["network"] - sum(clock.seconds[p] for p in parts))
+        if "aligned mean" in stages:
+            result["aligned window mean (DIS flow, warps)"] = stages["aligned mean"]
         result["sink null (finite check)"] = stages["sink"]
         out = list(keep.frames.values())
         tone = ToneMapper()
