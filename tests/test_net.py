@@ -154,8 +154,13 @@ def test_clip_edges_use_only_the_frames_that_exist(kw):
         t_edge, _ = model.step([frames[0], frames[0], frames[1]], None, valid=valid)
         t_junk, _ = model.step([junk, frames[0], frames[1]], None, valid=valid)
         t_full, _ = model.step([junk, frames[0], frames[1]], None)
+        window = [junk, frames[0], frames[1]]
+        coarse = model._bit_fused(2, window, window, {}, None)
+        fused_full, fused_edge = model.time_fusion(coarse, None), model.time_fusion(coarse, valid)
     torch.testing.assert_close(t_edge, t_junk)
-    assert not torch.equal(t_full, t_edge)  # the same junk does change the output where it is marked valid
+    # the same junk does change what is fused where it is marked valid (the output itself may not show it:
+    # a random-init decoder can all but ignore the fused features, and at one thread on some CPUs it does)
+    assert not torch.equal(fused_full, fused_edge) and t_full.shape == t_edge.shape
     assert window_valid(0, 2, 3) == [False, False, True, True, True]
     assert window_valid(2, 2, 3) == [True, True, True, False, False]
     with pytest.raises(ValueError):
