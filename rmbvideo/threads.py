@@ -38,17 +38,22 @@ def default_threads() -> int:
 
 
 @contextmanager
-def torch_threads(count: int | None = None) -> Iterator[None]:
-    """torch's intra-op threads set to ``count`` (None: ``default_threads()``) inside the block, the
-    previous count restored after it."""
+def compute_threads(count: int | None = None) -> Iterator[None]:
+    """torch's intra-op threads and OpenCV's (optical flow, warps) set to ``count`` (None:
+    ``default_threads()``) inside the block, the previous counts restored after it."""
+    import cv2
     import torch
 
-    previous = torch.get_num_threads()
+    previous, previous_cv = torch.get_num_threads(), cv2.getNumThreads()
     wanted = default_threads() if count is None else count
     if wanted != previous:
         torch.set_num_threads(wanted)
+    if wanted != previous_cv:
+        cv2.setNumThreads(wanted)
     try:
         yield
     finally:
         if torch.get_num_threads() != previous:
             torch.set_num_threads(previous)
+        if cv2.getNumThreads() != previous_cv:
+            cv2.setNumThreads(previous_cv)

@@ -82,16 +82,17 @@ def test_one_thread_policy(monkeypatch):
     assert threads.default_threads() == threads.MAX_THREADS
 
 
-def test_torch_threads_applies_the_policy_inside_the_block_and_restores_the_count(monkeypatch):
+def test_compute_threads_applies_the_policy_to_torch_and_opencv_and_restores_the_counts(monkeypatch):
+    import cv2
     import torch
 
     from rmbvideo import threads
 
-    before = torch.get_num_threads()
+    before, before_cv = torch.get_num_threads(), cv2.getNumThreads()
     monkeypatch.setattr(threads, "available_cores", lambda: 2)
-    with threads.torch_threads():
-        assert torch.get_num_threads() == 1
-        with threads.torch_threads(3):
-            assert torch.get_num_threads() == 3
-        assert torch.get_num_threads() == 1
-    assert torch.get_num_threads() == before
+    with threads.compute_threads():
+        assert torch.get_num_threads() == 1 and cv2.getNumThreads() == 1
+        with threads.compute_threads(3):
+            assert torch.get_num_threads() == 3 and cv2.getNumThreads() == 3
+        assert torch.get_num_threads() == 1 and cv2.getNumThreads() == 1
+    assert torch.get_num_threads() == before and cv2.getNumThreads() == before_cv

@@ -214,14 +214,17 @@ def test_bf16_weights_stored_once_give_what_autocast_casting_them_per_call_gives
     assert np.array_equal(np.stack([f.image for f in stored]), np.stack([f.image for f in cast]))
 
 
-def test_aligned_model_stream_equals_forward_sequence_with_the_aligned_means():
-    """A model with the aligned window mean: the engine computes it per reference frame (windows cut at
-    the capture's edges) and matches the plain forward pass given ``aligned_means``, whatever the chunking."""
+@pytest.mark.parametrize("radius, shift", [(None, False), (4, True)])
+def test_aligned_model_stream_equals_forward_sequence_with_the_aligned_means(radius, shift):
+    """A model with the aligned window mean: the engine computes it per reference frame (windows cut at,
+    or with ``aligned_shift`` slid inwards from, the capture's edges; radius w or wider) and matches the
+    plain forward pass given ``aligned_means``, whatever the chunking."""
     from rmbvideo.net.blend import BIN_TRIALS
     from rmbvideo.recon.aligned_box import aligned_means
 
     torch.manual_seed(0)
-    model = RmbNet(RmbNetConfig(w=2, width=0.25, readout="pure-m", blend=True, aligned=True)).eval()
+    model = RmbNet(RmbNetConfig(w=2, width=0.25, readout="pure-m", blend=True, aligned=True, aligned_radius=radius,
+                                aligned_shift=shift)).eval()
     with torch.no_grad():  # make the aligned candidate count, so a wrong one shows
         model.decoder.head[-1].bias[-1] = 3.0
     rng = np.random.default_rng(6)
@@ -230,7 +233,7 @@ def test_aligned_model_stream_equals_forward_sequence_with_the_aligned_means():
     prelim = PreliminaryFrames(n=10)
     pframes = prelim.push(data) + prelim.flush()
     i_m = np.stack([p.i_m for p in pframes]).astype(np.float32)
-    i_a = aligned_means(i_m / (BIN_TRIALS * 10), w=2) * (BIN_TRIALS * 10)
+    i_a = aligned_means(i_m / (BIN_TRIALS * 10), model.config.aligned_half_width, shift=shift) * (BIN_TRIALS * 10)
     with torch.inference_mode():
         reference = model.forward_sequence(torch.from_numpy(np.stack([p.i_s for p in pframes]))[None],
                                            torch.from_numpy(i_m)[None], i_a=torch.from_numpy(i_a)[None])[0][0]

@@ -143,17 +143,19 @@ def test_loss_is_finite_and_decreases_on_a_fixed_batch(tmp_path):
 
 def test_aligned_model_trains_on_batches_with_their_aligned_means(tmp_path):
     """A model that reads the aligned window mean gets it from the batch (computed on the mirrored
-    counts, windows cut at the sample's ends) and trains with a finite loss and gradients on the head."""
+    counts, with the model's radius and edge policy) and trains with a finite loss and gradients on the head."""
     from rmbvideo.recon.aligned_box import aligned_means
 
     samples = [SampleCache(tmp_path, TINY_SPEC).get(k) for k in (0, 1)]
-    batch = Batch.from_samples(samples, torch.device("cpu"), flips=[True, False], n=4, aligned_w=1)
+    config = RmbNetConfig(w=1, width=0.25, n=4, readout="pure-m", blend=True, aligned=True, aligned_radius=2,
+                          aligned_shift=True)
+    batch = Batch.from_samples(samples, torch.device("cpu"), flips=[True, False], n=4, aligned=config)
     scale = 8 * 4
-    expected = aligned_means(samples[0].i_m[..., ::-1] / scale, 1) * scale
+    expected = aligned_means(samples[0].i_m[..., ::-1] / scale, 2, shift=True) * scale
     np.testing.assert_allclose(batch.i_a[0].numpy(), expected, rtol=1e-5, atol=1e-5)
     assert Batch.from_samples(samples, torch.device("cpu"), n=4).i_a is None
     torch.manual_seed(0)
-    model = RmbNet(RmbNetConfig(w=1, width=0.25, n=4, readout="pure-m", blend=True, aligned=True))
+    model = RmbNet(config)
     parts = train_batch(model, batch, tbptt=2, loss_config=LossConfig())
     assert all(np.isfinite(v) for v in parts.values())
     assert model.decoder.head[-1].weight.grad is not None and model.decoder.head[-1].weight.grad.abs().sum() > 0
@@ -269,6 +271,8 @@ def test_bundled_recipes_parse_and_bad_keys_are_refused(tmp_path):
     assert configs["cpu"].model.input_mode == "binned" and configs["native-cpu"].model.input_mode == "native"
     assert configs["ablation-w0"].model.w == 0 and not configs["ablation-no-xba"].model.use_xba
     assert configs["ablation-pure-s"].data.readout == "pure-s"
+    wide = configs["video-aligned-wide-cpu"].model
+    assert wide.aligned_half_width == 5 and wide.aligned_shift and configs["video-aligned-cpu"].model.aligned_half_width == 3
     repo = RECIPES_DIR.parents[2]
     for name, config in configs.items():  # a stage's start is a file kept in the repository
         assert not config.init or not config.init.endswith(".safetensors") or (repo / config.init).is_file(), name
@@ -277,6 +281,9 @@ def test_bundled_recipes_parse_and_bad_keys_are_refused(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text('name = "x"\n[optim]\nlearning_rate = 1.0\n')
     with pytest.raises(InputError, match="learning_rate"):
+        load_recipe(bad)
+    bad.write_text('name = "x"\n[model]\naligned_radius = 2.5\n')
+    with pytest.raises(InputError, match="aligned_radius"):
         load_recipe(bad)
 
 

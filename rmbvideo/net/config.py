@@ -12,6 +12,8 @@ from typing import Any
 INPUT_MODES = ("binned", "native")
 #: Readout designs a model can be trained on (``rmbvideo.sensor.readout.ReadoutMode`` values).
 READOUTS = ("rmb", "pure-s", "pure-m", "full-m")
+#: Largest half-width of the aligned window mean (frames): its flows compose one step per frame.
+MAX_ALIGNED_RADIUS = 12
 
 
 @dataclass(frozen=True)
@@ -36,6 +38,9 @@ class RmbNetConfig:
     ``aligned``: the head also sees and blends the window's motion-compensated mean multi-bit rate
     (``rmbvideo.recon.aligned_box``, given to ``RmbNet.step``): a long average where the flow is right,
     so moving texture need not choose between noise (one frame) and blur (the plain window); needs ``blend``.
+    ``aligned_radius``: its window's half-width (None: w; flow-compensated evidence stays usable further
+    out than the network's window); ``aligned_shift``: at a clip's ends its window slides inwards rather
+    than being cut (``rmbvideo.recon.aligned_box.aligned_window``), so edge frames keep as much evidence.
     ``output_mu``/``output_max``: the decoder predicts the mu-law domain T(G) (the training loss
     domain, mu = 5000) through a softplus, capped at ``output_max`` so the inverse cannot overflow.
     """
@@ -61,6 +66,8 @@ class RmbNetConfig:
     blend: bool = False
     centre_windows: tuple[int, ...] = ()
     aligned: bool = False
+    aligned_radius: int | None = None
+    aligned_shift: bool = False
 
     def __post_init__(self) -> None:
         if not 0 <= self.w <= 3:
@@ -88,6 +95,10 @@ class RmbNetConfig:
             raise ValueError("centre_windows need the blend output")
         if self.aligned and not self.blend:
             raise ValueError("aligned needs the blend output")
+        if (self.aligned_radius is not None or self.aligned_shift) and not self.aligned:
+            raise ValueError("aligned_radius and aligned_shift need aligned")
+        if self.aligned_radius is not None and not 0 <= self.aligned_radius <= MAX_ALIGNED_RADIUS:
+            raise ValueError(f"aligned_radius must be in 0..{MAX_ALIGNED_RADIUS}, got {self.aligned_radius}")
         if self.blend and (self.input_mode != "binned" or self.readout != "pure-m"):
             raise ValueError("blend needs every bin count: input_mode \"binned\" and readout \"pure-m\"")
 
@@ -97,6 +108,11 @@ class RmbNetConfig:
         return 2 * self.w + 1
 
     @property
+    def aligned_half_width(self) -> int:
+        """Half-width of the aligned mean's window (``aligned_radius``, else w)."""
+        return self.w if self.aligned_radius is None else self.aligned_radius
+
+    @property
     def channels(self) -> tuple[int, int, int]:
         """Encoder channels per block after the width multiplier."""
         return tuple(max(1, round(c * self.width)) for c in self.base_channels)  # type: ignore[return-value]
@@ -104,7 +120,8 @@ class RmbNetConfig:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary (tuples become lists; no ``pooled_windows`` key when there are none, no
         ``convention_input`` key when it is off, no ``readout`` key for the RMB design, no ``blend`` key
-        when it is off, no ``centre_windows`` key when there are none, no ``aligned`` key when it is off)."""
+        when it is off, no ``centre_windows`` key when there are none, no ``aligned``/``aligned_shift``/``aligned_radius`` key when
+        off or unset)."""
         out = asdict(self)
         out["base_channels"] = list(self.base_channels)
         out["pooled_windows"] = list(self.pooled_windows)
@@ -119,8 +136,11 @@ class RmbNetConfig:
         out["centre_windows"] = list(self.centre_windows)
         if not self.centre_windows:
             del out["centre_windows"]
-        if not self.aligned:
-            del out["aligned"]
+        for name in ("aligned", "aligned_shift"):
+            if not out[name]:
+                del out[name]
+        if self.aligned_radius is None:
+            del out["aligned_radius"]
         return out
 
     @classmethod

@@ -11,12 +11,13 @@ longer, motion-compensated average where the flow is right and ignore it where i
 
 Cost: one DIS flow per frame, from each frame to the next (cached); the flow back to the previous frame
 is that flow inverted (a fixed-point iteration, as accurate here as computing it: equal scores on the
-held-out sequences at half the cost), and a neighbour k frames away is reached by composing k flows.
+held-out sequences at half the cost), and a neighbour k frames away is reached by composing k flows,
+outwards one step at a time (one remap per neighbour).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -108,16 +109,24 @@ class AlignedBox:
             self._flows[(a, b)] = np.nan_to_num(flow, nan=0.0, posinf=0.0, neginf=0.0)
         return self._flows[(a, b)]
 
-    def _flow(self, i: int, j: int) -> np.ndarray:
-        """Flow from frame ``i`` to frame ``j``, composed of consecutive flows."""
+    def _flows_from(self, i: int, neighbours: Sequence[int]) -> Iterator[tuple[int, np.ndarray]]:
+        """Flows from frame ``i`` to each neighbour (``i`` itself skipped), composed outwards one step at a
+        time on each side (F(i, k+1) = F(i, k) + F(k, k+1) at x + F(i, k)), so a radius r costs r remaps a side."""
         gx, gy = self._grid  # type: ignore[misc]
-        d = 1 if j > i else -1
-        flow = self._step_flow(i, i + d)
-        for k in range(i + d, j, d):
-            nxt = self._step_flow(k, k + d)
-            flow = flow + cv2.remap(nxt, gx + flow[..., 0], gy + flow[..., 1], cv2.INTER_LINEAR,
-                                    borderMode=cv2.BORDER_REPLICATE)
-        return flow
+        wanted = set(neighbours) - {i}
+        for d in (-1, 1):
+            side = [j for j in wanted if (j - i) * d > 0]
+            if not side:
+                continue
+            far = max(side, key=lambda j: abs(j - i))
+            flow = self._step_flow(i, i + d)
+            for k in range(i + d, far + d, d):
+                if k != i + d:
+                    step = self._step_flow(k - d, k)
+                    flow = flow + cv2.remap(step, gx + flow[..., 0], gy + flow[..., 1], cv2.INTER_LINEAR,
+                                            borderMode=cv2.BORDER_REPLICATE)
+                if k in wanted:
+                    yield k, flow
 
     def mean(self, i: int, neighbours: Sequence[int]) -> np.ndarray:
         """Frame ``i``'s rate averaged with the ``neighbours`` warped onto it, each pixel weighted by
@@ -134,10 +143,7 @@ class AlignedBox:
         ref_angle = _arcsine_sqrt(local(ref))
         variance = 2.0 / (cfg.trials * cfg.patch * cfg.patch)
         total, weights = ref.copy(), np.ones_like(ref)
-        for j in neighbours:
-            if j == i:
-                continue
-            flow = self._flow(i, j)
+        for j, flow in self._flows_from(i, neighbours):
             map_x, map_y = gx + flow[..., 0], gy + flow[..., 1]
             inside = (map_x >= 0) & (map_x <= w - 1) & (map_y >= 0) & (map_y <= h - 1)
             warped = cv2.remap(self._rates[j], map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
@@ -148,11 +154,26 @@ class AlignedBox:
         return (total / weights).astype(np.float32)
 
 
-def aligned_means(rates: np.ndarray, w: int, config: AlignedBoxConfig | None = None) -> np.ndarray:
-    """Every frame's aligned mean over its window of half-width ``w`` cut at the sequence's ends:
-    ``rates`` (F, H, W) -> (F, H, W) float32 (what the streaming engine computes for a clip)."""
+def aligned_window(i: int, radius: int, count: int | None, shift: bool = False) -> range:
+    """The frames whose evidence frame ``i``'s aligned mean merges: ``i - radius .. i + radius``, cut at the
+    clip's start and, where ``count`` (the clip's length) is known, its end; with ``shift`` a window that
+    would be cut slides inwards instead, so the first and last frames keep 2 radius + 1 frames of evidence
+    (all from their one side) where the clip is that long."""
+    if radius < 0:
+        raise ValueError(f"radius must be >= 0, got {radius}")
+    lo = max(0, i - radius)
+    if shift and count is not None:
+        lo = min(lo, max(0, count - 1 - 2 * radius))
+    hi = lo + 2 * radius if shift else i + radius
+    return range(lo, hi + 1 if count is None else min(count, hi + 1))
+
+
+def aligned_means(rates: np.ndarray, radius: int, config: AlignedBoxConfig | None = None,
+                  shift: bool = False) -> np.ndarray:
+    """Every frame's aligned mean over its ``aligned_window`` in a clip: ``rates`` (F, H, W) -> (F, H, W)
+    float32 (what the streaming engine computes for a clip)."""
     box = AlignedBox(config)
     count = len(rates)
     for k, rate in enumerate(rates):
         box.add(k, rate)
-    return np.stack([box.mean(i, range(max(0, i - w), min(count, i + w + 1))) for i in range(count)])
+    return np.stack([box.mean(i, aligned_window(i, radius, count, shift)) for i in range(count)])

@@ -31,7 +31,7 @@ from rmbvideo.io.dat import PackedChunk
 from rmbvideo.recon.classical import Tfi, Tfp
 from rmbvideo.sensor.binning import StreamBinner
 from rmbvideo.sensor.readout import RmbReadout
-from rmbvideo.threads import default_threads, torch_threads
+from rmbvideo.threads import default_threads, compute_threads
 
 DEFAULT_DETAIL_WINDOW = 20  # raw planes: the frame interval, so moving detail is not smeared
 #: How the detail inside each 2x2 block is found: "learned" (the shipped detail stage), "classical"
@@ -186,7 +186,7 @@ class FullResolution:
         import torch
 
         bf16 = self.detail.body[0].weight.dtype == torch.bfloat16  # as detail_inference_copy chose
-        with torch_threads(self.threads), torch.inference_mode(), torch.autocast("cpu", torch.bfloat16, enabled=bf16):
+        with compute_threads(self.threads), torch.inference_mode(), torch.autocast("cpu", torch.bfloat16, enabled=bf16):
             full = self.detail(torch.from_numpy(np.ascontiguousarray(coarse, np.float32))[None, None],
                                torch.from_numpy(np.stack(rates).astype(np.float32))[None])
         return full[0, 0].float().numpy()

@@ -41,11 +41,11 @@ from rmbvideo.net.model import (
     window_indices,
     window_valid,
 )
-from rmbvideo.recon.aligned_box import AlignedBox
+from rmbvideo.recon.aligned_box import AlignedBox, aligned_window
 from rmbvideo.recon.precision import PRECISIONS, uses_bf16
 from rmbvideo.recon.prelim import MultiUpsampler, PreliminaryFrames, select_centre
 from rmbvideo.sensor.conventions import CONVENTIONS
-from rmbvideo.threads import default_threads, torch_threads
+from rmbvideo.threads import default_threads, compute_threads
 
 log = logging.getLogger(__name__)
 
@@ -214,15 +214,24 @@ class RmbNetReconstructor:
             self.stage_seconds["network"] += time.perf_counter() - began - aligned
 
     def _network(self, frames: list[PrelimLike], final: bool) -> list[Frame]:
-        with torch_threads(self._threads), torch.inference_mode(), self._precision():
+        with compute_threads(self._threads), torch.inference_mode(), self._precision():
             self._accept(frames)
             count = self._received if final else None
             out = []
-            while self._next_out < self._received and (final or self._next_out + self._w < self._received):
+            while self._next_out < self._received and (final or self._ready(self._next_out)):
                 out.append(self._emit(self._next_out, count))
                 self._next_out += 1
-                self._evict(self._next_out - self._w)
+                self._evict(self._next_out)
         return out
+
+    def _ready(self, i: int) -> bool:
+        """Frame ``i`` can be made before the capture ends: its window and, for a model that reads it,
+        its aligned mean's window (whatever the clip's length) have all been received."""
+        if self._aligned_box is None:
+            return i + self._w < self._received
+        config = self._net.config
+        last = aligned_window(i, config.aligned_half_width, None, config.aligned_shift)[-1]
+        return max(i + self._w, last) < self._received
 
     def _accept(self, frames: list[PrelimLike]) -> None:
         if not frames:
@@ -279,8 +288,8 @@ class RmbNetReconstructor:
         if self._aligned_box is None:
             return None
         tick = time.perf_counter()
-        last = self._received - 1 if count is None else count - 1
-        mean = self._aligned_box.mean(i, range(max(0, i - self._w), min(last, i + self._w) + 1))
+        config = self._net.config
+        mean = self._aligned_box.mean(i, aligned_window(i, config.aligned_half_width, count, config.aligned_shift))
         self.stage_seconds["aligned mean"] += time.perf_counter() - tick
         return torch.from_numpy(mean * (BIN_TRIALS * self.n)).unsqueeze(0).to(self.device)
 
@@ -298,7 +307,10 @@ class RmbNetReconstructor:
         source = self._raw[i]
         return Frame(index=int(source.index), time_s=float(source.time_s), image=image)
 
-    def _evict(self, oldest_needed: int) -> None:
+    def _evict(self, next_out: int) -> None:
+        """Forget what no frame from ``next_out`` on needs: the network looks w frames back, the aligned mean
+        its radius (twice that when its window slides inwards at the clip's end, which is not known yet)."""
+        oldest_needed = next_out - self._w
         for store in (self._encoded, self._raw):
             for fid in [k for k in store if k < oldest_needed]:
                 del store[fid]
@@ -307,7 +319,8 @@ class RmbNetReconstructor:
         for key in [k for k in self._flow_cache if min(k[:2]) < oldest_needed]:
             del self._flow_cache[key]
         if self._aligned_box is not None:
-            self._aligned_box.evict(oldest_needed)
+            config = self._net.config
+            self._aligned_box.evict(next_out - config.aligned_half_width * (2 if config.aligned_shift else 1))
 
 
 def make_rmbnet(

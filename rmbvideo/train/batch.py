@@ -9,6 +9,7 @@ import numpy as np
 import torch
 
 from rmbvideo.net.blend import BIN_TRIALS
+from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.recon.aligned_box import aligned_means
 from rmbvideo.recon.prelim import select_centre
 from rmbvideo.train.dataset import Sample
@@ -30,11 +31,11 @@ class Batch:
 
     @classmethod
     def from_samples(cls, samples: list[Sample], device: torch.device, flips: list[bool] | None = None,
-                     centre: tuple[int, ...] = (), n: int = 10, aligned_w: int | None = None) -> "Batch":
+                     centre: tuple[int, ...] = (), n: int = 10, aligned: RmbNetConfig | None = None) -> "Batch":
         """Stack samples, mirroring sample j left-right where ``flips[j]`` (rows, hence the
         rolling band, are unchanged by a horizontal mirror); ``centre``: the model's centre windows
-        (frames of ``n`` readouts); ``aligned_w``: the window half-width of the aligned means to add
-        (None: none; they are computed after the mirror, as the engine would on a mirrored clip)."""
+        (frames of ``n`` readouts); ``aligned``: the config of a model that reads the aligned window means
+        (its radius and edge policy; None: none), computed after the mirror, as the engine would on a mirrored clip."""
         flips = flips or [False] * len(samples)
 
         def stack(arrays: list[np.ndarray]) -> torch.Tensor:
@@ -45,9 +46,10 @@ class Batch:
         i_c = stack([select_centre(s.i_c, n, centre) for s in samples]) if centre else None
         i_s, i_m, gt = (stack([getattr(s, name) for s in samples]) for name in ("i_s", "i_m", "gt"))
         i_a = None
-        if aligned_w is not None:
+        if aligned is not None and aligned.aligned:
             scale = BIN_TRIALS * n
-            means = [aligned_means(m / scale, aligned_w) * scale for m in i_m.cpu().numpy()]
+            means = [aligned_means(m / scale, aligned.aligned_half_width, shift=aligned.aligned_shift) * scale
+                     for m in i_m.cpu().numpy()]
             i_a = torch.from_numpy(np.stack(means).astype(np.float32)).to(device)
         return cls(i_s, i_m, gt, convention, i_c, i_a)
 

@@ -126,6 +126,8 @@ def _typed(cls: type, table: dict[str, Any], where: str, path: Path) -> Any:
             ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
             if ok and isinstance(default, int) and not isinstance(value, int):
                 ok = False
+        elif default is None:  # an optional number (e.g. model.aligned_radius: unset means w)
+            ok = isinstance(value, int) and not isinstance(value, bool)
         elif isinstance(default, tuple):
             ok = isinstance(value, list) and (len(value) == len(default) or name in ("base_channels", "pooled_windows", "centre_windows", "trainable"))
             value = tuple(value) if ok else value

@@ -283,7 +283,7 @@ class Trainer:
                 samples = self.batch_samples(step)
                 flips = [bool(np.random.default_rng([cfg.seed, step, j, 1]).integers(2)) for j in range(len(samples))]
                 batch = Batch.from_samples(samples, self.device, flips, cfg.model.centre_windows, cfg.model.n,
-                                           cfg.model.w if cfg.model.aligned else None)
+                                           cfg.model)
                 lr = learning_rate(step, time.monotonic() - started, cfg)
                 for group in self.optimizer.param_groups:
                     group["lr"] = lr

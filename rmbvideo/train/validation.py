@@ -35,7 +35,7 @@ def validate(model: RmbNet, samples: list[Sample], quanta: int | None, saturatio
     psnr, ssim, tfw = [], [], []
     for sample in samples:
         batch = Batch.from_samples([sample], device, centre=model.config.centre_windows, n=n,
-                                   aligned_w=model.config.w if model.config.aligned else None)
+                                   aligned=model.config)
         count = batch.i_s.shape[1]
         frames = model.encode(batch.i_s[0], batch.i_m[0], range(count), None if batch.i_c is None else batch.i_c[0])
         state = None
