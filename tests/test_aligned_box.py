@@ -109,3 +109,20 @@ def test_composed_flows_follow_motion_beyond_the_next_frame():
 
     wide, narrow = aligned_means(frames, 4)[4], aligned_means(frames, 1)[4]
     assert error(wide) < error(narrow) < error(frames[4])
+
+
+def test_sharp_images_follow_the_same_flows_and_are_merged_by_their_own_test():
+    """Sharp images (a frame's central readouts) are moved by the flows of the whole-frame rates: a sharp
+    image equal to the rate (and as many trials) gives the same mean, and a noisier one is averaged towards the clean reference."""
+    clean = texture(7, (H, W + 20))
+    rng = np.random.default_rng(3)
+    frames = np.stack([noisy(clean[:, k : k + W], rng) for k in range(7)])
+    both = aligned_means(frames, 3, AlignedBoxConfig(sharp_trials=80), sharp=frames)
+    assert both.shape == (7, 2, H, W)
+    np.testing.assert_array_equal(both[:, 1], aligned_means(frames, 3))
+    np.testing.assert_array_equal(both[:, 0], both[:, 1])
+    sharp = np.stack([noisy(clean[:, k : k + W], rng, trials=16) for k in range(7)])
+    merged = aligned_means(frames, 3, AlignedBoxConfig(sharp_trials=16), sharp=sharp)[3, 1]
+    inner = (slice(6, -6), slice(12, -12))
+    ref = clean[:, 3 : 3 + W]
+    assert np.abs(merged - ref)[inner].mean() < 0.6 * np.abs(sharp[3] - ref)[inner].mean()

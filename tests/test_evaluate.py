@@ -190,3 +190,18 @@ def test_ablation_weights_found_flat_or_nested(tmp_path):
     assert specs["w = 0"].available and specs["w = 0"].model_path == tmp_path / "rmbnet-binned-w0.safetensors"
     assert not specs["Pure-S"].available and specs["Pure-S"].readout == "pure-s"
     assert specs["Pure-S"].model_path == tmp_path / "ablations" / "rmbnet-binned-pure-s.safetensors"
+
+
+def test_development_sequences_use_other_seeds_than_the_validation_set():
+    """Candidates are chosen on the development sequences, so none of their seeds may be a held-out one."""
+    from dataclasses import replace
+
+    from rmbvideo.evaluate.heldout import (DEVELOPMENT_RANDOM_OFFSET, DEVELOPMENT_VIDEO_FIRST, FULL, VIDEO_KINDS,
+                                           VIDEO_SEED_START, heldout_seeds)
+    from rmbvideo.scenes.random_scenes import is_eval_seed
+
+    development = heldout_seeds(replace(FULL, count=2, first_seed_offset=DEVELOPMENT_RANDOM_OFFSET))
+    assert not set(development) & set(heldout_seeds(FULL)) and all(is_eval_seed(s) for s in development)
+    video = {VIDEO_SEED_START + 100 * k + DEVELOPMENT_VIDEO_FIRST for k in range(len(VIDEO_KINDS))}
+    validation = {VIDEO_SEED_START + 100 * k for k in range(len(VIDEO_KINDS))}
+    assert DEVELOPMENT_VIDEO_FIRST >= 1 and not video & validation and not video & set(development)

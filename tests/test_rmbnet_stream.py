@@ -11,7 +11,7 @@ from rmbvideo.chunks import RmbChunk
 from rmbvideo.errors import InputError
 from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.model import RmbNet
-from rmbvideo.recon.prelim import PreliminaryFrames, PrelimFrame
+from rmbvideo.recon.prelim import PreliminaryFrames, PrelimFrame, select_centre
 from rmbvideo.recon.precision import cpu_has_native_bf16, uses_bf16
 from rmbvideo.recon.rmbnet import RmbNetReconstructor, inference_copy
 from rmbvideo.sensor.readout import RmbReadout
@@ -214,8 +214,8 @@ def test_bf16_weights_stored_once_give_what_autocast_casting_them_per_call_gives
     assert np.array_equal(np.stack([f.image for f in stored]), np.stack([f.image for f in cast]))
 
 
-@pytest.mark.parametrize("radius, shift", [(None, False), (4, True)])
-def test_aligned_model_stream_equals_forward_sequence_with_the_aligned_means(radius, shift):
+@pytest.mark.parametrize("radius, shift, sharp", [(None, False, 0), (4, True, 2)])
+def test_aligned_model_stream_equals_forward_sequence_with_the_aligned_means(radius, shift, sharp):
     """A model with the aligned window mean: the engine computes it per reference frame (windows cut at,
     or with ``aligned_shift`` slid inwards from, the capture's edges; radius w or wider) and matches the
     plain forward pass given ``aligned_means``, whatever the chunking."""
@@ -224,7 +224,7 @@ def test_aligned_model_stream_equals_forward_sequence_with_the_aligned_means(rad
 
     torch.manual_seed(0)
     model = RmbNet(RmbNetConfig(w=2, width=0.25, readout="pure-m", blend=True, aligned=True, aligned_radius=radius,
-                                aligned_shift=shift)).eval()
+                                aligned_shift=shift, aligned_centre=sharp)).eval()
     with torch.no_grad():  # make the aligned candidate count, so a wrong one shows
         model.decoder.head[-1].bias[-1] = 3.0
     rng = np.random.default_rng(6)
@@ -233,12 +233,15 @@ def test_aligned_model_stream_equals_forward_sequence_with_the_aligned_means(rad
     prelim = PreliminaryFrames(n=10)
     pframes = prelim.push(data) + prelim.flush()
     i_m = np.stack([p.i_m for p in pframes]).astype(np.float32)
-    i_a = aligned_means(i_m / (BIN_TRIALS * 10), model.config.aligned_half_width, shift=shift) * (BIN_TRIALS * 10)
+    centre = (np.stack([select_centre(p.i_c, 10, (sharp,))[0] for p in pframes]).astype(np.float32) / (BIN_TRIALS * sharp)
+              if sharp else None)
+    i_a = aligned_means(i_m / (BIN_TRIALS * 10), model.config.aligned_half_width, shift=shift, sharp=centre) * (BIN_TRIALS * 10)
+    assert i_a.ndim == (4 if sharp else 3)
     with torch.inference_mode():
         reference = model.forward_sequence(torch.from_numpy(np.stack([p.i_s for p in pframes]))[None],
                                            torch.from_numpy(i_m)[None], i_a=torch.from_numpy(i_a)[None])[0][0]
         plain = model.forward_sequence(torch.from_numpy(np.stack([p.i_s for p in pframes]))[None],
-                                       torch.from_numpy(i_m)[None], i_a=torch.from_numpy(i_m)[None])[0][0]
+                                       torch.from_numpy(i_m)[None], i_a=torch.from_numpy(np.ascontiguousarray(i_a[:, ::-1]) if sharp else i_m)[None])[0][0]
     assert not np.allclose(reference.numpy(), plain.numpy())
     for size in (7, 95):
         images = np.stack([f.image for f in stream(model, split(data, size))[0]])

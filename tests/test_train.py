@@ -145,13 +145,16 @@ def test_aligned_model_trains_on_batches_with_their_aligned_means(tmp_path):
     """A model that reads the aligned window mean gets it from the batch (computed on the mirrored
     counts, with the model's radius and edge policy) and trains with a finite loss and gradients on the head."""
     from rmbvideo.recon.aligned_box import aligned_means
+    from rmbvideo.recon.prelim import select_centre
 
     samples = [SampleCache(tmp_path, TINY_SPEC).get(k) for k in (0, 1)]
     config = RmbNetConfig(w=1, width=0.25, n=4, readout="pure-m", blend=True, aligned=True, aligned_radius=2,
-                          aligned_shift=True)
+                          aligned_shift=True, aligned_centre=2)
     batch = Batch.from_samples(samples, torch.device("cpu"), flips=[True, False], n=4, aligned=config)
     scale = 8 * 4
-    expected = aligned_means(samples[0].i_m[..., ::-1] / scale, 2, shift=True) * scale
+    sharp = select_centre(samples[0].i_c, 4, (2,))[:, 0, :, ::-1] / (8 * 2)
+    expected = aligned_means(samples[0].i_m[..., ::-1] / scale, 2, shift=True, sharp=sharp) * scale
+    assert batch.i_a.shape[2] == 2
     np.testing.assert_allclose(batch.i_a[0].numpy(), expected, rtol=1e-5, atol=1e-5)
     assert Batch.from_samples(samples, torch.device("cpu"), n=4).i_a is None
     torch.manual_seed(0)

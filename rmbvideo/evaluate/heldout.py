@@ -29,7 +29,7 @@ import logging
 import os
 import tempfile
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -258,14 +258,14 @@ def simulate_video_sequence(seed: int, kind: VideoHeldout, config: HeldoutConfig
                     gt=gt.astype(np.float32), edge_readouts=config.edge_readouts, description=description)
 
 
-def load_video_heldout(quick: bool, cache: Path | None = None, per_kind: int = 1) -> list[Sequence]:
+def load_video_heldout(quick: bool, cache: Path | None = None, per_kind: int = 1, first: int = 0) -> list[Sequence]:
     """``per_kind`` held-out video sequences of every ``VIDEO_KINDS`` entry (``QUICK``/``FULL`` size),
-    simulated once and then read from ``cache``."""
+    seeds from ``first`` on within each kind's range, simulated once and then read from ``cache``."""
     config = QUICK if quick else FULL
     cache = Path(cache) if cache is not None else default_cache_dir()
     sequences = []
     for k, kind in enumerate(VIDEO_KINDS):
-        for j in range(per_kind):
+        for j in range(first, first + per_kind):
             seed = VIDEO_SEED_START + 100 * k + j
             digest = hashlib.sha256(repr(kind).encode()).hexdigest()[:8]  # any change of the kind is a new file
             path = cache / (f"video-v{CACHE_FORMAT}-{kind.name}-{digest}-seed{seed}-{config.width}x{config.height}"
@@ -335,3 +335,15 @@ def load_heldout_config(config: HeldoutConfig, cache: Path | None = None) -> lis
 def load_heldout(quick: bool, cache: Path | None = None) -> list[Sequence]:
     """The held-out set (``QUICK`` when ``quick``, else ``FULL``), cached under ``cache``."""
     return load_heldout_config(QUICK if quick else FULL, cache)
+
+
+#: Seeds of the development sequences: random scenes from this offset, video kinds from this index in their range.
+DEVELOPMENT_RANDOM_OFFSET = 50
+DEVELOPMENT_VIDEO_FIRST = 7
+
+
+def load_development(cache: Path | None = None) -> list[Sequence]:
+    """Development sequences for choosing between candidate models: the held-out kinds (two random scenes,
+    one video sequence of each kind) drawn from other evaluation seeds, so the validation set stays untuned."""
+    randoms = replace(FULL, count=2, first_seed_offset=DEVELOPMENT_RANDOM_OFFSET)
+    return load_heldout_config(randoms, cache) + load_video_heldout(False, cache, first=DEVELOPMENT_VIDEO_FIRST)

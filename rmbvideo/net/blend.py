@@ -34,9 +34,9 @@ CENTRE_LOGIT_INIT = -2.0
 _MAX_PHYSICAL_RATE = 0.98
 
 
-def candidate_count(pooled_windows: Sequence[int], centre_windows: Sequence[int] = (), aligned: bool = False) -> int:
+def candidate_count(pooled_windows: Sequence[int], centre_windows: Sequence[int] = (), aligned: int = 0) -> int:
     """Box-filter candidates: the reference frame, each pooled window, each central sub-window and the
-    motion-compensated window mean (``aligned``)."""
+    ``aligned`` motion-compensated means (0, 1 or 2: the window's, and its central readouts')."""
     return 1 + len(pooled_windows) + len(centre_windows) + int(aligned)
 
 
@@ -57,8 +57,8 @@ def box_candidates(pooled: Sequence[torch.Tensor], level: int, convention: torch
 
     ``pooled``: the reference frame's normalised multi-bit rate I_m/(level N), then its means over each
     pooled window (valid frames only), (B,1,Hp,Wp) each; ``centre``: the reference frame's central
-    multi-bit rates I_c/(level k), (B,C,Hp,Wp), or None; ``aligned``: the aligned mean rate
-    I_a/(level N), (B,1,Hp,Wp), or None.
+    multi-bit rates I_c/(level k), (B,C,Hp,Wp), or None; ``aligned``: the aligned mean rates
+    I_a/(level N), (B,A,Hp,Wp) (one candidate per channel), or None.
     """
     out = [box_intensity(rate.float() * (level / BIN_TRIALS), convention) for rate in pooled]
     if centre is not None:

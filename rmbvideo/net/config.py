@@ -41,6 +41,8 @@ class RmbNetConfig:
     ``aligned_radius``: its window's half-width (None: w; flow-compensated evidence stays usable further
     out than the network's window); ``aligned_shift``: at a clip's ends its window slides inwards rather
     than being cut (``rmbvideo.recon.aligned_box.aligned_window``), so edge frames keep as much evidence.
+    ``aligned_centre``: k > 0 adds a second aligned mean, of each frame's central k readouts (sharp where fast
+    motion blurs a whole frame), moved by the same flows: one more head input and blend candidate.
     ``output_mu``/``output_max``: the decoder predicts the mu-law domain T(G) (the training loss
     domain, mu = 5000) through a softplus, capped at ``output_max`` so the inverse cannot overflow.
     """
@@ -68,6 +70,7 @@ class RmbNetConfig:
     aligned: bool = False
     aligned_radius: int | None = None
     aligned_shift: bool = False
+    aligned_centre: int = 0
 
     def __post_init__(self) -> None:
         if not 0 <= self.w <= 3:
@@ -95,8 +98,10 @@ class RmbNetConfig:
             raise ValueError("centre_windows need the blend output")
         if self.aligned and not self.blend:
             raise ValueError("aligned needs the blend output")
-        if (self.aligned_radius is not None or self.aligned_shift) and not self.aligned:
-            raise ValueError("aligned_radius and aligned_shift need aligned")
+        if (self.aligned_radius is not None or self.aligned_shift or self.aligned_centre) and not self.aligned:
+            raise ValueError("aligned_radius, aligned_shift and aligned_centre need aligned")
+        if self.aligned_centre and (not 0 < self.aligned_centre < self.n or (self.n - self.aligned_centre) % 2):
+            raise ValueError(f"aligned_centre must be a length in 1..{self.n - 1} of the parity of n, got {self.aligned_centre}")
         if self.aligned_radius is not None and not 0 <= self.aligned_radius <= MAX_ALIGNED_RADIUS:
             raise ValueError(f"aligned_radius must be in 0..{MAX_ALIGNED_RADIUS}, got {self.aligned_radius}")
         if self.blend and (self.input_mode != "binned" or self.readout != "pure-m"):
@@ -113,6 +118,11 @@ class RmbNetConfig:
         return self.w if self.aligned_radius is None else self.aligned_radius
 
     @property
+    def aligned_channels(self) -> int:
+        """Aligned means the model reads: 0, 1 (the window's) or 2 (also its central readouts')."""
+        return int(self.aligned) + int(self.aligned_centre > 0)
+
+    @property
     def channels(self) -> tuple[int, int, int]:
         """Encoder channels per block after the width multiplier."""
         return tuple(max(1, round(c * self.width)) for c in self.base_channels)  # type: ignore[return-value]
@@ -120,8 +130,7 @@ class RmbNetConfig:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary (tuples become lists; no ``pooled_windows`` key when there are none, no
         ``convention_input`` key when it is off, no ``readout`` key for the RMB design, no ``blend`` key
-        when it is off, no ``centre_windows`` key when there are none, no ``aligned``/``aligned_shift``/``aligned_radius`` key when
-        off or unset)."""
+        when it is off, no ``centre_windows`` key when there are none, no ``aligned*`` key when off or unset)."""
         out = asdict(self)
         out["base_channels"] = list(self.base_channels)
         out["pooled_windows"] = list(self.pooled_windows)
@@ -136,7 +145,7 @@ class RmbNetConfig:
         out["centre_windows"] = list(self.centre_windows)
         if not self.centre_windows:
             del out["centre_windows"]
-        for name in ("aligned", "aligned_shift"):
+        for name in ("aligned", "aligned_shift", "aligned_centre"):
             if not out[name]:
                 del out[name]
         if self.aligned_radius is None:

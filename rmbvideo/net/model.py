@@ -130,10 +130,10 @@ class RmbNet(nn.Module):
             )
         else:
             self.time_fusion = TemporalMean()
-        outputs = (2 + candidate_count(config.pooled_windows, config.centre_windows, config.aligned)
+        outputs = (2 + candidate_count(config.pooled_windows, config.centre_windows, config.aligned_channels)
                    if config.blend else 1)
         head_inputs = (2 + 2 * len(config.pooled_windows) + int(config.convention_input) + len(config.centre_windows)
-                       + int(config.aligned))
+                       + config.aligned_channels)
         self.decoder = Decoder(channels, config.lstm_kernel, input_channels=head_inputs, outputs=outputs)
         if config.blend:  # start from the network's own estimate (weight ~0.98), whatever the input
             last = self.decoder.head[-1]
@@ -141,7 +141,7 @@ class RmbNet(nn.Module):
                 last.weight[1:].zero_()
                 last.bias[1:].zero_()
                 last.bias[1] = OWN_LOGIT_INIT
-                extra = len(config.centre_windows) + int(config.aligned)
+                extra = len(config.centre_windows) + config.aligned_channels
                 if extra:  # noisy or possibly misaligned candidates start nearly unused
                     last.bias[-extra:] = CENTRE_LOGIT_INIT
 
@@ -169,15 +169,19 @@ class RmbNet(nn.Module):
         return torch.nan_to_num(i_c.float() / scale.reshape(1, -1, 1, 1), nan=0.0).clamp(0.0, 1.0)
 
     def normalise_aligned(self, i_a: torch.Tensor | None, size: tuple[int, int]) -> torch.Tensor | None:
-        """(B,H,W) aligned window mean of the multi-bit sums -> (B,1,Hp,Wp) rate I_a/(level N) in [0, 1],
-        padded like the inputs (None without ``config.aligned``; missing when it is on is an error)."""
-        if not self.config.aligned:
+        """(B,H,W) aligned window mean of the multi-bit sums, or (B,A,H,W) with the central readouts' mean
+        second (``config.aligned_centre``; in sums per N readouts too) -> (B,A,Hp,Wp) rates I_a/(level N) in
+        [0, 1], padded like the inputs (None without ``config.aligned``; missing or wrong ones are an error)."""
+        channels = self.config.aligned_channels
+        if not channels:
             return None
         if i_a is None:
             raise ValueError("the model reads the aligned window mean (aligned=...), got none")
         rate = torch.nan_to_num(i_a.float() / (self.config.level * self.config.n), nan=0.0).clamp(0.0, 1.0)
+        rate = rate.unsqueeze(1) if rate.dim() == 3 else rate
+        if rate.shape[1] != channels:
+            raise ValueError(f"the model reads {channels} aligned means, got {rate.shape[1]}")
         pad_h, pad_w = (-size[0]) % PAD_MULTIPLE, (-size[1]) % PAD_MULTIPLE
-        rate = rate.unsqueeze(1)
         return F.pad(rate, (0, pad_w, 0, pad_h), mode="replicate") if pad_h or pad_w else rate
 
     def encode(self, i_s: torch.Tensor, i_m: torch.Tensor, indices: Sequence[int],
@@ -315,7 +319,7 @@ class RmbNet(nn.Module):
         ``valid`` marks the positions that hold real frames (default: all; see ``window_valid``).
         ``convention``: 0 (a camera) or 1 (the rate convention), a scalar or one per batch item; used
         only when ``config.convention_input``. ``aligned``: the reference's aligned window mean of the
-        multi-bit sums (B,H,W), needed when ``config.aligned``.
+        multi-bit sums (B,H,W), or (B,2,H,W) with ``config.aligned_centre``; needed when ``config.aligned``.
         """
         if len(window) != self.config.window:
             raise ValueError(f"window has {len(window)} frames, the model needs {self.config.window}")
@@ -360,8 +364,8 @@ class RmbNet(nn.Module):
         """Reconstruct a whole sequence (B,K,H,W) of preliminary sums -> (B,K,H,W) and final state.
 
         Linear HDR by default; ``linear=False`` returns the mu-law domain (the training loss domain).
-        ``i_c`` (B,K,C,H,W): central sums, when the config has centre windows; ``i_a`` (B,K,H,W): each
-        frame's aligned window mean of the multi-bit sums, when the config has ``aligned``.
+        ``i_c`` (B,K,C,H,W): central sums, when the config has centre windows; ``i_a`` (B,K,H,W) or
+        (B,K,2,H,W): each frame's aligned mean(s) of the multi-bit sums, when the config has ``aligned``.
         """
         batch, count = i_s.shape[:2]
         frames = self.encode(

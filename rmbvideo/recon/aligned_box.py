@@ -33,19 +33,25 @@ INVERSION_ITERATIONS = 2
 @dataclass(frozen=True)
 class AlignedBoxConfig:
     """DIS preset, the blur of the images flow is computed on, the robust merge's patch and threshold,
-    and ``trials``: Bernoulli trials behind one pixel's rate per frame (N readouts x 8 raw pixel-planes)."""
+    ``trials``: Bernoulli trials behind one pixel's rate per frame (N readouts x 8 raw pixel-planes), and
+    ``sharp_trials``: those behind a sharp image's (its k central readouts x 8)."""
 
     preset: str = "medium"
     sigma: float = 1.0
     patch: int = 5
     tau: float = 4.0
     trials: int = 80
+    sharp_trials: int = 16
 
     def __post_init__(self) -> None:
         if self.preset not in DIS_PRESETS:
             raise ValueError(f"preset must be one of {sorted(DIS_PRESETS)}, got {self.preset!r}")
-        if self.patch < 1 or self.tau <= 0 or self.sigma < 0 or self.trials < 1:
+        if self.patch < 1 or self.tau <= 0 or self.sigma < 0 or self.trials < 1 or self.sharp_trials < 1:
             raise ValueError(f"patch, tau and trials must be positive and sigma >= 0, got {self}")
+
+
+def _clean(rate: np.ndarray) -> np.ndarray:
+    return np.clip(np.nan_to_num(np.asarray(rate, np.float32), nan=0.0), 0.0, 1.0)
 
 
 def _arcsine_sqrt(p: np.ndarray) -> np.ndarray:
@@ -56,22 +62,28 @@ def _arcsine_sqrt(p: np.ndarray) -> np.ndarray:
 class AlignedBox:
     """Aligned, robustly merged means of rate images keyed by frame index (``add``, ``mean``, ``evict``).
 
-    Rates are fractions in [0, 1] (a pixel's fired share of its trials), (H, W) float32 each.
+    Rates are fractions in [0, 1] (a pixel's fired share of its trials), (H, W) float32 each. A frame may
+    also bring a sharp image: the rate of its central few readouts, which a fast-moving edge has crossed
+    less of than the whole frame's; it is moved by the same flows (computed on the whole-frame rates) and
+    merged by its own robust test.
     """
 
     def __init__(self, config: AlignedBoxConfig | None = None) -> None:
         self.config = config or AlignedBoxConfig()
         self._dis = cv2.DISOpticalFlow_create(DIS_PRESETS[self.config.preset])
         self._rates: dict[int, np.ndarray] = {}
+        self._sharp: dict[int, np.ndarray] = {}
         self._images: dict[int, np.ndarray] = {}
         self._whites: dict[int, float] = {}
         self._flows: dict[tuple[int, int], np.ndarray] = {}
         self._grid: tuple[np.ndarray, np.ndarray] | None = None
 
-    def add(self, index: int, rate: np.ndarray) -> None:
-        """Keep frame ``index``'s rate image (clipped to [0, 1], NaN as 0)."""
-        rate = np.clip(np.nan_to_num(np.asarray(rate, np.float32), nan=0.0), 0.0, 1.0)
+    def add(self, index: int, rate: np.ndarray, sharp: np.ndarray | None = None) -> None:
+        """Keep frame ``index``'s rate image and, if given, its sharp image (both clipped to [0, 1], NaN as 0)."""
+        rate = _clean(rate)
         self._rates[index] = rate
+        if sharp is not None:
+            self._sharp[index] = _clean(sharp)
         blurred = cv2.GaussianBlur(rate, (0, 0), self.config.sigma) if self.config.sigma > 0 else rate
         self._images[index] = np.sqrt(np.maximum(blurred, 0.0))
         # white of the 8-bit flow images: a high percentile, so a few bright lights do not darken the rest
@@ -82,7 +94,7 @@ class AlignedBox:
 
     def evict(self, oldest_needed: int) -> None:
         """Forget frames (and flows) older than ``oldest_needed``."""
-        for store in (self._rates, self._images, self._whites):
+        for store in (self._rates, self._sharp, self._images, self._whites):
             for key in [k for k in store if k < oldest_needed]:
                 del store[key]
         for key in [k for k in self._flows if min(k) < oldest_needed]:
@@ -130,28 +142,45 @@ class AlignedBox:
 
     def mean(self, i: int, neighbours: Sequence[int]) -> np.ndarray:
         """Frame ``i``'s rate averaged with the ``neighbours`` warped onto it, each pixel weighted by
-        the robust agreement test; (H, W) float32 in [0, 1]."""
+        the robust agreement test: (H, W) float32 in [0, 1]; (2, H, W) with the sharp images' mean second
+        when frame ``i`` brought one (then every neighbour must have)."""
         cfg = self.config
-        ref = self._rates[i]
         gx, gy = self._grid  # type: ignore[misc]
-        h, w = ref.shape
-        size = (cfg.patch, cfg.patch)
-
-        def local(a: np.ndarray) -> np.ndarray:
-            return cv2.boxFilter(a, -1, size, normalize=True, borderType=cv2.BORDER_REPLICATE)
-
-        ref_angle = _arcsine_sqrt(local(ref))
-        variance = 2.0 / (cfg.trials * cfg.patch * cfg.patch)
-        total, weights = ref.copy(), np.ones_like(ref)
+        kinds = [(self._rates, cfg.trials)] + ([(self._sharp, cfg.sharp_trials)] if i in self._sharp else [])
+        merges = [_RobustMerge(images[i], trials, cfg) for images, trials in kinds]
+        h, w = self._rates[i].shape
         for j, flow in self._flows_from(i, neighbours):
             map_x, map_y = gx + flow[..., 0], gy + flow[..., 1]
             inside = (map_x >= 0) & (map_x <= w - 1) & (map_y >= 0) & (map_y <= h - 1)
-            warped = cv2.remap(self._rates[j], map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-            z2 = (_arcsine_sqrt(local(warped)) - ref_angle) ** 2 / variance
-            weight = np.where(inside, np.minimum(1.0, cfg.tau / np.maximum(z2, 1e-12)), 0.0).astype(np.float32)
-            total += weight * warped
-            weights += weight
-        return (total / weights).astype(np.float32)
+            for merge, (images, _) in zip(merges, kinds):
+                merge.add(cv2.remap(images[j], map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE),
+                          inside)
+        means = [merge.result() for merge in merges]
+        return means[0] if len(means) == 1 else np.stack(means)
+
+
+class _RobustMerge:
+    """Running robust mean onto a reference image: a warped neighbour counts per pixel by
+    ``min(1, tau / z^2)``, z the difference of local means on the arcsine-sqrt scale over its standard error."""
+
+    def __init__(self, reference: np.ndarray, trials: int, config: AlignedBoxConfig) -> None:
+        self._size = (config.patch, config.patch)
+        self._tau = config.tau
+        self._variance = 2.0 / (trials * config.patch * config.patch)
+        self._angle = _arcsine_sqrt(self._local(reference))
+        self._total, self._weights = reference.copy(), np.ones_like(reference)
+
+    def _local(self, a: np.ndarray) -> np.ndarray:
+        return cv2.boxFilter(a, -1, self._size, normalize=True, borderType=cv2.BORDER_REPLICATE)
+
+    def add(self, warped: np.ndarray, inside: np.ndarray) -> None:
+        z2 = (_arcsine_sqrt(self._local(warped)) - self._angle) ** 2 / self._variance
+        weight = np.where(inside, np.minimum(1.0, self._tau / np.maximum(z2, 1e-12)), 0.0).astype(np.float32)
+        self._total += weight * warped
+        self._weights += weight
+
+    def result(self) -> np.ndarray:
+        return (self._total / self._weights).astype(np.float32)
 
 
 def aligned_window(i: int, radius: int, count: int | None, shift: bool = False) -> range:
@@ -169,11 +198,12 @@ def aligned_window(i: int, radius: int, count: int | None, shift: bool = False) 
 
 
 def aligned_means(rates: np.ndarray, radius: int, config: AlignedBoxConfig | None = None,
-                  shift: bool = False) -> np.ndarray:
+                  shift: bool = False, sharp: np.ndarray | None = None) -> np.ndarray:
     """Every frame's aligned mean over its ``aligned_window`` in a clip: ``rates`` (F, H, W) -> (F, H, W)
-    float32 (what the streaming engine computes for a clip)."""
+    float32, or (F, 2, H, W) with the means of the ``sharp`` images (F, H, W) second (what the streaming
+    engine computes for a clip)."""
     box = AlignedBox(config)
     count = len(rates)
     for k, rate in enumerate(rates):
-        box.add(k, rate)
+        box.add(k, rate, None if sharp is None else sharp[k])
     return np.stack([box.mean(i, aligned_window(i, radius, count, shift)) for i in range(count)])

@@ -247,7 +247,7 @@ class RmbNetReconstructor:
             self._raw[fid] = frame
             if self._aligned_box is not None:
                 tick = time.perf_counter()
-                self._aligned_box.add(fid, np.asarray(frame.i_m, np.float32) / (BIN_TRIALS * self.n))
+                self._aligned_box.add(fid, np.asarray(frame.i_m, np.float32) / (BIN_TRIALS * self.n), self._sharp(frame))
                 self.stage_seconds["aligned mean"] += time.perf_counter() - tick
         self._received += len(frames)
         if self.align == "none":
@@ -257,6 +257,16 @@ class RmbNetReconstructor:
                 i_m = torch.from_numpy(np.stack([np.asarray(f.i_m, np.float32) for f in batch])).to(self.device)
                 for encoded in self._net.encode(i_s, i_m, ids[a : a + ENCODE_BATCH], self._centre(batch)):
                     self._encoded[encoded.index] = encoded
+
+    def _sharp(self, frame: PrelimLike) -> np.ndarray | None:
+        """The rate of the frame's central ``aligned_centre`` readouts, for a model that reads their aligned mean."""
+        k = self._net.config.aligned_centre
+        if not k:
+            return None
+        try:
+            return select_centre(frame.i_c, self.n, (k,))[0].astype(np.float32) / (BIN_TRIALS * k)
+        except ValueError as exc:
+            raise InputError(f"preliminary frame {frame.index}: {exc}") from None
 
     def _window(self, i: int, count: int | None) -> list[EncodedFrame]:
         ids = window_indices(i, self._w, count)
@@ -284,7 +294,7 @@ class RmbNetReconstructor:
         return torch.from_numpy(sums).to(self.device)
 
     def _aligned(self, i: int, count: int | None) -> torch.Tensor | None:
-        """Frame ``i``'s aligned window mean of the multi-bit sums, (1,H,W), for a model that reads it."""
+        """Frame ``i``'s aligned window mean(s) of the multi-bit sums, (1,H,W) or (1,2,H,W), for a model that reads them."""
         if self._aligned_box is None:
             return None
         tick = time.perf_counter()

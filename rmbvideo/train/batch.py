@@ -19,8 +19,9 @@ from rmbvideo.train.dataset import Sample
 class Batch:
     """Samples stacked on a device: ``i_s``, ``i_m``, ``gt`` (B, F, H, W) float32, ``convention`` (B,),
     ``i_c`` (B, F, C, H, W): central sums over the model's centre windows, or None when it has none;
-    ``i_a`` (B, F, H, W): each frame's aligned window mean of the multi-bit sums (windows cut at the
-    sample's ends, as at a clip's), or None when the model does not read it."""
+    ``i_a`` (B, F, H, W), or (B, F, 2, H, W) with ``aligned_centre``: each frame's aligned window mean(s) of
+    the multi-bit sums (the model's radius and edge policy at the sample's ends, as at a clip's), or None
+    when the model does not read it."""
 
     i_s: torch.Tensor
     i_m: torch.Tensor
@@ -47,9 +48,11 @@ class Batch:
         i_s, i_m, gt = (stack([getattr(s, name) for s in samples]) for name in ("i_s", "i_m", "gt"))
         i_a = None
         if aligned is not None and aligned.aligned:
-            scale = BIN_TRIALS * n
-            means = [aligned_means(m / scale, aligned.aligned_half_width, shift=aligned.aligned_shift) * scale
-                     for m in i_m.cpu().numpy()]
+            scale, k = BIN_TRIALS * n, aligned.aligned_centre
+            sharp = (stack([select_centre(s.i_c, n, (k,))[:, 0] for s in samples]).cpu().numpy() / (BIN_TRIALS * k)
+                     if k else [None] * len(samples))
+            means = [aligned_means(m / scale, aligned.aligned_half_width, shift=aligned.aligned_shift, sharp=c) * scale
+                     for m, c in zip(i_m.cpu().numpy(), sharp)]
             i_a = torch.from_numpy(np.stack(means).astype(np.float32)).to(device)
         return cls(i_s, i_m, gt, convention, i_c, i_a)
 
