@@ -164,6 +164,8 @@ def test_kill_9_mid_capture_then_resume(tmp_path: Path) -> None:
         os.kill(proc.pid, signal.SIGKILL)
     finally:
         proc.wait()
+    if proc.returncode != -signal.SIGKILL:  # on a loaded machine it can finish between the look and the kill
+        pytest.skip("the run ended before the kill reached it")
     assert not (out / "big").exists()
     result = subprocess.run(command, capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
