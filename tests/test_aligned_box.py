@@ -126,3 +126,8 @@ def test_sharp_images_follow_the_same_flows_and_are_merged_by_their_own_test():
     inner = (slice(6, -6), slice(12, -12))
     ref = clean[:, 3 : 3 + W]
     assert np.abs(merged - ref)[inner].mean() < 0.6 * np.abs(sharp[3] - ref)[inner].mean()
+
+
+def test_config_for_frames_counts_the_trials_of_whole_frames_and_sharp_images():
+    config = AlignedBoxConfig.for_frames(10, 2)
+    assert (config.trials, config.sharp_trials) == (80, 16) and AlignedBoxConfig.for_frames(4).trials == 32

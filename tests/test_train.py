@@ -144,7 +144,7 @@ def test_loss_is_finite_and_decreases_on_a_fixed_batch(tmp_path):
 def test_aligned_model_trains_on_batches_with_their_aligned_means(tmp_path):
     """A model that reads the aligned window mean gets it from the batch (computed on the mirrored
     counts, with the model's radius and edge policy) and trains with a finite loss and gradients on the head."""
-    from rmbvideo.recon.aligned_box import aligned_means
+    from rmbvideo.recon.aligned_box import AlignedBoxConfig, aligned_means
     from rmbvideo.recon.prelim import select_centre
 
     samples = [SampleCache(tmp_path, TINY_SPEC).get(k) for k in (0, 1)]
@@ -153,7 +153,7 @@ def test_aligned_model_trains_on_batches_with_their_aligned_means(tmp_path):
     batch = Batch.from_samples(samples, torch.device("cpu"), flips=[True, False], n=4, aligned=config)
     scale = 8 * 4
     sharp = select_centre(samples[0].i_c, 4, (2,))[:, 0, :, ::-1] / (8 * 2)
-    expected = aligned_means(samples[0].i_m[..., ::-1] / scale, 2, shift=True, sharp=sharp) * scale
+    expected = aligned_means(samples[0].i_m[..., ::-1] / scale, 2, AlignedBoxConfig.for_frames(4, 2), True, sharp) * scale
     assert batch.i_a.shape[2] == 2
     np.testing.assert_allclose(batch.i_a[0].numpy(), expected, rtol=1e-5, atol=1e-5)
     assert Batch.from_samples(samples, torch.device("cpu"), n=4).i_a is None

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from rmbvideo.net.blend import BIN_TRIALS
+
 #: OpenCV DIS presets by name.
 DIS_PRESETS = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
                "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
@@ -42,6 +44,12 @@ class AlignedBoxConfig:
     tau: float = 4.0
     trials: int = 80
     sharp_trials: int = 16
+
+    @classmethod
+    def for_frames(cls, n: int, sharp_readouts: int = 0) -> "AlignedBoxConfig":
+        """The defaults with the trials of frames of ``n`` binned readouts and of sharp images of their central
+        ``sharp_readouts`` (each binned count is 8 raw pixel-planes), so the robust test's variance is right."""
+        return cls(trials=BIN_TRIALS * n, sharp_trials=BIN_TRIALS * max(sharp_readouts, 1))
 
     def __post_init__(self) -> None:
         if self.preset not in DIS_PRESETS:

@@ -41,7 +41,7 @@ from rmbvideo.net.model import (
     window_indices,
     window_valid,
 )
-from rmbvideo.recon.aligned_box import AlignedBox, aligned_window
+from rmbvideo.recon.aligned_box import AlignedBox, AlignedBoxConfig, aligned_window
 from rmbvideo.recon.precision import PRECISIONS, uses_bf16
 from rmbvideo.recon.prelim import MultiUpsampler, PreliminaryFrames, select_centre
 from rmbvideo.sensor.conventions import CONVENTIONS
@@ -146,7 +146,8 @@ class RmbNetReconstructor:
         self._encoded: dict[int, EncodedFrame] = {}
         self._pair_cache: PairCache = {}
         self._flow_cache: dict = {}
-        self._aligned_box = AlignedBox() if self._net.config.aligned else None
+        self._aligned_box = (AlignedBox(AlignedBoxConfig.for_frames(self.n, self._net.config.aligned_centre))
+                             if self._net.config.aligned else None)
         self._received = 0
         self._next_out = 0
         self._state = None

@@ -10,7 +10,7 @@ import torch
 
 from rmbvideo.net.blend import BIN_TRIALS
 from rmbvideo.net.config import RmbNetConfig
-from rmbvideo.recon.aligned_box import aligned_means
+from rmbvideo.recon.aligned_box import AlignedBoxConfig, aligned_means
 from rmbvideo.recon.prelim import select_centre
 from rmbvideo.train.dataset import Sample
 
@@ -51,7 +51,8 @@ class Batch:
             scale, k = BIN_TRIALS * n, aligned.aligned_centre
             sharp = (stack([select_centre(s.i_c, n, (k,))[:, 0] for s in samples]).cpu().numpy() / (BIN_TRIALS * k)
                      if k else [None] * len(samples))
-            means = [aligned_means(m / scale, aligned.aligned_half_width, shift=aligned.aligned_shift, sharp=c) * scale
+            box = AlignedBoxConfig.for_frames(n, k)
+            means = [aligned_means(m / scale, aligned.aligned_half_width, box, aligned.aligned_shift, c) * scale
                      for m, c in zip(i_m.cpu().numpy(), sharp)]
             i_a = torch.from_numpy(np.stack(means).astype(np.float32)).to(device)
         return cls(i_s, i_m, gt, convention, i_c, i_a)
