@@ -250,6 +250,33 @@ def test_trainable_prefixes_freeze_the_rest_batchnorm_included(tmp_path):
         Trainer(load_recipe(recipe), tmp_path / "out2", cache_dir=tmp_path / "cache")
 
 
+def test_warm_start_widens_the_head_and_starts_new_logits_where_the_recipe_says(tmp_path):
+    """A warm start into a model with one more blend candidate keeps the old head outputs and
+    input weights, zeroes the new input channel, and starts the new logit's bias at init_new_logit."""
+    from rmbvideo.net.weights import ModelCard, save_model
+
+    old = RmbNet(RmbNetConfig(w=1, width=0.25, n=4, readout="pure-m", blend=True))
+    torch.nn.init.normal_(old.decoder.head[-1].weight, std=0.1)
+    source = save_model(tmp_path / "old.safetensors", old, ModelCard("old"))
+    recipe = tmp_path / "tiny.toml"
+    text = TINY_RECIPE.format(steps=1).replace("width = 0.25", 'width = 0.25\nblend = true\naligned = true')
+    text = text.replace('minutes = 5', f'minutes = 5\ninit = "{source}"\ninit_new_logit = 3.5')
+    recipe.write_text(text.replace('mode = "binned"', 'mode = "binned"\nreadout = "pure-m"'))
+    trainer = Trainer(load_recipe(recipe), tmp_path / "out", cache_dir=tmp_path / "cache")
+    last_old, last_new = old.decoder.head[-1], trainer.model.decoder.head[-1]
+    outputs = last_old.bias.shape[0]
+    assert last_new.bias.shape[0] == outputs + 1
+    torch.testing.assert_close(last_new.bias[:outputs], last_old.bias)
+    assert float(last_new.bias[-1].detach()) == 3.5
+    first_old, first_new = old.decoder.head[0][0], trainer.model.decoder.head[0][0]
+    inputs = first_old.weight.shape[1]
+    torch.testing.assert_close(first_new.weight[:, :inputs], first_old.weight)
+    assert not first_new.weight[:, inputs:].any()
+    recipe.write_text(text.replace(f'init = "{source}"\n', ""))
+    with pytest.raises(InputError, match="init_new_logit"):
+        load_recipe(recipe)
+
+
 def test_time_budget_stops_cleanly_and_still_saves(tmp_path):
     recipe = tmp_path / "tiny.toml"
     recipe.write_text(TINY_RECIPE.format(steps=100))

@@ -75,7 +75,9 @@ class OptimConfig:
 @dataclass(frozen=True)
 class TrainConfig:
     """A whole recipe; ``recipe_text`` is the file as written (recorded in the model card).
-    ``init``: a model file (or the name of a shipped model) whose matching weights start the run."""
+    ``init``: a model file (or the name of a shipped model) whose matching weights start the run;
+    ``init_new_logit``: where that model's blend head gains candidates, their logits' bias starts here
+    (None: the model's own initialisation, -2, under which a new candidate's weight and gradient are ~0)."""
 
     name: str
     seed: int = 0
@@ -88,6 +90,7 @@ class TrainConfig:
     recipe_text: str = ""
     source: str = ""
     init: str = ""
+    init_new_logit: float | None = None
 
     def sample_spec(self) -> SampleSpec:
         """Samples of 2w + K preliminary frames in this recipe's mode and readout."""
@@ -152,7 +155,7 @@ def load_recipe(path: str | Path) -> TrainConfig:
         raise InputError(f"{path}: cannot read recipe ({exc})") from None
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{path}: not valid TOML ({exc})") from None
-    top = {"name", "seed", "minutes", "description", "init", "data", "model", "optim", "loss"}
+    top = {"name", "seed", "minutes", "description", "init", "init_new_logit", "data", "model", "optim", "loss"}
     unknown = sorted(set(data) - top)
     if unknown:
         raise InputError(f"{path}: unknown top-level keys: {', '.join(unknown)}")
@@ -164,6 +167,10 @@ def load_recipe(path: str | Path) -> TrainConfig:
         raise InputError(f"{path}: seed must be an integer >= 0, not {seed!r}")
     if isinstance(minutes, bool) or not isinstance(minutes, (int, float)) or not minutes > 0:
         raise InputError(f"{path}: minutes must be a number > 0, not {minutes!r}")
+    new_logit = data.get("init_new_logit")
+    if new_logit is not None and (isinstance(new_logit, bool) or not isinstance(new_logit, (int, float))
+                                  or not math.isfinite(new_logit) or "init" not in data):
+        raise InputError(f"{path}: init_new_logit must be a finite number and needs init, not {new_logit!r}")
     tables = {}
     for key in ("data", "model", "optim", "loss"):
         table = data.get(key, {})
@@ -182,7 +189,8 @@ def load_recipe(path: str | Path) -> TrainConfig:
         config = TrainConfig(name=name, seed=seed, minutes=float(minutes),
                              description=str(data.get("description", "")), data=data_config, model=model,
                              optim=optim, loss=loss, recipe_text=text, source=str(path),
-                             init=str(data.get("init", "")))
+                             init=str(data.get("init", "")),
+                             init_new_logit=None if new_logit is None else float(new_logit))
         config.sample_spec()  # validates mode/readout/crop
     except ValueError as exc:
         raise InputError(f"{path}: {exc}") from None

@@ -215,8 +215,8 @@ class Trainer:
         """Start from the weights of model ``source`` (a file or a shipped model's name): tensors
         of the same shape are copied; a first head conv that gained input channels keeps the old
         ones and starts the new ones at zero, and a last head conv that gained outputs (blend logits)
-        keeps the old output and the new ones' initialisation, so the run starts from (close to) the
-        old model's function."""
+        keeps the old output and the new ones' initialisation (their bias at the recipe's
+        ``init_new_logit`` when set), so the run starts from (close to) the old model's function."""
         path = Path(source)
         if not path.suffix:
             path = default_model_path(self.config.model.input_mode).with_name(f"{source}.safetensors")
@@ -236,6 +236,8 @@ class Trainer:
                 widened.append(name)
             elif target.shape[0] > tensor.shape[0] and target.shape[1:] == tensor.shape[1:]:
                 target[: tensor.shape[0]] = tensor  # a head that gained outputs keeps their initialisation
+                if target.dim() == 1 and self.config.init_new_logit is not None:
+                    target[tensor.shape[0]:] = self.config.init_new_logit
                 widened.append(name)
         self.model.load_state_dict(new_state)
         log.info("warm start from %s: %d tensors copied, widened %s", path, copied, widened or "none")
