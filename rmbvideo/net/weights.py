@@ -186,6 +186,31 @@ def _check_safetensors_header(weights: Path) -> None:
         raise ModelError(f"{weights}: refused: not a safetensors file") from None
 
 
+def widen_model(old: RmbNet, config: RmbNetConfig, new_logit: float | None = None) -> RmbNet:
+    """``old``'s weights in a network of ``config`` that may have gained head inputs and blend candidates:
+    tensors of the same shape are copied; a conv that gained input channels keeps the old ones and starts
+    the new ones at zero; a last head conv that gained outputs (blend logits) keeps the old outputs and the
+    new ones' initialisation (their bias at ``new_logit`` when given), so the result computes (close to)
+    ``old``'s function. How a training stage warm-starts from the previous one."""
+    widened = RmbNet(config)
+    new_state = widened.state_dict()
+    for name, tensor in old.state_dict().items():
+        target = new_state.get(name)
+        if target is None:
+            continue
+        if target.shape == tensor.shape:
+            target.copy_(tensor)
+        elif target.dim() == 4 and target.shape[0] == tensor.shape[0] and target.shape[1] > tensor.shape[1]:
+            target.zero_()
+            target[:, : tensor.shape[1]] = tensor
+        elif target.shape[0] > tensor.shape[0] and target.shape[1:] == tensor.shape[1:]:
+            target[: tensor.shape[0]] = tensor
+            if target.dim() == 1 and new_logit is not None:
+                target[tensor.shape[0]:] = new_logit
+    widened.load_state_dict(new_state)
+    return widened.eval()
+
+
 def average_models(first: RmbNet, second: RmbNet, alpha: float) -> RmbNet:
     """A copy of ``first`` with weights ``alpha * first + (1 - alpha) * second`` (integer buffers from
     ``first``): a point on the straight path between two fine-tunings of one model (how stage 5 of the

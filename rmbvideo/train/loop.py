@@ -30,7 +30,7 @@ from tqdm import tqdm
 from rmbvideo.errors import InputError
 from rmbvideo.net.decoder import DecoderState
 from rmbvideo.net.model import RmbNet, window_indices, window_valid
-from rmbvideo.net.weights import ModelCard, default_model_path, load_model, save_model
+from rmbvideo.net.weights import ModelCard, default_model_path, load_model, save_model, widen_model
 from rmbvideo.scenes.random_scenes import (
     EVAL_SEED_START,
     HELD_OUT_PANORAMA,
@@ -212,35 +212,16 @@ class Trainer:
                             if config.data.scenes == "video" else None)
 
     def warm_start(self, source: str) -> None:
-        """Start from the weights of model ``source`` (a file or a shipped model's name): tensors
-        of the same shape are copied; a first head conv that gained input channels keeps the old
-        ones and starts the new ones at zero, and a last head conv that gained outputs (blend logits)
-        keeps the old output and the new ones' initialisation (their bias at the recipe's
-        ``init_new_logit`` when set), so the run starts from (close to) the old model's function."""
+        """Start from the weights of model ``source`` (a file or a shipped model's name), widened to this
+        recipe's network (``widen_model``; new blend logits at the recipe's ``init_new_logit``), so the run
+        starts from (close to) the old model's function."""
         path = Path(source)
         if not path.suffix:
             path = default_model_path(self.config.model.input_mode).with_name(f"{source}.safetensors")
         old, _card = load_model(path)
-        new_state = self.model.state_dict()
-        copied, widened = 0, []
-        for name, tensor in old.state_dict().items():
-            target = new_state.get(name)
-            if target is None:
-                continue
-            if target.shape == tensor.shape:
-                target.copy_(tensor)
-                copied += 1
-            elif target.dim() == 4 and target.shape[0] == tensor.shape[0] and target.shape[1] > tensor.shape[1]:
-                target.zero_()
-                target[:, : tensor.shape[1]] = tensor
-                widened.append(name)
-            elif target.shape[0] > tensor.shape[0] and target.shape[1:] == tensor.shape[1:]:
-                target[: tensor.shape[0]] = tensor  # a head that gained outputs keeps their initialisation
-                if target.dim() == 1 and self.config.init_new_logit is not None:
-                    target[tensor.shape[0]:] = self.config.init_new_logit
-                widened.append(name)
-        self.model.load_state_dict(new_state)
-        log.info("warm start from %s: %d tensors copied, widened %s", path, copied, widened or "none")
+        widened = widen_model(old, self.config.model, self.config.init_new_logit)
+        self.model.load_state_dict(widened.state_dict())
+        log.info("warm start from %s (widened to this recipe's network where it gained inputs or candidates)", path)
 
     def step_seeds(self, step: int) -> list[int]:
         """The scene seeds of ``step``: video scenes (``video_seeds``) or cached panorama scenes."""
