@@ -205,3 +205,36 @@ def test_development_sequences_use_other_seeds_than_the_validation_set():
     video = {VIDEO_SEED_START + 100 * k + DEVELOPMENT_VIDEO_FIRST for k in range(len(VIDEO_KINDS))}
     validation = {VIDEO_SEED_START + 100 * k for k in range(len(VIDEO_KINDS))}
     assert DEVELOPMENT_VIDEO_FIRST >= 1 and not video & validation and not video & set(development)
+
+
+def test_development_scores_candidates_on_the_given_sets(sequence, models_dir, tmp_path):
+    """Each candidate gets finite scores on every development sequence, edge-frame deltas, a dark-end
+    bias, and one table row; two different models score differently."""
+    from rmbvideo.evaluate.development import markdown, score_candidates
+
+    torch.set_num_threads(1)
+    (tmp_path / "other").mkdir()
+    other = tmp_path / "other" / "rmbnet-binned.safetensors"
+    torch.manual_seed(1)
+    save_model(other, RmbNet(RmbNetConfig(w=1, width=0.25)), ModelCard(name="other"))
+    models = [models_dir / "rmbnet-binned.safetensors", other]
+    done = []
+    scores = score_candidates(models, [sequence], clips=[], real=[], done=lambda: done.append(1))
+    assert len(done) == 2 and [s.name for s in scores] == [f"{models_dir.name}/rmbnet-binned", "other/rmbnet-binned"]
+    for s in scores:
+        assert list(s.sequences) == [sequence.name] and math.isfinite(s.sequence_mean)
+        assert math.isfinite(s.first_frame_db) and math.isfinite(s.last_frame_db) and math.isfinite(s.dark_bias)
+        assert not s.clips and not s.real
+    assert scores[0].sequences != scores[1].sequences
+    table = markdown(scores, models)
+    assert table.count("| other/rmbnet-binned |") == 2 and "—" in table
+
+
+def test_candidate_needs_development(models_dir, tmp_path):
+    from click.testing import CliRunner
+
+    from rmbvideo.cli import main
+
+    result = CliRunner().invoke(main, ["evaluate", "--candidate", str(models_dir / "rmbnet-binned.safetensors"),
+                                       "-o", str(tmp_path / "out")])
+    assert result.exit_code == 2 and "--development" in result.output

@@ -49,6 +49,27 @@ def _real_video(folder: Path, model: Path, device: str, out_dir: Path, stem: str
     return [md, png]
 
 
+def _development(out_dir: Path, models: list[Path], cache_dir: Path | None, real_video: Path | None, device: str,
+                 progress: bool) -> Path:
+    """Score ``models`` on the development sets; write ``development.md``."""
+    from tqdm import tqdm
+
+    from rmbvideo.evaluate.development import markdown, score_candidates
+    from rmbvideo.evaluate.heldout import default_cache_dir, load_development
+    from rmbvideo.evaluate.real_video import find_streams
+    from rmbvideo.evaluate.texture_pans import texture_pan_folder
+    from rmbvideo.io.atomic import atomic_write_text
+
+    sequences = load_development(cache_dir)
+    clips = find_streams(texture_pan_folder(cache_dir if cache_dir is not None else default_cache_dir()))
+    real = find_streams(real_video) if real_video is not None else []
+    with tqdm(total=len(models), disable=not progress, unit="model", desc="development") as bar:
+        scores = score_candidates(models, sequences, clips, real, device, done=lambda: bar.update(1))
+    path = out_dir / "development.md"
+    atomic_write_text(path, markdown(scores, models))
+    return path
+
+
 def _notes(sequences: list, quick: bool, device: str, figure: tuple[str, int]) -> str:
     """The Markdown notes under the table: what was measured, on what, how."""
     import torch
@@ -119,13 +140,19 @@ FIGURE_COLUMNS = ("TFW-L", "GC20", "MG20", "RMB-Net", "TFP-41 (raw)", "TFI (raw)
 @click.option("--full-resolution", is_flag=True,
               help="Also score --resolution full against TFP and TFI at the camera's full resolution "
                    "(full_resolution.md/png; the real-video streams too when given).")
+@click.option("--development", is_flag=True,
+              help="Instead of the held-out tables, score the default model and each --candidate on the development "
+                   "sets (development sequences and clips, --real-video streams, the dark end): development.md.")
+@click.option("--candidate", "candidates", multiple=True, type=click.Path(dir_okay=False, exists=True, path_type=Path),
+              help="A model file to score beside the default with --development (repeatable).")
 @quiet_option
 @verbose_option
 def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Path | None, device: str,
              as_json: bool, real_path: Path | None, real_video: Path | None, texture_pans: bool,
-             full_resolution: bool, quiet: bool) -> None:
+             full_resolution: bool, development: bool, candidates: tuple[Path, ...], quiet: bool) -> None:
     """Score TFW-S/L, TFI, GC20, MG20, RMB-Net, its ablations and the classical methods on the raw
-    capture (2x2-averaged) on the held-out synthetic set, and optionally on real-video streams."""
+    capture (2x2-averaged) on the held-out synthetic set, and optionally on real-video streams;
+    with --development, candidate models on the development sets instead."""
     from rmbvideo.errors import OutputError
     import numpy as np
 
@@ -152,6 +179,13 @@ def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Pat
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError(f"{out_dir}: cannot create the output folder ({exc.strerror or exc})") from None
+    if candidates and not development:
+        raise click.UsageError("--candidate needs --development")
+    if development:
+        path = _development(out_dir, [models_dir / "rmbnet-binned.safetensors", *candidates], cache_dir, real_video,
+                            resolved, progress_enabled(quiet))
+        log.info("wrote %s", path)
+        return
     sequences = load_heldout(quick, cache_dir) + load_video_heldout(quick, cache_dir)
     rows = with_best_raw(evaluate_rows(table2_specs(models_dir, resolved), sequences,
                                        progress=progress_enabled(quiet)))

@@ -1,0 +1,120 @@
+"""Candidate models scored on the development sets only: how a training stage is chosen without looking
+at the evaluation's held-out tables.
+
+Per model file: the mean mu-law PSNR of each development sequence's scored frames
+(``heldout.load_development``: the held-out kinds drawn from other evaluation seeds), the first and last
+frames against their clip's median (dB), the development clips (texture pans in spikezoo's convention),
+the real-video streams when given, and the dark-end bias at 1e-3 on a flat field of seed 1 (the
+evaluation's own dark check uses seed 0).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence as Seq
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from rmbvideo.evaluate.harness import MethodSpec, run_frames, score_frames
+from rmbvideo.evaluate.heldout import Sequence
+from rmbvideo.evaluate.metrics import mu_law_psnr
+from rmbvideo.evaluate.real_video import CONVENTION, RealRow, RealStream, score_stream
+from rmbvideo.evaluate.video_checks import dark_bias
+from rmbvideo.net.weights import load_model
+
+#: flat-field seed of the dark-end bias used for choosing (seed 0 is the evaluation's check)
+DARK_SEED = 1
+DARK_LEVEL = 1e-3
+
+
+@dataclass(frozen=True)
+class DevelopmentScore:
+    """One candidate on the development sets (mu-law PSNR in dB; linear PSNR on clips and real streams)."""
+
+    name: str
+    sequences: dict[str, float]
+    first_frame_db: float  # mean over sequences of (first frame - median frame)
+    last_frame_db: float
+    clips: dict[str, float]
+    real: dict[str, float]
+    dark_bias: float  # relative bias of the mean output at DARK_LEVEL
+
+    @property
+    def sequence_mean(self) -> float:
+        return float(np.mean(list(self.sequences.values())))
+
+
+def _options(model: Path, device: str) -> dict:
+    return {"model": Path(model), "device": device, "input_mode": "binned", "threads": 1}
+
+
+def _readout(model: Path) -> str:
+    """The readout design the model was trained on (its input is made with it)."""
+    return load_model(model)[0].config.readout
+
+
+def score_sequences(model: Path, sequences: Seq[Sequence], device: str = "cpu") -> tuple[dict[str, float], float, float]:
+    """Mean mu-law PSNR of each sequence's scored frames, and the mean drop of its first and last frame
+    below the median of all its frames."""
+    spec = MethodSpec("candidate", "rmbnet", _options(model, device), _readout(model))
+    scores, first, last = {}, [], []
+    for seq in sequences:
+        frames, _, _ = run_frames(spec, seq)
+        images = {f.index: f.image for f in frames}
+        scores[seq.name] = score_frames({i: images[i] for i in seq.scored_frames}, seq)[0]
+        per_frame = {i: mu_law_psnr(images[i], seq.gt[i]) for i in images}
+        median = float(np.median(list(per_frame.values())))
+        first.append(per_frame[min(per_frame)] - median)
+        last.append(per_frame[max(per_frame)] - median)
+    return scores, float(np.mean(first)), float(np.mean(last))
+
+
+def score_streams(model: Path, streams: Seq[RealStream], device: str = "cpu") -> dict[str, float]:
+    """Linear PSNR at each stream's reference frame (the real-video scorer, spikezoo's convention)."""
+    row = RealRow("candidate", "rmbnet", {**_options(model, device), "convention": CONVENTION}, readout=_readout(model))
+    return {s.name: score_stream(s, [row])["candidate"].psnr for s in streams}
+
+
+def score_candidate(model: Path, sequences: Seq[Sequence], clips: Seq[RealStream], real: Seq[RealStream],
+                    device: str = "cpu", name: str | None = None) -> DevelopmentScore:
+    """Every development figure of one model file."""
+    seq_scores, first, last = score_sequences(model, sequences, device)
+    bias = dark_bias("rmbnet", {"model": Path(model), "device": device, "threads": 1}, levels=(DARK_LEVEL,),
+                     seed=DARK_SEED)[DARK_LEVEL][0]
+    return DevelopmentScore(name or f"{Path(model).parent.name}/{Path(model).stem}", seq_scores, first, last, score_streams(model, clips, device),
+                            score_streams(model, real, device), bias)
+
+
+def score_candidates(models: Seq[Path], sequences: Seq[Sequence], clips: Seq[RealStream], real: Seq[RealStream],
+                     device: str = "cpu", done: Callable[[], None] | None = None) -> list[DevelopmentScore]:
+    """``score_candidate`` for each model; ``done`` is called after each (a progress bar)."""
+    scores = []
+    for model in models:
+        scores.append(score_candidate(model, sequences, clips, real, device))
+        if done is not None:
+            done()
+    return scores
+
+
+def _mean(values: dict[str, float]) -> str:
+    return f"{np.mean(list(values.values())):.2f}" if values else "—"
+
+
+def markdown(scores: Seq[DevelopmentScore], models: Seq[Path]) -> str:
+    """The candidates' table, then the per-sequence and per-stream figures."""
+    lines = ["# Development sets: candidate models", "",
+             "Never the evaluation's held-out tables: choose a training stage here, then run the full evaluation once.", "",
+             "| model | development sequences (mu-PSNR) | first / last frame vs median (dB) | development clips (PSNR) "
+             "| real-video streams (PSNR) | dark end at 1e-3 (seed 1) |", "|---|---:|---:|---:|---:|---:|"]
+    for s in scores:
+        lines.append(f"| {s.name} | {s.sequence_mean:.2f} | {s.first_frame_db:+.2f} / {s.last_frame_db:+.2f} | "
+                     f"{_mean(s.clips)} | {_mean(s.real)} | {100 * s.dark_bias:+.1f} % |")
+    lines += ["", "Per set (dB):", ""]
+    columns = [name for s in scores[:1] for name in [*s.sequences, *s.clips, *s.real]]
+    lines += ["| model | " + " | ".join(columns) + " |", "|---|" + "---:|" * len(columns)]
+    for s in scores:
+        values = {**s.sequences, **s.clips, **s.real}
+        lines.append(f"| {s.name} | " + " | ".join(f"{values[c]:.2f}" for c in columns) + " |")
+    lines += ["", "Models: " + ", ".join(f"`{m}`" for m in models), ""]
+    return "\n".join(lines)
