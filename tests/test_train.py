@@ -306,6 +306,9 @@ def test_bundled_recipes_parse_and_bad_keys_are_refused(tmp_path):
     repo = RECIPES_DIR.parents[2]
     for name, config in configs.items():  # a stage's start is a file kept in the repository
         assert not config.init or not config.init.endswith(".safetensors") or (repo / config.init).is_file(), name
+    floor = configs["video-aligned-sharp-floor-cpu"].sample_spec()
+    dark = configs["video-aligned-sharp-dark-cpu"].sample_spec()
+    assert floor.flat_min_rate == 1e-4 and dark.flat_min_rate == 1e-3 and floor.key() != dark.key()
     gpu = configs["video-gpu"].with_workers(15)
     assert gpu.data.workers == 15 and gpu.sample_spec() == configs["video-gpu"].sample_spec()
     bad = tmp_path / "bad.toml"

@@ -236,3 +236,15 @@ def test_flat_fields_are_static_nearly_flat_and_only_for_training_seeds():
     held_out_plain = simulate_sample(SampleSpec(mode="binned", readout="pure-m", scenes="video", crop=16, frames=3),
                                      EVAL_SEED_START + 1)
     np.testing.assert_array_equal(held_out.gt, held_out_plain.gt)  # validation seeds are never flat
+
+
+def test_flat_min_rate_lowers_the_floor_of_the_training_flat_fields():
+    """The flat fields' levels are log-uniform from the spec's floor: with 1e-4 some fall below 1e-3 (the
+    dark-end check's level), with the default none does."""
+    lowered = SampleSpec(mode="binned", readout="pure-m", scenes="video", crop=16, frames=3, flat_fraction=1.0,
+                         flat_min_rate=1e-4)
+    default = SampleSpec(mode="binned", readout="pure-m", scenes="video", crop=16, frames=3, flat_fraction=1.0)
+    low = [float(np.median(simulate_sample(lowered, seed).gt)) for seed in range(8)]
+    usual = [float(np.median(simulate_sample(default, seed).gt)) for seed in range(8)]
+    assert min(low) < 1e-3 and min(low) >= 0.7e-4
+    assert min(usual) >= 0.7e-3

@@ -32,7 +32,8 @@ class DataConfig:
     scenes (seeds from 1,000,000). ``scenes``: "panorama" (pans over the bundled panoramas, ``count``
     cached scenes) or "video" (dead-leaves video scenes, simulated afresh for every step, a fraction
     ``spikezoo_fraction`` in spikezoo's rate convention, ``flat_fraction`` static, nearly flat fields and
-    ``low_contrast_fraction`` backgrounds of compressed contrast (the last two training seeds only), each
+    ``low_contrast_fraction`` backgrounds of compressed contrast (the last two training seeds only; flat
+    levels log-uniform from ``flat_min_rate`` to 1: the dark end a model is checked at must lie inside it), each
     used by ``reuse`` consecutive steps, simulated by ``workers`` processes;
     ``count`` and ``exposure`` do not apply)."""
 
@@ -49,6 +50,7 @@ class DataConfig:
     spikezoo_fraction: float = 0.0
     flat_fraction: float = 0.0
     low_contrast_fraction: float = 0.0
+    flat_min_rate: float = 1e-3
     reuse: int = 1
     workers: int = 1
 
@@ -99,7 +101,7 @@ class TrainConfig:
                           n=d.n, warmup_frames=d.warmup_frames, level=self.model.level,
                           ranges=SceneRanges(exposure=d.exposure), scenes=d.scenes,
                           spikezoo_fraction=d.spikezoo_fraction, flat_fraction=d.flat_fraction,
-                          low_contrast_fraction=d.low_contrast_fraction)
+                          low_contrast_fraction=d.low_contrast_fraction, flat_min_rate=d.flat_min_rate)
 
     def with_minutes(self, minutes: float) -> "TrainConfig":
         """The same recipe with another wall-time budget."""

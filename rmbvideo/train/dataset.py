@@ -75,6 +75,7 @@ class SampleSpec:
     spikezoo_fraction: float = 0.0
     flat_fraction: float = 0.0
     low_contrast_fraction: float = 0.0
+    flat_min_rate: float = 1e-3
 
     def __post_init__(self) -> None:
         if self.scenes not in SCENE_KINDS:
@@ -87,6 +88,8 @@ class SampleSpec:
             raise ValueError(f"flat_fraction must be in [0, 1], got {self.flat_fraction}")
         if not 0.0 <= self.low_contrast_fraction <= 1.0:
             raise ValueError(f"low_contrast_fraction must be in [0, 1], got {self.low_contrast_fraction}")
+        if not 0.0 < self.flat_min_rate < 1.0:
+            raise ValueError(f"flat_min_rate must be in (0, 1), got {self.flat_min_rate}")
         if self.mode not in DATA_MODES:
             raise ValueError(f"data mode must be one of {DATA_MODES}, got {self.mode!r}")
         ReadoutMode(self.readout)  # raises ValueError naming the valid modes
@@ -117,6 +120,8 @@ class SampleSpec:
         for name in ("flat_fraction", "low_contrast_fraction"):  # caches made before these existed keep their names
             if not fields[name]:
                 del fields[name]
+        if fields["flat_min_rate"] == SampleSpec.flat_min_rate:
+            del fields["flat_min_rate"]
         text = json.dumps({"version": SAMPLE_FORMAT_VERSION, **fields}, sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:12]
 
@@ -155,14 +160,16 @@ def _video_planes(spec: SampleSpec, seed: int) -> tuple[Iterator[SpikeChunk], Vi
     """Raw 1-bit planes of the video scene of ``seed`` at twice the crop, in chunks, and the scene.
     A fraction ``spikezoo_fraction`` of the seeds uses spikezoo's rate convention, the rest the
     physical emission model with a real camera's noise. A fraction ``flat_fraction`` of the training
-    seeds (never the validation seeds, which stay one fixed set) is a static, nearly flat field, and a
-    fraction ``low_contrast_fraction`` of them has its background's contrast compressed."""
+    seeds (never the validation seeds, which stay one fixed set) is a static, nearly flat field (level
+    log-uniform from ``flat_min_rate`` to 1), and a fraction ``low_contrast_fraction`` of them has its
+    background's contrast compressed."""
     rng = np.random.default_rng([seed, 0xC0DE])
     convention = "spikezoo" if rng.random() < spec.spikezoo_fraction else "physical"
     planes = (spec.frames + spec.warmup_frames) * spec.n * spec.raw_per_readout
     train = seed < EVAL_SEED_START
     ranges = VideoSceneRanges(flat_probability=spec.flat_fraction if train else 0.0,
-                              low_contrast_probability=spec.low_contrast_fraction if train else 0.0)
+                              low_contrast_probability=spec.low_contrast_fraction if train else 0.0,
+                              flat_rate=(spec.flat_min_rate, 1.0))
     scene = VideoScene(seed, 2 * spec.crop, 2 * spec.crop, planes, ranges, convention=convention)
     return capture_planes(scene, planes, RAW_RATE_HZ), scene
 
