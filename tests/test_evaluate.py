@@ -238,3 +238,8 @@ def test_candidate_needs_development(models_dir, tmp_path):
     result = CliRunner().invoke(main, ["evaluate", "--candidate", str(models_dir / "rmbnet-binned.safetensors"),
                                        "-o", str(tmp_path / "out")])
     assert result.exit_code == 2 and "--development" in result.output
+    junk = tmp_path / "junk.safetensors"
+    junk.write_bytes(b"not a model")
+    result = CliRunner().invoke(main, ["evaluate", "--development", "--candidate", str(junk), "-o", str(tmp_path / "out")])
+    assert result.exit_code == 2 and "junk" in result.output and "Traceback" not in result.output
+    assert not (tmp_path / "out" / "development.md").exists()

@@ -59,7 +59,10 @@ def _development(out_dir: Path, models: list[Path], cache_dir: Path | None, real
     from rmbvideo.evaluate.real_video import find_streams
     from rmbvideo.evaluate.texture_pans import texture_pan_folder
     from rmbvideo.io.atomic import atomic_write_text
+    from rmbvideo.net.weights import load_model
 
+    for model in models:  # a bad file fails here, in one line, before any simulation
+        load_model(model)
     sequences = load_development(cache_dir)
     clips = find_streams(texture_pan_folder(cache_dir if cache_dir is not None else default_cache_dir()))
     real = find_streams(real_video) if real_video is not None else []
