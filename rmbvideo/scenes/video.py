@@ -38,6 +38,8 @@ from rmbvideo.sensor.conventions import CONVENTIONS
 #: spikezoo's REDS streams fire at about this fraction of the 8-bit intensity per plane.
 SPIKEZOO_RATE = 0.6
 _SMALL_LEAF = 10  # leaves smaller than this (raw px) are flat ellipses drawn without anti-aliasing
+#: default floor of the static flat fields' level (charge per raw plane / threshold); training can lower it
+FLAT_MIN_RATE = 1e-3
 _SUPERSAMPLE = 4  # outline masks are drawn this much finer, then area-averaged (anti-aliasing)
 
 
@@ -64,7 +66,7 @@ class VideoSceneRanges:
     coverage: tuple[float, float] = (3.0, 8.0)  # mean number of leaves over a background point
     reflectance: tuple[float, float] = (0.03, 1.0)
     flat_probability: float = 0.0    # a static, nearly flat field (a wall, the sky, a lens cap) instead
-    flat_rate: tuple[float, float] = (1e-3, 1.0)  # its level, log-uniform: half of them darker than 0.03
+    flat_rate: tuple[float, float] = (FLAT_MIN_RATE, 1.0)  # its level, log-uniform: half of them darker than 0.03
     flat_gradient: float = 0.3       # +- relative brightness change across it
     low_contrast_probability: float = 0.0  # the background's contrast compressed (gravel, foliage, haze)
     low_contrast_gamma: tuple[float, float] = (0.1, 0.5)  # its log-contrast times this (uniform)

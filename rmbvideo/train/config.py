@@ -20,6 +20,7 @@ from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.train.dataset import SampleSpec
 from rmbvideo.train.loss import LossConfig
 from rmbvideo.scenes.random_scenes import SceneRanges
+from rmbvideo.scenes.video import FLAT_MIN_RATE
 
 RECIPES_DIR = Path(__file__).resolve().parent / "recipes"
 
@@ -50,7 +51,7 @@ class DataConfig:
     spikezoo_fraction: float = 0.0
     flat_fraction: float = 0.0
     low_contrast_fraction: float = 0.0
-    flat_min_rate: float = 1e-3
+    flat_min_rate: float = FLAT_MIN_RATE
     reuse: int = 1
     workers: int = 1
 

@@ -40,7 +40,7 @@ from rmbvideo.sensor.emission import ReadoutSpec
 from rmbvideo.simulate.capture import CaptureSimulator, capture_planes
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
 from rmbvideo.scenes.random_scenes import EVAL_SEED_START, SceneRanges, random_scene
-from rmbvideo.scenes.video import VideoScene, VideoSceneRanges
+from rmbvideo.scenes.video import FLAT_MIN_RATE, VideoScene, VideoSceneRanges
 
 log = logging.getLogger(__name__)
 
@@ -75,7 +75,7 @@ class SampleSpec:
     spikezoo_fraction: float = 0.0
     flat_fraction: float = 0.0
     low_contrast_fraction: float = 0.0
-    flat_min_rate: float = 1e-3
+    flat_min_rate: float = FLAT_MIN_RATE
 
     def __post_init__(self) -> None:
         if self.scenes not in SCENE_KINDS:
