@@ -309,6 +309,7 @@ def test_bundled_recipes_parse_and_bad_keys_are_refused(tmp_path):
     floor = configs["video-aligned-sharp-floor-cpu"].sample_spec()
     dark = configs["video-aligned-sharp-dark-cpu"].sample_spec()
     assert floor.flat_min_rate == 1e-4 and dark.flat_min_rate == 1e-3 and floor.key() != dark.key()
+    assert configs["cpu"].source == "rmbvideo/train/recipes/cpu.toml"  # the same in every card, on every machine
     gpu = configs["video-gpu"].with_workers(15)
     assert gpu.data.workers == 15 and gpu.sample_spec() == configs["video-gpu"].sample_spec()
     bad = tmp_path / "bad.toml"
@@ -337,7 +338,9 @@ def test_shipped_models_load_and_match_their_cards(mode):
     with torch.no_grad():
         i_s = torch.full((1, 7, 16, 16), 3.0)
         i_c = torch.stack([i_s * 8 * k / 10 for k in windows], dim=2) if windows else None
-        i_a = i_s * 8 if model.config.aligned else None  # a still scene: the aligned mean is the frame's own
+        # a still scene: each aligned mean (whole frame, central readouts) is the frame's own rate
+        channels = model.config.aligned_channels
+        i_a = torch.stack([i_s * 8] * channels, dim=2) if channels else None
         out, _ = model.forward_sequence(i_s, i_s * 8, i_c=i_c, i_a=i_a)
     assert torch.isfinite(out).all()
 

@@ -191,7 +191,7 @@ def load_recipe(path: str | Path) -> TrainConfig:
         loss = LossConfig(**_typed(LossConfig, tables["loss"], "loss", path))
         config = TrainConfig(name=name, seed=seed, minutes=float(minutes),
                              description=str(data.get("description", "")), data=data_config, model=model,
-                             optim=optim, loss=loss, recipe_text=text, source=str(path),
+                             optim=optim, loss=loss, recipe_text=text, source=recipe_source(path),
                              init=str(data.get("init", "")),
                              init_new_logit=None if new_logit is None else float(new_logit))
         config.sample_spec()  # validates mode/readout/crop
@@ -216,6 +216,15 @@ def _check_ranges(config: TrainConfig, path: Path) -> None:
         problems.append("optim.val_every and checkpoint_every must be >= 1, threads >= 0")
     if problems:
         raise InputError(f"{path}: {'; '.join(problems)}")
+
+
+def recipe_source(path: Path) -> str:
+    """How a model card names its recipe: a bundled one by its path in the package (the same on every
+    machine), any other file as given."""
+    resolved = Path(path).resolve()
+    if resolved.parent == RECIPES_DIR:
+        return f"rmbvideo/train/recipes/{resolved.name}"
+    return str(path)
 
 
 def bundled_recipe(name: str) -> Path:
