@@ -38,18 +38,19 @@ def default_threads() -> int:
 
 
 @contextmanager
-def compute_threads(count: int | None = None) -> Iterator[None]:
-    """torch's intra-op threads and OpenCV's (optical flow, warps) set to ``count`` (None:
-    ``default_threads()``) inside the block, the previous counts restored after it."""
+def compute_threads(count: int | None = None, cv_count: int | None = None) -> Iterator[None]:
+    """torch's intra-op threads set to ``count`` (None: ``default_threads()``) and OpenCV's (optical flow,
+    warps) to ``cv_count`` (None: the same) inside the block, the previous counts restored after it."""
     import cv2
     import torch
 
     previous, previous_cv = torch.get_num_threads(), cv2.getNumThreads()
     wanted = default_threads() if count is None else count
+    wanted_cv = wanted if cv_count is None else cv_count
     if wanted != previous:
         torch.set_num_threads(wanted)
-    if wanted != previous_cv:
-        cv2.setNumThreads(wanted)
+    if wanted_cv != previous_cv:
+        cv2.setNumThreads(wanted_cv)
     try:
         yield
     finally:

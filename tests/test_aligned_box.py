@@ -131,3 +131,23 @@ def test_sharp_images_follow_the_same_flows_and_are_merged_by_their_own_test():
 def test_config_for_frames_counts_the_trials_of_whole_frames_and_sharp_images():
     config = AlignedBoxConfig.for_frames(10, 2)
     assert (config.trials, config.sharp_trials) == (80, 16) and AlignedBoxConfig.for_frames(4).trials == 32
+
+
+@pytest.mark.parametrize("concurrent", [False, True])
+def test_worker_gives_the_box_means_in_call_order_and_reports_a_failure_to_the_caller(concurrent):
+    from rmbvideo.recon.aligned_worker import AlignedWorker
+
+    rng = np.random.default_rng(3)
+    rates = rng.random((6, 24, 32)).astype(np.float32)
+    box, worker = AlignedBox(), AlignedWorker(AlignedBoxConfig(), concurrent=concurrent)
+    for k, rate in enumerate(rates):
+        box.add(k, rate)
+        worker.add(k, rate)
+    queued = [worker.mean(i, aligned_window(i, 2, 6)) for i in range(6)]
+    worker.evict(6)
+    for i, handle in enumerate(queued):
+        assert np.array_equal(handle.result(), box.mean(i, aligned_window(i, 2, 6)))
+    with pytest.raises(KeyError):  # evicted: the error reaches the caller (inline: at once; beside: at result())
+        worker.mean(2, [1, 2, 3]).result()
+    assert worker.busy_seconds > 0
+    worker.close()

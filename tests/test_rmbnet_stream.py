@@ -249,3 +249,24 @@ def test_aligned_model_stream_equals_forward_sequence_with_the_aligned_means(rad
         np.testing.assert_allclose(images, reference.numpy(), rtol=1e-4, atol=1e-6 * float(reference.max()))
     with pytest.raises(ValueError, match="aligned window mean"):
         model.forward_sequence(torch.from_numpy(np.stack([p.i_s for p in pframes]))[None], torch.from_numpy(i_m)[None])
+
+
+def test_aligned_means_beside_the_network_give_the_same_frames_bit_for_bit():
+    """With two threads the aligned window means run in a worker thread of their own beside the network
+    (one thread each); the frames are those of the inline run with the same chunks."""
+    torch.manual_seed(0)
+    model = RmbNet(RmbNetConfig(w=2, width=0.25, readout="pure-m", blend=True, aligned=True, aligned_radius=4,
+                                aligned_shift=True, aligned_centre=2)).eval()
+    with torch.no_grad():
+        model.decoder.head[-1].bias[-1] = 3.0
+    rng = np.random.default_rng(7)
+    multi = rng.integers(0, 8, (135, H, W)).astype(np.uint8)
+    data = RmbChunk((multi > 3).astype(np.uint8), multi, np.ones((135, H), bool), start=0, rate_hz=10_000.0)
+    for size in (9, 135):
+        inline, inline_engine = stream(model, split(data, size), threads=1)
+        assert not inline_engine._aligned_box.concurrent
+        beside, engine = stream(model, split(data, size), threads=2)
+        assert engine._aligned_box.concurrent and engine._threads_for() == (1, 1)
+        assert [f.index for f in beside] == [f.index for f in inline]
+        assert np.array_equal(np.stack([f.image for f in beside]), np.stack([f.image for f in inline]))
+        assert engine.stage_seconds["aligned mean"] > 0

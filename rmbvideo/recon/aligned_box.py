@@ -182,10 +182,17 @@ class _RobustMerge:
         return cv2.boxFilter(a, -1, self._size, normalize=True, borderType=cv2.BORDER_REPLICATE)
 
     def add(self, warped: np.ndarray, inside: np.ndarray) -> None:
-        z2 = (_arcsine_sqrt(self._local(warped)) - self._angle) ** 2 / self._variance
-        weight = np.where(inside, np.minimum(1.0, self._tau / np.maximum(z2, 1e-12)), 0.0).astype(np.float32)
-        self._total += weight * warped
+        weight = _arcsine_sqrt(self._local(warped))  # in place from here: z^2, then its weight
+        weight -= self._angle
+        np.square(weight, out=weight)
+        weight /= self._variance
+        np.maximum(weight, 1e-12, out=weight)
+        np.divide(self._tau, weight, out=weight)
+        np.minimum(weight, 1.0, out=weight)
+        weight *= inside  # no evidence from outside the frame
         self._weights += weight
+        weight *= warped
+        self._total += weight
 
     def result(self) -> np.ndarray:
         return (self._total / self._weights).astype(np.float32)

@@ -41,7 +41,8 @@ from rmbvideo.net.model import (
     window_indices,
     window_valid,
 )
-from rmbvideo.recon.aligned_box import AlignedBox, AlignedBoxConfig, aligned_window
+from rmbvideo.recon.aligned_box import AlignedBoxConfig, aligned_window
+from rmbvideo.recon.aligned_worker import AlignedMean, AlignedWorker
 from rmbvideo.recon.precision import PRECISIONS, uses_bf16
 from rmbvideo.recon.prelim import MultiUpsampler, PreliminaryFrames, select_centre
 from rmbvideo.sensor.conventions import CONVENTIONS
@@ -98,13 +99,19 @@ def resolve_device(device: str | torch.device) -> torch.device:
     return resolved
 
 
+#: frames whose aligned means a concurrent worker may make ahead of the network (bounds the memory they hold)
+ALIGNED_AHEAD = 2
+
+
 class RmbNetReconstructor:
     """``push(chunk or prelim frames) -> list[Frame]``, ``flush() -> list[Frame]``.
 
     ``precision``: "auto" uses bf16 autocast on CPUs with AVX512-BF16/AMX, where it is measured faster
     (``rmbvideo.recon.precision``), and fp32 elsewhere, CUDA included; "bf16"/"fp32" force it.
-    ``threads``: intra-op threads while the network runs (restored afterwards); None follows the
-    project's thread policy (``rmbvideo.threads``: one thread on a busy or small machine).
+    ``threads``: the threads it may use (restored afterwards); None follows the project's thread policy
+    (``rmbvideo.threads``: one thread on a busy or small machine). With two or more, a model that reads
+    the aligned window means computes them in a thread of their own beside the network, which gets the
+    rest (``rmbvideo.recon.aligned_worker``; the frames are the same bit for bit).
     ``n`` is the readouts per preliminary frame when RmbChunks are pushed (default: the model's N)
     and ``upsampler`` the band upsampler they go through (default: flow-free interpolation; see
     ``rmbvideo.recon.flow.FlowUpsampler``).
@@ -146,7 +153,8 @@ class RmbNetReconstructor:
         self._encoded: dict[int, EncodedFrame] = {}
         self._pair_cache: PairCache = {}
         self._flow_cache: dict = {}
-        self._aligned_box = (AlignedBox(AlignedBoxConfig.for_frames(self.n, self._net.config.aligned_centre))
+        self._aligned_box = (AlignedWorker(AlignedBoxConfig.for_frames(self.n, self._net.config.aligned_centre),
+                                           concurrent=self._threads >= 2)
                              if self._net.config.aligned else None)
         self._received = 0
         self._next_out = 0
@@ -205,23 +213,45 @@ class RmbNetReconstructor:
 
     def _consume(self, frames: list[PrelimLike], final: bool) -> list[Frame]:
         began = time.perf_counter()
-        aligned_before = self.stage_seconds.get("aligned mean", 0.0)
+        box = self._aligned_box
+        waited_before = box.waited_seconds if box is not None else 0.0
         try:
             return self._network(frames, final)
         finally:
             if self.device.type == "cuda":
                 torch.cuda.synchronize(self.device)
-            aligned = self.stage_seconds.get("aligned mean", 0.0) - aligned_before
-            self.stage_seconds["network"] += time.perf_counter() - began - aligned
+            waited = box.waited_seconds - waited_before if box is not None else 0.0
+            self.stage_seconds["network"] += time.perf_counter() - began - waited
+            if box is not None:
+                self.stage_seconds["aligned mean"] = box.busy_seconds
+                if final:
+                    box.close()
+
+    def _threads_for(self) -> tuple[int, int]:
+        """(torch, OpenCV) threads: with the aligned means in a thread of their own, that thread is
+        OpenCV's one and the network gets the others."""
+        if self._aligned_box is not None and self._aligned_box.concurrent:
+            return self._threads - 1, 1
+        return self._threads, self._threads
 
     def _network(self, frames: list[PrelimLike], final: bool) -> list[Frame]:
-        with compute_threads(self._threads), torch.inference_mode(), self._precision():
+        torch_threads, cv_threads = self._threads_for()
+        with compute_threads(torch_threads, cv_threads), torch.inference_mode(), self._precision():
             self._accept(frames)
             count = self._received if final else None
+            ready = []
+            while self._next_out + len(ready) < self._received and (final or self._ready(self._next_out + len(ready))):
+                ready.append(self._next_out + len(ready))
+            # a concurrent worker makes the next frames' aligned means while the network makes this one
+            ahead = ALIGNED_AHEAD if self._aligned_box is not None and self._aligned_box.concurrent else 0
+            means: dict[int, AlignedMean | None] = {}
             out = []
-            while self._next_out < self._received and (final or self._ready(self._next_out)):
-                out.append(self._emit(self._next_out, count))
-                self._next_out += 1
+            for k, i in enumerate(ready):
+                for j in ready[k : k + ahead + 1]:
+                    if j not in means:
+                        means[j] = self._aligned(j, count)
+                out.append(self._emit(i, count, means.pop(i)))
+                self._next_out = i + 1
                 self._evict(self._next_out)
         return out
 
@@ -247,9 +277,7 @@ class RmbNetReconstructor:
         for fid, frame in zip(ids, frames):
             self._raw[fid] = frame
             if self._aligned_box is not None:
-                tick = time.perf_counter()
                 self._aligned_box.add(fid, np.asarray(frame.i_m, np.float32) / (BIN_TRIALS * self.n), self._sharp(frame))
-                self.stage_seconds["aligned mean"] += time.perf_counter() - tick
         self._received += len(frames)
         if self.align == "none":
             for a in range(0, len(frames), ENCODE_BATCH):
@@ -294,20 +322,20 @@ class RmbNetReconstructor:
             raise InputError(f"preliminary frame {frames[0].index}: {exc}") from None
         return torch.from_numpy(sums).to(self.device)
 
-    def _aligned(self, i: int, count: int | None) -> torch.Tensor | None:
-        """Frame ``i``'s aligned window mean(s) of the multi-bit sums, (1,H,W) or (1,2,H,W), for a model that reads them."""
+    def _aligned(self, i: int, count: int | None) -> AlignedMean | None:
+        """Frame ``i``'s aligned window mean(s), queued, for a model that reads them."""
         if self._aligned_box is None:
             return None
-        tick = time.perf_counter()
         config = self._net.config
-        mean = self._aligned_box.mean(i, aligned_window(i, config.aligned_half_width, count, config.aligned_shift))
-        self.stage_seconds["aligned mean"] += time.perf_counter() - tick
-        return torch.from_numpy(mean * (BIN_TRIALS * self.n)).unsqueeze(0).to(self.device)
+        return self._aligned_box.mean(i, aligned_window(i, config.aligned_half_width, count, config.aligned_shift))
 
-    def _emit(self, i: int, count: int | None) -> Frame:
+    def _emit(self, i: int, count: int | None, mean: AlignedMean | None) -> Frame:
+        """Frame ``i`` from its window and its queued aligned mean ((H,W) or (2,H,W) rates, made sums here)."""
+        aligned = (None if mean is None
+                   else torch.from_numpy(mean.result() * (BIN_TRIALS * self.n)).unsqueeze(0).to(self.device))
         cache = self._pair_cache if self.align == "none" else None
         t, state = self._net.step(self._window(i, count), self._state, cache, valid=window_valid(i, self._w, count),
-                                  convention=self._convention, aligned=self._aligned(i, count))
+                                  convention=self._convention, aligned=aligned)
         if not bool(torch.isfinite(t).all()):
             self.nonfinite_frames += 1
             log.warning("RMB-Net produced NaN/Inf in frame %d; replaced by 0 and reset the recurrent state", i)
