@@ -248,3 +248,27 @@ def test_flat_min_rate_lowers_the_floor_of_the_training_flat_fields():
     usual = [float(np.median(simulate_sample(default, seed).gt)) for seed in range(8)]
     assert min(low) < 1e-3 and min(low) >= 0.7e-4
     assert min(usual) >= 0.7e-3
+
+
+def test_a_clip_cut_from_a_sequence_keeps_its_frames_streams_and_truth_aligned():
+    """The clip-edge cost runs a method on the stream cut to start or end at a frame: the binned readouts,
+    the raw planes (two per readout) and the ground truth must be cut at the same moment."""
+    from rmbvideo.evaluate.heldout import FRAME_STEP, Sequence
+    from rmbvideo.evaluate.video_checks import clip_frames
+
+    rng = np.random.default_rng(5)
+    frames, h, w = 6, 4, 8
+    readouts = frames * FRAME_STEP
+    seq = Sequence(name="cut", seed=0, rate_hz=10_000.0,
+                   single=rng.integers(0, 2, (readouts, h, w), dtype=np.uint8),
+                   multi=rng.integers(0, 8, (readouts, h, w), dtype=np.uint8),
+                   raw_packed=rng.integers(0, 256, (2 * readouts, 2 * h, 2 * w // 8), dtype=np.uint8),
+                   gt=rng.random((frames, h, w), dtype=np.float32), edge_readouts=0)
+    clip = clip_frames(seq, 2, 5)
+    assert clip.readouts == 3 * FRAME_STEP and len(clip.gt) == 3
+    np.testing.assert_array_equal(clip.multi[0], seq.multi[2 * FRAME_STEP])
+    np.testing.assert_array_equal(clip.single[-1], seq.single[5 * FRAME_STEP - 1])
+    np.testing.assert_array_equal(clip.raw_packed[0], seq.raw_packed[4 * FRAME_STEP])
+    np.testing.assert_array_equal(clip.raw_packed[-1], seq.raw_packed[10 * FRAME_STEP - 1])
+    np.testing.assert_array_equal(clip.gt, seq.gt[2:5])
+    assert seq.readouts == readouts  # the original is left whole

@@ -2,7 +2,10 @@
 
 - Clip edges: the first and last frames against the clip's median frame (mu-law PSNR), and the
   moment each edge frame shows: the time offset at which the scene's ground truth matches the
-  frame best (a window that repeats or leans on one side shows the scene early or late).
+  frame best (a window that repeats or leans on one side shows the scene early or late). Since a
+  clip's first frames may simply show harder content than its median (a darker moment), the edge's own
+  cost is measured too: the middle frame made mid-clip against the same frame made as the first (the
+  stream cut to start there) and as the last (cut to end there): same content, same spikes.
 - Rolling-band oscillation: the RMB band returns to a row every H / shift readouts (6.25 frames
   for 125 binned rows); the amplitude (dB) of the per-frame PSNR at that period, against the floor
   the same fit reads at other periods, on a slow pan and a still scene, beside methods that read the
@@ -18,7 +21,7 @@ import json
 import math
 from collections.abc import Iterator
 from collections.abc import Sequence as Seq
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -45,7 +48,8 @@ TIME_OFFSETS_MS = tuple(np.round(np.arange(-1.0, 1.0001, 0.05), 3))
 @dataclass(frozen=True)
 class EdgeReport:
     """Per-frame mu-law PSNR of a clip and, for its first and last frame, the drop below the median
-    frame (dB) and the time offset (ms) at which the ground truth matches the frame best."""
+    frame (dB) and the time offset (ms) at which the ground truth matches the frame best; the edge's own
+    cost (dB): the middle frame made mid-clip minus the same frame made as a clip's first or last."""
 
     psnr: list[float]
     first_drop_db: float
@@ -53,6 +57,8 @@ class EdgeReport:
     first_offset_ms: float
     last_offset_ms: float
     middle_offset_ms: float
+    first_edge_cost_db: float
+    last_edge_cost_db: float
 
 
 class BinnedChunks:
@@ -92,9 +98,18 @@ def best_time_offset_ms(image: np.ndarray, scene: VideoScene, raw_plane: float) 
     return float(TIME_OFFSETS_MS[int(np.argmax(scores))])
 
 
+def clip_frames(seq: Sequence, first: int, stop: int) -> Sequence:
+    """Frames ``first .. stop - 1`` of ``seq`` as a clip of their own: its binned and raw streams cut there
+    (a capture that starts or ends at that moment), its ground truth with them."""
+    a, b = first * FRAME_STEP, stop * FRAME_STEP
+    return replace(seq, single=seq.single[a:b], multi=seq.multi[a:b], raw_packed=seq.raw_packed[2 * a:2 * b],
+                   gt=seq.gt[first:stop])
+
+
 def edge_report(seq: Sequence, method: str = "rmbnet", options: dict | None = None) -> EdgeReport:
     """Clip-edge check of ``method`` on held-out video sequence ``seq`` (every frame scored)."""
-    frames = run_rmb(method, options or {}, seq)
+    options = options or {}
+    frames = run_rmb(method, options, seq)
     count = len(seq.gt)
     psnr = [mu_law_psnr(frames[i], np.minimum(seq.gt[i], 1.0)) for i in range(count)]
     median = float(np.median(psnr))
@@ -102,8 +117,13 @@ def edge_report(seq: Sequence, method: str = "rmbnet", options: dict | None = No
     centre = lambda i: 2 * FRAME_STEP * i + FRAME_STEP  # noqa: E731  raw plane at frame i's centre
     first = best_time_offset_ms(frames[0], scene, centre(0))
     last = best_time_offset_ms(frames[count - 1], scene, centre(count - 1))
-    middle = best_time_offset_ms(frames[count // 2], scene, centre(count // 2))
-    return EdgeReport(psnr, median - psnr[0], median - psnr[-1], first, last, middle)
+    mid = count // 2
+    middle = best_time_offset_ms(frames[mid], scene, centre(mid))
+    truth = np.minimum(seq.gt[mid], 1.0)
+    as_first = run_rmb(method, options, clip_frames(seq, mid, count))[0]
+    as_last = run_rmb(method, options, clip_frames(seq, 0, mid + 1))[mid]
+    return EdgeReport(psnr, median - psnr[0], median - psnr[-1], first, last, middle,
+                      psnr[mid] - mu_law_psnr(as_first, truth), psnr[mid] - mu_law_psnr(as_last, truth))
 
 
 def band_sequence(width: int, height: int, frames: int, static: bool = False, seed: int = 1_600_000) -> Sequence:
@@ -213,15 +233,19 @@ def write_checks(out_dir, method: str, options: dict, sequences: Seq[Sequence], 
              "## Clip edges (held-out video sequences, every frame scored)", "",
              "Offset: the shift of the scene's time (ms, 0.05 ms steps, searched over +-1 ms) at which the ground "
              "truth matches the frame best; the middle frame's is the reference (a value at +-1.00 means no clear "
-             "match within the range).", "",
+             "match within the range). Edge cost: the middle frame made mid-clip minus the same frame made as a "
+             "clip's first frame (the stream cut to start there) or last (cut to end there): what the edge itself "
+             "costs, with the content and the spikes unchanged.", "",
              "| sequence | first frame: dB below median | last frame: dB below median | first: offset ms | "
-             "last: offset ms | middle: offset ms |", "|---|---:|---:|---:|---:|---:|"]
+             "last: offset ms | middle: offset ms | edge cost as first frame (dB) | edge cost as last frame (dB) |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|"]
     edges = {}
     for seq in sequences:
         report = edge_report(seq, method, options)
         edges[seq.name] = report
         lines.append(f"| {seq.name} | {report.first_drop_db:.2f} | {report.last_drop_db:.2f} | "
-                     f"{report.first_offset_ms:+.2f} | {report.last_offset_ms:+.2f} | {report.middle_offset_ms:+.2f} |")
+                     f"{report.first_offset_ms:+.2f} | {report.last_offset_ms:+.2f} | {report.middle_offset_ms:+.2f} | "
+                     f"{report.first_edge_cost_db:.2f} | {report.last_edge_cost_db:.2f} |")
     width, height, frames = (112, 64, 40) if quick else (200, 125, 64)
     period = band_period_frames(height)
     sequences_band = [band_sequence(width, height, frames), band_sequence(width, height, frames, static=True)]

@@ -63,8 +63,12 @@ def _clean(rate: np.ndarray) -> np.ndarray:
 
 
 def _arcsine_sqrt(p: np.ndarray) -> np.ndarray:
-    """Variance-stabilised proportion: 2 asin(sqrt(p)) has variance ~1/n for n trials."""
-    return 2.0 * np.arcsin(np.sqrt(np.clip(p, 0.0, 1.0)))
+    """Variance-stabilised proportion: 2 asin(sqrt(p)) has variance ~1/n for n trials (a new array)."""
+    out = np.clip(p, 0.0, 1.0)
+    np.sqrt(out, out=out)
+    np.arcsin(out, out=out)
+    out *= 2.0
+    return out
 
 
 class AlignedBox:
