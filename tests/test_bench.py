@@ -68,6 +68,9 @@ def test_default_configs_cover_the_issue():
     assert len([c for c in default_configs(("cpu",), full_grid=True) if c.is_rmbnet]) == 48
     full = [c for c in rmb if c.resolution == "full"]  # reconstruct's default output, on the CPU
     assert len(full) == 1 and full[0].device == "cpu" and full[0].name.endswith("full res")
+    for run, other in ((1, 2), (2, 1), (4, 1)):  # the default row with the other thread count, once
+        own = [c for c in default_configs(("cpu",), threads=run) if c.threads is not None]
+        assert [(c.threads, c.w, c.precision, c.name.endswith(f"{other} threads")) for c in own] == [(other, 3, "auto", True)]
 
 
 def test_full_resolution_row_scores_its_2x2_average_which_is_the_binned_output(tmp_path):

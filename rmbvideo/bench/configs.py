@@ -42,6 +42,7 @@ class BenchConfig:
     precision: str | None = None
     device: str = "cpu"
     resolution: str = "binned"  # "full": the default of reconstruct, binned network + the raw stream's detail
+    threads: int | None = None  # None: the run's thread count (the policy's or --threads)
 
     @property
     def is_rmbnet(self) -> bool:
@@ -57,21 +58,26 @@ def precision_label(precision: str, device: str) -> str:
 
 
 def rmbnet_config(w: int = 3, align: str = "none", width: float = DEFAULT_WIDTH, precision: str = "auto",
-                  device: str = "cpu", resolution: str = "binned") -> BenchConfig:
+                  device: str = "cpu", resolution: str = "binned", threads: int | None = None) -> BenchConfig:
     """An RMB-Net row named after its knobs, e.g. ``RMB-Net w3 none x1 auto=bf16 cpu`` (`` full res`` added
-    for the camera's resolution: the binned network plus the learned detail stage, scored 2x2-averaged)."""
+    for the camera's resolution: the binned network plus the learned detail stage, scored 2x2-averaged;
+    `` N threads`` where the row sets its own thread count)."""
     name = f"RMB-Net w{w} {align} x{width:g} {precision_label(precision, device)} {device}"
     name += " full res" if resolution == "full" else ""
+    name += f" {threads} threads" if threads is not None else ""
     return BenchConfig(name=name, method="rmbnet", w=w, align=align, width=width, precision=precision,
-                       device=device, resolution=resolution)
+                       device=device, resolution=resolution, threads=threads)
 
 
 def default_configs(devices: tuple[str, ...] = ("cpu",), full_grid: bool = False,
-                    baselines: bool = True, alignments: tuple[str, ...] = ALIGNMENTS) -> list[BenchConfig]:
+                    baselines: bool = True, alignments: tuple[str, ...] = ALIGNMENTS,
+                    threads: int = 1) -> list[BenchConfig]:
     """Baselines (on CPU, where they run) then RMB-Net rows for each device.
 
     One-at-a-time: the default model plus each other value of each knob; ``full_grid``: every
     combination. ``alignments`` restricts the alignment knob (TV-L1 takes seconds per flow field).
+    ``threads``: the run's thread count; the CPU's default row is also run with the other of 1 and 2
+    (with two, a model's aligned window means run beside the network).
     """
     rows = [BenchConfig(name=name, method=method, options=dict(options))
             for name, (method, options) in BASELINES.items()] if baselines else []
@@ -84,6 +90,7 @@ def default_configs(devices: tuple[str, ...] = ("cpu",), full_grid: bool = False
         rows.append(default)
         if device == "cpu":  # what reconstruct writes by default; its detail stage runs on the CPU
             rows.append(rmbnet_config(device=device, resolution="full"))
+            rows.append(rmbnet_config(device=device, threads=2 if threads == 1 else 1))
         rows += [rmbnet_config(w, "none", DEFAULT_WIDTH, "auto", device) for w in W_VALUES if w != 3]
         rows += [rmbnet_config(3, a, DEFAULT_WIDTH, "auto", device) for a in alignments if a != "none"]
         rows += [rmbnet_config(3, "none", wd, "auto", device) for wd in WIDTHS if wd != DEFAULT_WIDTH]

@@ -132,7 +132,9 @@ def _sync(device: str) -> None:
 
 def run_config(config: BenchConfig, sequences: list[Sequence], workdir: Path, models_dir: Path,
                threads: int = 1) -> BenchRecord:
-    """Benchmark ``config`` on ``sequences`` (their .dat files are cached in ``workdir``)."""
+    """Benchmark ``config`` on ``sequences`` (their .dat files are cached in ``workdir``) with ``threads``
+    threads unless the row sets its own."""
+    threads = config.threads or threads
     choice = ModelChoice(None)
     network = None
     if config.is_rmbnet:

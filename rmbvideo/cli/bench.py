@@ -72,6 +72,7 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
     """
     from rmbvideo.threads import default_threads
 
+    threads_option = threads is not None
     threads = threads or default_threads()
     if ctx.invoked_subcommand is not None:
         return
@@ -88,7 +89,7 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
     sequences = load_heldout(quick, cache)
     alignments = tuple(a for a in ALIGNMENTS if not ((quick or no_tvl1) and a == "tvl1"))
     configs = default_configs(_devices(device), full_grid=full_grid, baselines=not no_baselines,
-                              alignments=alignments)
+                              alignments=alignments, threads=threads)
     records = []
     with tempfile.TemporaryDirectory(prefix="rmbvideo-bench-") as work:
         for config in configs:
@@ -99,7 +100,9 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
     mark_pareto(records)
     document = ["# rmbvideo bench", "",
                 f"{len(sequences)} held-out scenes at {sequences[0].shape[1]}x{sequences[0].shape[0]}, "
-                f"{threads} torch thread(s). '*' = Pareto front of (time per frame, PSNR) among rows with "
+                f"{threads} thread(s) per row unless the row names its own ({'--threads' if threads_option else 'the thread policy of every command, rmbvideo.threads: one on a busy or 2-core machine'}; "
+                "with two or more, a model's aligned window means run in one of them beside the network). "
+                "'*' = Pareto front of (time per frame, PSNR) among rows with "
                 "accuracy; 'n/a' = untrained (random-init) network, timed only.", "", markdown_table(records)]
     extras: dict = {}
     if not no_extras:
