@@ -264,9 +264,9 @@ def test_aligned_means_beside_the_network_give_the_same_frames_bit_for_bit():
     data = RmbChunk((multi > 3).astype(np.uint8), multi, np.ones((135, H), bool), start=0, rate_hz=10_000.0)
     for size in (9, 135):
         inline, inline_engine = stream(model, split(data, size), threads=1)
-        assert not inline_engine._aligned_box.concurrent
+        assert not inline_engine.aligned_beside
         beside, engine = stream(model, split(data, size), threads=2)
-        assert engine._aligned_box.concurrent and engine._threads_for() == (1, 1)
+        assert engine.aligned_beside and engine._threads_for() == (1, 1)
         assert [f.index for f in beside] == [f.index for f in inline]
         assert np.array_equal(np.stack([f.image for f in beside]), np.stack([f.image for f in inline]))
         assert engine.stage_seconds["aligned mean"] > 0

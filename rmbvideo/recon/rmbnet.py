@@ -202,6 +202,11 @@ class RmbNetReconstructor:
         return self._prelim
 
     @property
+    def aligned_beside(self) -> bool:
+        """Whether the aligned window means run in a thread of their own beside the network."""
+        return self._aligned_box is not None and self._aligned_box.concurrent
+
+    @property
     def network(self) -> RmbNet:
         """The inference copy of the model that actually runs (BatchNorm folded, channels-last)."""
         return self._net
