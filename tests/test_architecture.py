@@ -7,7 +7,10 @@ from __future__ import annotations
 import ast
 import subprocess
 import sys
+import time
 from pathlib import Path
+
+import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "rmbvideo"
 #: lower layers first; a package may import only packages at its own position or before it.
@@ -76,10 +79,48 @@ def test_one_thread_policy(monkeypatch):
     monkeypatch.setattr(threads, "available_cores", lambda: 2)
     assert threads.default_threads() == 1
     monkeypatch.setattr(threads, "available_cores", lambda: 16)
-    monkeypatch.setattr(threads.os, "getloadavg", lambda: (15.6, 0.0, 0.0))
+    monkeypatch.setattr(threads, "busy_cores", lambda: 15.6)
     assert threads.default_threads() == 1
-    monkeypatch.setattr(threads.os, "getloadavg", lambda: (2.0, 0.0, 0.0))
+    monkeypatch.setattr(threads, "busy_cores", lambda: 2.0)
     assert threads.default_threads() == threads.MAX_THREADS
+
+
+def test_work_beside_the_network_needs_a_second_idle_core_or_two_threads_asked_for(monkeypatch):
+    """Work that never waits for a partner (the aligned means) gets its own thread on an idle 2-core machine,
+    not on a busy one; an explicit thread count decides by itself."""
+    from rmbvideo import threads
+
+    monkeypatch.setattr(threads, "available_cores", lambda: 2)
+    monkeypatch.setattr(threads, "busy_cores", lambda: 0.2)
+    assert threads.default_threads() == 1 and threads.work_beside(None)
+    monkeypatch.setattr(threads, "busy_cores", lambda: 1.3)
+    assert threads.default_threads() == 1 and not threads.work_beside(None)
+    assert threads.work_beside(2) and not threads.work_beside(1)
+    monkeypatch.setattr(threads, "available_cores", lambda: 1)
+    monkeypatch.setattr(threads, "busy_cores", lambda: 0.0)
+    assert not threads.work_beside(None)
+
+
+def test_busy_cores_are_measured_on_this_process_cores_and_count_another_process_spinning():
+    """An idle machine reads near 0 busy cores, one with a process spinning on one core near 1 (the
+    measurement sleeps itself, so it never counts its own process)."""
+    import subprocess
+    import sys
+
+    from rmbvideo import threads
+
+    if threads._cpu_times() is None or threads.available_cores() < 2:
+        pytest.skip("no /proc/stat or a single core")
+    threads._measured = None
+    spinner = subprocess.Popen([sys.executable, "-c", "import time\nend = time.time() + 30\nwhile time.time() < end: pass"])
+    try:
+        time.sleep(0.5)
+        busy = threads.busy_cores()
+        assert busy >= 0.7, busy
+    finally:
+        spinner.kill()
+        spinner.wait()
+        threads._measured = None
 
 
 def test_compute_threads_applies_the_policy_to_torch_and_opencv_and_restores_the_counts(monkeypatch):

@@ -68,8 +68,8 @@ def test_default_configs_cover_the_issue():
     assert len([c for c in default_configs(("cpu",), full_grid=True) if c.is_rmbnet]) == 48
     full = [c for c in rmb if c.resolution == "full"]  # reconstruct's default output, on the CPU
     assert len(full) == 1 and full[0].device == "cpu" and full[0].name.endswith("full res")
-    for run, other in ((1, 2), (2, 1), (4, 1)):  # the default row with the other thread count, once
-        own = [c for c in default_configs(("cpu",), threads=run) if c.threads is not None]
+    for beside, other in ((False, 2), (True, 1)):  # the default row the other way (aligned means inline/beside), once
+        own = [c for c in default_configs(("cpu",), beside=beside) if c.threads is not None]
         assert [(c.threads, c.w, c.precision, c.name.endswith(f"{other} threads")) for c in own] == [(other, 3, "auto", True)]
 
 

@@ -71,13 +71,13 @@ def rmbnet_config(w: int = 3, align: str = "none", width: float = DEFAULT_WIDTH,
 
 def default_configs(devices: tuple[str, ...] = ("cpu",), full_grid: bool = False,
                     baselines: bool = True, alignments: tuple[str, ...] = ALIGNMENTS,
-                    threads: int = 1) -> list[BenchConfig]:
+                    beside: bool = False) -> list[BenchConfig]:
     """Baselines (on CPU, where they run) then RMB-Net rows for each device.
 
     One-at-a-time: the default model plus each other value of each knob; ``full_grid``: every
     combination. ``alignments`` restricts the alignment knob (TV-L1 takes seconds per flow field).
-    ``threads``: the run's thread count; the CPU's default row is also run with the other of 1 and 2
-    (with two, a model's aligned window means run beside the network).
+    ``beside``: whether the run's rows compute a model's aligned window means in a thread beside the
+    network; the CPU's default row is also run the other way (1 thread: inline; 2: beside).
     """
     rows = [BenchConfig(name=name, method=method, options=dict(options))
             for name, (method, options) in BASELINES.items()] if baselines else []
@@ -90,7 +90,7 @@ def default_configs(devices: tuple[str, ...] = ("cpu",), full_grid: bool = False
         rows.append(default)
         if device == "cpu":  # what reconstruct writes by default; its detail stage runs on the CPU
             rows.append(rmbnet_config(device=device, resolution="full"))
-            rows.append(rmbnet_config(device=device, threads=2 if threads == 1 else 1))
+            rows.append(rmbnet_config(device=device, threads=1 if beside else 2))
         rows += [rmbnet_config(w, "none", DEFAULT_WIDTH, "auto", device) for w in W_VALUES if w != 3]
         rows += [rmbnet_config(3, a, DEFAULT_WIDTH, "auto", device) for a in alignments if a != "none"]
         rows += [rmbnet_config(3, "none", wd, "auto", device) for wd in WIDTHS if wd != DEFAULT_WIDTH]

@@ -32,6 +32,7 @@ from rmbvideo.recon.methods import make_reconstructor
 from rmbvideo.recon.pipeline import reconstruct_stream
 from rmbvideo.recon.run import trained_readout
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
+from rmbvideo.threads import default_threads
 
 log = logging.getLogger(__name__)
 
@@ -107,7 +108,7 @@ def write_sequence_dat(sequence: Sequence, folder: Path) -> tuple[Path, DatGeome
     return path, geometry
 
 
-def _make(config: BenchConfig, network, threads: int):
+def _make(config: BenchConfig, network, threads: int | None):
     if not config.is_rmbnet:
         return make_reconstructor(config.method, **config.options)
     from rmbvideo.recon.rmbnet import RmbNetReconstructor
@@ -131,9 +132,9 @@ def _sync(device: str) -> None:
 
 
 def run_config(config: BenchConfig, sequences: list[Sequence], workdir: Path, models_dir: Path,
-               threads: int = 1) -> BenchRecord:
+               threads: int | None = 1) -> BenchRecord:
     """Benchmark ``config`` on ``sequences`` (their .dat files are cached in ``workdir``) with ``threads``
-    threads unless the row sets its own."""
+    threads (None: the thread policy) unless the row sets its own."""
     threads = config.threads or threads
     choice = ModelChoice(None)
     network = None
@@ -179,7 +180,7 @@ def run_config(config: BenchConfig, sequences: list[Sequence], workdir: Path, mo
     fps = frames / seconds if seconds > 0 else 0.0
     return BenchRecord(
         name=config.name, method=config.method, w=config.w, align=config.align, width=config.width,
-        precision=config.precision, device=config.device, threads=threads, model=choice.label if config.is_rmbnet else "-",
+        precision=config.precision, device=config.device, threads=threads or default_threads(), model=choice.label if config.is_rmbnet else "-",
         trained=choice.trained or not config.is_rmbnet, frames=frames, scored_frames=scored_frames,
         psnr=_finite_mean(psnrs), ssim=_finite_mean(ssims), fps=fps,
         net_fps=(net_frames / net_seconds if net_seconds > 0 else 0.0) if config.is_rmbnet else None,

@@ -70,10 +70,10 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
     Writes bench.md (table, per-stage breakdown, real-time and memory checks), bench.csv and
     bench.png (PSNR against time, Pareto front marked). `rmbvideo bench decode` measures decoding.
     """
-    from rmbvideo.threads import default_threads
+    from rmbvideo.threads import default_threads, work_beside
 
-    threads_option = threads is not None
-    threads = threads or default_threads()
+    resolved = threads or default_threads()  # None (the policy) stays None for the rows
+    beside = work_beside(threads)
     if ctx.invoked_subcommand is not None:
         return
     from rmbvideo.bench.configs import ALIGNMENTS, default_configs
@@ -89,7 +89,7 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
     sequences = load_heldout(quick, cache)
     alignments = tuple(a for a in ALIGNMENTS if not ((quick or no_tvl1) and a == "tvl1"))
     configs = default_configs(_devices(device), full_grid=full_grid, baselines=not no_baselines,
-                              alignments=alignments, threads=threads)
+                              alignments=alignments, beside=beside)
     records = []
     with tempfile.TemporaryDirectory(prefix="rmbvideo-bench-") as work:
         for config in configs:
@@ -100,8 +100,10 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
     mark_pareto(records)
     document = ["# rmbvideo bench", "",
                 f"{len(sequences)} held-out scenes at {sequences[0].shape[1]}x{sequences[0].shape[0]}, "
-                f"{threads} thread(s) per row unless the row names its own ({'--threads' if threads_option else 'the thread policy of every command, rmbvideo.threads: one on a busy or 2-core machine'}; "
-                "with two or more, a model's aligned window means run in one of them beside the network). "
+                f"{resolved} thread(s) for the network per row unless the row names its own "
+                f"({'--threads' if threads else 'the thread policy of every command, rmbvideo.threads: one on a busy or 2-core machine'}); "
+                f"the aligned window means {'in a thread of their own beside the network' if beside else 'inline'} "
+                f"({'two or more threads' if beside and threads else 'a second idle core' if beside else 'no second thread or idle core'}). "
                 "'*' = Pareto front of (time per frame, PSNR) among rows with "
                 "accuracy; 'n/a' = untrained (random-init) network, timed only.", "", markdown_table(records)]
     extras: dict = {}
@@ -111,7 +113,7 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
         from rmbvideo.bench.stages import stage_breakdown
 
         stages = stage_breakdown(build_network(3, DEFAULT_WIDTH, _choice(models_dir)), planes=600 if quick else 2000,
-                                 threads=threads)
+                                 threads=resolved)
         extras["stages_ms_per_frame"] = dict(stages)
         stages["size"] = "200x125"  # type: ignore[assignment]
         document += [_stage_table(stages)]

@@ -36,8 +36,9 @@ def rmbnet_options(func):
         click.option("--precision", type=click.Choice(["auto", "fp32", "bf16"]), default="auto",
                      show_default=True, help="Network precision (auto: bf16 on CPUs with AVX512-BF16 or AMX, where it is faster; fp32 elsewhere, CUDA included)."),
         click.option("--threads", type=click.IntRange(min=1), default=None,
-                     help="CPU threads for the network [default: the thread policy: 1 on a busy or 2-core machine, "
-                  "else the idle cores, at most 8]."),
+                     help="CPU threads [default: the thread policy: for the network 1 on a busy or 2-core machine, "
+                  "else the idle cores, at most 8; RMB-Net's aligned window means in a thread of their own "
+                  "when a second core is idle]. With 2 or more, the aligned means take one of them."),
         click.option("--convention", type=click.Choice(list(CONVENTIONS)), default="physical", show_default=True,
                      help="What made the spikes: physical (a camera: pixels reset at a spike) or spikezoo (streams "
                           "simulated in the accumulate-and-subtract rate convention, e.g. spikezoo's REDS)."),

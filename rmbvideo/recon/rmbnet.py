@@ -46,7 +46,7 @@ from rmbvideo.recon.aligned_worker import AlignedMean, AlignedWorker
 from rmbvideo.recon.precision import PRECISIONS, uses_bf16
 from rmbvideo.recon.prelim import MultiUpsampler, PreliminaryFrames, select_centre
 from rmbvideo.sensor.conventions import CONVENTIONS
-from rmbvideo.threads import default_threads, compute_threads
+from rmbvideo.threads import compute_threads, default_threads, work_beside
 
 log = logging.getLogger(__name__)
 
@@ -109,9 +109,10 @@ class RmbNetReconstructor:
     ``precision``: "auto" uses bf16 autocast on CPUs with AVX512-BF16/AMX, where it is measured faster
     (``rmbvideo.recon.precision``), and fp32 elsewhere, CUDA included; "bf16"/"fp32" force it.
     ``threads``: the threads it may use (restored afterwards); None follows the project's thread policy
-    (``rmbvideo.threads``: one thread on a busy or small machine). With two or more, a model that reads
-    the aligned window means computes them in a thread of their own beside the network, which gets the
-    rest (``rmbvideo.recon.aligned_worker``; the frames are the same bit for bit).
+    (``rmbvideo.threads``: one thread for the network on a busy or small machine). A model that reads the
+    aligned window means computes them in a thread of their own beside the network, which gets the rest,
+    when two or more are given or, under the policy, when a second core is idle
+    (``rmbvideo.recon.aligned_worker``; the frames are the same bit for bit).
     ``n`` is the readouts per preliminary frame when RmbChunks are pushed (default: the model's N)
     and ``upsampler`` the band upsampler they go through (default: flow-free interpolation; see
     ``rmbvideo.recon.flow.FlowUpsampler``).
@@ -144,6 +145,7 @@ class RmbNetReconstructor:
         self._autocast = uses_bf16(precision, self.device)
         self._net = inference_copy(self.model, bf16=self._autocast)
         self._threads = threads if threads is not None else default_threads()
+        beside = work_beside(threads)
         self.align = align
         self.n = model.config.n if n is None else n
         self._w = model.config.w
@@ -154,7 +156,7 @@ class RmbNetReconstructor:
         self._pair_cache: PairCache = {}
         self._flow_cache: dict = {}
         self._aligned_box = (AlignedWorker(AlignedBoxConfig.for_frames(self.n, self._net.config.aligned_centre),
-                                           concurrent=self._threads >= 2)
+                                           concurrent=beside)
                              if self._net.config.aligned else None)
         self._received = 0
         self._next_out = 0
@@ -234,9 +236,9 @@ class RmbNetReconstructor:
 
     def _threads_for(self) -> tuple[int, int]:
         """(torch, OpenCV) threads: with the aligned means in a thread of their own, that thread is
-        OpenCV's one and the network gets the others."""
-        if self._aligned_box is not None and self._aligned_box.concurrent:
-            return self._threads - 1, 1
+        OpenCV's one and the network gets the others (at least one)."""
+        if self.aligned_beside:
+            return max(1, self._threads - 1), 1
         return self._threads, self._threads
 
     def _network(self, frames: list[PrelimLike], final: bool) -> list[Frame]:
@@ -248,7 +250,7 @@ class RmbNetReconstructor:
             while self._next_out + len(ready) < self._received and (final or self._ready(self._next_out + len(ready))):
                 ready.append(self._next_out + len(ready))
             # a concurrent worker makes the next frames' aligned means while the network makes this one
-            ahead = ALIGNED_AHEAD if self._aligned_box is not None and self._aligned_box.concurrent else 0
+            ahead = ALIGNED_AHEAD if self.aligned_beside else 0
             means: dict[int, AlignedMean | None] = {}
             out = []
             for k, i in enumerate(ready):
