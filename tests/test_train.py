@@ -310,6 +310,8 @@ def test_bundled_recipes_parse_and_bad_keys_are_refused(tmp_path):
     dark = configs["video-aligned-sharp-dark-cpu"].sample_spec()
     assert floor.flat_min_rate == 1e-4 and dark.flat_min_rate == 1e-3 and floor.key() != dark.key()
     assert configs["cpu"].source == "rmbvideo/train/recipes/cpu.toml"  # the same in every card, on every machine
+    other = configs["ablation-w0"].with_seed(3)  # a comparison's spread: other weights and scenes, same recipe
+    assert other.seed == 3 and other.sample_spec() == configs["ablation-w0"].sample_spec()
     gpu = configs["video-gpu"].with_workers(15)
     assert gpu.data.workers == 15 and gpu.sample_spec() == configs["video-gpu"].sample_spec()
     bad = tmp_path / "bad.toml"

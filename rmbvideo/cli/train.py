@@ -28,6 +28,8 @@ from rmbvideo.cli.options import DEVICE_CHOICE, AliasOption
               help="Override the recipe's wall-time budget.")
 @click.option("--steps", type=click.IntRange(min=1), default=None,
               help="Override the recipe's step budget (e.g. an ablation set at a longer equal budget).")
+@click.option("--seed", type=click.IntRange(min=0), default=None,
+              help="Override the recipe's seed (other initial weights and training scenes: a comparison's spread).")
 @click.option("--workers", type=click.IntRange(min=1), default=None,
               help="Override the recipe's simulation processes for video scenes (e.g. on a many-core GPU "
                    "machine); the samples are the same for any count.")
@@ -36,7 +38,7 @@ from rmbvideo.cli.options import DEVICE_CHOICE, AliasOption
 @quiet_option
 @verbose_option
 def train(recipe: str, out_dir: Path | None, cache_dir: Path | None, resume: bool, minutes: float | None,
-          steps: int | None, workers: int | None, device: str, quiet: bool) -> None:
+          steps: int | None, seed: int | None, workers: int | None, device: str, quiet: bool) -> None:
     """Train RMB-Net from RECIPE (a .toml file or a bundled recipe name)."""
     from rmbvideo.errors import InputError
     from rmbvideo.train.config import bundled_recipe, load_recipe
@@ -50,6 +52,8 @@ def train(recipe: str, out_dir: Path | None, cache_dir: Path | None, resume: boo
         config = config.with_minutes(minutes)
     if steps is not None:
         config = config.with_steps(steps)
+    if seed is not None:
+        config = config.with_seed(seed)
     if workers is not None:
         config = config.with_workers(workers)
     import torch

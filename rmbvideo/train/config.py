@@ -112,6 +112,11 @@ class TrainConfig:
         """The same recipe with another step budget (the learning-rate schedule spans it)."""
         return replace(self, optim=replace(self.optim, steps=steps))
 
+    def with_seed(self, seed: int) -> "TrainConfig":
+        """The same recipe with another seed: other initial weights and other training scenes (a run's
+        spread between seeds, for comparisons such as the ablations)."""
+        return replace(self, seed=seed)
+
     def with_workers(self, workers: int) -> "TrainConfig":
         """The same recipe simulated by another number of processes (the samples do not change)."""
         return replace(self, data=replace(self.data, workers=workers))
