@@ -272,3 +272,25 @@ def test_a_clip_cut_from_a_sequence_keeps_its_frames_streams_and_truth_aligned()
     np.testing.assert_array_equal(clip.raw_packed[-1], seq.raw_packed[10 * FRAME_STEP - 1])
     np.testing.assert_array_equal(clip.gt, seq.gt[2:5])
     assert seq.readouts == readouts  # the original is left whole
+
+
+def test_edge_cost_cuts_the_stream_where_the_frames_are_and_scores_the_same_moment():
+    """The edge check's cut clip shows each frame's own moment (a fast scene: a frame one step off matches
+    worse), and its edge costs are the mid-clip frame's PSNR minus that frame's made at a cut."""
+    from rmbvideo.evaluate.heldout import VIDEO_KINDS, VIDEO_SEED_START, HeldoutConfig, simulate_video_sequence
+    from rmbvideo.evaluate.metrics import mu_law_psnr
+    from rmbvideo.evaluate.video_checks import clip_frames, edge_report, run_rmb
+
+    fast = next(k for k in VIDEO_KINDS if k.name == "fast")
+    seq = simulate_video_sequence(VIDEO_SEED_START + 3, fast, HeldoutConfig(count=1, width=32, height=24,
+                                                                          readouts=120, edge_readouts=20))
+    options = {"window": 10, "step": 10}
+    mid = len(seq.gt) // 2
+    cut = run_rmb("tfw", options, clip_frames(seq, mid, len(seq.gt)))
+    for j in range(1, 5):
+        scores = [mu_law_psnr(cut[j], np.minimum(seq.gt[mid + j + d], 1.0)) for d in (-1, 0, 1)]
+        assert int(np.argmax(scores)) == 1, (j, scores)
+    report = edge_report(seq, "tfw", options)
+    as_first = mu_law_psnr(cut[0], np.minimum(seq.gt[mid], 1.0))
+    assert report.first_edge_cost_db == pytest.approx(report.psnr[mid] - as_first)
+    assert np.isfinite(report.last_edge_cost_db) and report.first_edge_cost_db != 0.0

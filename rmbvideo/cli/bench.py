@@ -70,12 +70,12 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
     Writes bench.md (table, per-stage breakdown, real-time and memory checks), bench.csv and
     bench.png (PSNR against time, Pareto front marked). `rmbvideo bench decode` measures decoding.
     """
+    if ctx.invoked_subcommand is not None:
+        return
     from rmbvideo.threads import default_threads, work_beside
 
     resolved = threads or default_threads()  # None (the policy) stays None for the rows
     beside = work_beside(threads)
-    if ctx.invoked_subcommand is not None:
-        return
     from rmbvideo.bench.configs import ALIGNMENTS, default_configs
     from rmbvideo.bench.models import build_network
     from rmbvideo.bench.report import mark_pareto, markdown_table, write_csv, write_plot
