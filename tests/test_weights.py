@@ -11,7 +11,7 @@ import torch
 from rmbvideo.errors import ModelError
 from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.model import RmbNet
-from rmbvideo.net.weights import ModelCard, average_models, load_model, save_model
+from rmbvideo.net.weights import ModelCard, average_models, load_model, merge_aligned_candidates, save_model
 
 
 def tiny(**kw) -> RmbNet:
@@ -112,3 +112,27 @@ def test_average_models_is_the_weighted_sum_and_refuses_other_architectures():
         average_models(first, RmbNet(RmbNetConfig(w=2, width=0.25)), 0.5)
     with pytest.raises(ValueError, match="alpha"):
         average_models(first, second, 1.5)
+
+
+def test_merging_the_aligned_candidates_is_exact_where_their_logits_differ_by_the_linearisation_point():
+    model = tiny(blend=True, readout="pure-m", aligned=True, aligned_centre=2)
+    difference = -3.0
+    with torch.no_grad():  # give both aligned candidates real weight, their logits apart by exactly `difference`
+        last = model.decoder.head[-1]
+        last.weight.normal_(0.0, 0.1)
+        last.weight[-1] = last.weight[-2]
+        last.bias[-2] = 2.0
+        last.bias[-1] = 2.0 + difference
+    torch.manual_seed(1)
+    i_s, i_m = torch.rand(1, 4, 16, 24) * 10, torch.rand(1, 4, 16, 24) * 70
+    i_a = torch.rand(1, 4, 16, 24) * 70
+    with torch.inference_mode():
+        both = model.forward_sequence(i_s, i_m, i_a=torch.stack([i_a, i_a], dim=2))[0]
+        merged = merge_aligned_candidates(model, difference)
+        assert merged.config.aligned_centre == 0 and merged.config.aligned_channels == 1
+        torch.testing.assert_close(merged.forward_sequence(i_s, i_m, i_a=i_a)[0], both, rtol=1e-4, atol=1e-6)
+        # linearised elsewhere, the merge is only close: the check above can tell
+        assert not torch.allclose(merge_aligned_candidates(model, 0.0).forward_sequence(i_s, i_m, i_a=i_a)[0], both,
+                                  rtol=1e-4, atol=1e-6)
+    with pytest.raises(ValueError, match="no second aligned mean"):
+        merge_aligned_candidates(merged, difference)

@@ -10,10 +10,11 @@ do not fit it.
 from __future__ import annotations
 
 import json
+import math
 import logging
 import os
 import struct
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -209,6 +210,34 @@ def widen_model(old: RmbNet, config: RmbNetConfig, new_logit: float | None = Non
                 target[tensor.shape[0]:] = new_logit
     widened.load_state_dict(new_state)
     return widened.eval()
+
+
+def merge_aligned_candidates(old: RmbNet, difference: float) -> RmbNet:
+    """``old`` without its second aligned mean (``aligned_centre`` -> 0: the central readouts' mean, whose flows
+    and warps cost a third of the aligned means' time), as if that input were the whole frames' mean: its
+    head-input weights join the whole-frame mean's (exact), and its blend logit l_s joins the whole-frame
+    one's l_a as log(e^l_a + e^l_s) = l_a + softplus(l_s - l_a), linearised at l_s - l_a = ``difference``
+    (exact where the logits differ by that; a short fine-tuning of the last head conv does the rest)."""
+    cfg = old.config
+    if not cfg.aligned_centre:
+        raise ValueError("the model has no second aligned mean to merge")
+    merged = RmbNet(replace(cfg, aligned_centre=0))
+    state = old.state_dict()
+    first, last = (f"decoder.head.{k}" for k in (0, len(old.decoder.head) - 1))
+    # head inputs end with (whole-frame mean, central readouts' mean); blend logits likewise
+    weight = state[f"{first}.0.weight"].clone()
+    weight[:, -2] += weight[:, -1]
+    state[f"{first}.0.weight"] = weight[:, :-1]
+    slope = 1.0 / (1.0 + math.exp(-difference))
+    offset = math.log1p(math.exp(difference)) - slope * difference
+    for name in ("weight", "bias"):
+        logits = state[f"{last}.{name}"].clone()
+        logits[-2] = (1.0 - slope) * logits[-2] + slope * logits[-1]
+        if name == "bias":
+            logits[-2] += offset
+        state[f"{last}.{name}"] = logits[:-1]
+    merged.load_state_dict(state)
+    return merged.eval()
 
 
 def average_models(first: RmbNet, second: RmbNet, alpha: float) -> RmbNet:
