@@ -34,11 +34,15 @@ INVERSION_ITERATIONS = 2
 
 @dataclass(frozen=True)
 class AlignedBoxConfig:
-    """DIS preset, the blur of the images flow is computed on, the robust merge's patch and threshold,
-    ``trials``: Bernoulli trials behind one pixel's rate per frame (N readouts x 8 raw pixel-planes), and
-    ``sharp_trials``: those behind a sharp image's (its k central readouts x 8)."""
+    """DIS preset and its gradient-descent and variational-refinement iterations (the "medium" preset has 25
+    and 5: 12 and 2 score the same on the development sets at 30 % less flow time), the blur of the images
+    flow is computed on, the robust merge's patch and threshold, ``trials``: Bernoulli trials behind one
+    pixel's rate per frame (N readouts x 8 raw pixel-planes), and ``sharp_trials``: those behind a sharp
+    image's (its k central readouts x 8)."""
 
     preset: str = "medium"
+    descent_iterations: int = 12
+    refinement_iterations: int = 2
     sigma: float = 1.0
     patch: int = 5
     tau: float = 4.0
@@ -56,6 +60,8 @@ class AlignedBoxConfig:
             raise ValueError(f"preset must be one of {sorted(DIS_PRESETS)}, got {self.preset!r}")
         if self.patch < 1 or self.tau <= 0 or self.sigma < 0 or self.trials < 1 or self.sharp_trials < 1:
             raise ValueError(f"patch, tau and trials must be positive and sigma >= 0, got {self}")
+        if self.descent_iterations < 1 or self.refinement_iterations < 0:
+            raise ValueError(f"descent iterations must be >= 1 and refinement iterations >= 0, got {self}")
 
 
 def _clean(rate: np.ndarray) -> np.ndarray:
@@ -83,6 +89,8 @@ class AlignedBox:
     def __init__(self, config: AlignedBoxConfig | None = None) -> None:
         self.config = config or AlignedBoxConfig()
         self._dis = cv2.DISOpticalFlow_create(DIS_PRESETS[self.config.preset])
+        self._dis.setGradientDescentIterations(self.config.descent_iterations)
+        self._dis.setVariationalRefinementIterations(self.config.refinement_iterations)
         self._rates: dict[int, np.ndarray] = {}
         self._sharp: dict[int, np.ndarray] = {}
         self._images: dict[int, np.ndarray] = {}
