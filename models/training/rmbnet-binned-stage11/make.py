@@ -1,4 +1,6 @@
-"""Session script: stage 11 = stage 10 with its central readouts' aligned mean merged into the whole frames'."""
+"""Session script: stage 11's first step, stage 10 with its central readouts' aligned mean merged into the whole
+frames' (models/training/rmbnet-binned/stage11-merged.*); stage 11 is that with its last head conv retrained
+(rmbvideo train video-aligned-merged-head-cpu)."""
 import dataclasses, tempfile, torch
 from rmbvideo.net.weights import load_model, merge_aligned_candidates, save_model
 from rmbvideo.train.config import load_recipe, bundled_recipe
@@ -26,7 +28,6 @@ def main():
         "training: development sets within 0.01 dB, the aligned means' time -22 %")
     description = card.description.replace(", of whole frames and of their central 2 readouts", "")
     new_card = dataclasses.replace(card, description=description, training=training, metrics=metrics)
-    for path in ("models/training/rmbnet-binned/stage11.safetensors", "models/rmbnet-binned.safetensors"):
-        save_model(path, merged, new_card)
+    save_model("models/training/rmbnet-binned/stage11-merged.safetensors", merged, new_card)
 if __name__ == "__main__":
     main()
