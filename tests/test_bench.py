@@ -123,6 +123,16 @@ def test_run_config_records_are_complete_and_finite(tmp_path):
     assert (tmp_path / "bench.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_timing_runs_repeat_each_scene_and_count_its_frames_once(tmp_path):
+    """Each scene runs ``runs`` times and the fastest is timed: the frames and scores are those of one run."""
+    sequences = [tiny_sequence(0)]
+    config = BenchConfig("TFW-S", "tfw", {"window": 10, "step": 10})
+    once, thrice = (run_config(config, sequences, tmp_path, tmp_path, runs=r) for r in (1, 3))
+    assert once.frames == thrice.frames == READOUTS // 10 and once.psnr == thrice.psnr
+    with pytest.raises(ValueError, match="runs"):
+        run_config(config, sequences, tmp_path, tmp_path, runs=0)
+
+
 def test_record_json_roundtrip():
     record = BenchRecord(name="x", method="tfw", w=None, align=None, width=None, precision=None, device="cpu",
                          threads=1, model="-", trained=True, frames=3, scored_frames=2, psnr=30.0, ssim=0.9,

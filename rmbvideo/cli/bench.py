@@ -79,7 +79,7 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
     from rmbvideo.bench.configs import ALIGNMENTS, default_configs
     from rmbvideo.bench.models import build_network
     from rmbvideo.bench.report import mark_pareto, markdown_table, write_csv, write_plot
-    from rmbvideo.bench.runner import run_config
+    from rmbvideo.bench.runner import TIMING_RUNS, run_config
     from rmbvideo.evaluate.heldout import load_heldout
     from rmbvideo.io.atomic import atomic_write_text
     from rmbvideo.net.weights import MODELS_DIR
@@ -104,6 +104,7 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
                 f"({'--threads' if threads else 'the thread policy of every command, rmbvideo.threads: one on a busy or 2-core machine'}); "
                 f"the aligned window means {'in a thread of their own beside the network' if beside else 'inline'} "
                 f"({'two or more threads' if beside and threads else 'a second idle core' if beside else 'no second thread or idle core'}). "
+                f"Each scene runs {TIMING_RUNS} times per row, the fastest timed. "
                 "'*' = Pareto front of (time per frame, PSNR) among rows with "
                 "accuracy; 'n/a' = untrained (random-init) network, timed only.", "", markdown_table(records)]
     extras: dict = {}
