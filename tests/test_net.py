@@ -8,6 +8,7 @@ import torch
 import pytest
 
 from rmbvideo.net.attention import PairProjection, attend
+from rmbvideo.net.convlstm import ConvLSTMCell
 from rmbvideo.net.encoder import MaxPool2x2
 from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.model import RmbNet, canonical_batch, window_indices, window_valid
@@ -63,6 +64,29 @@ def test_attend_equals_softmax_over_the_valid_keys(valid):
     got = attend(logits.unbind(1), values.unbind(0), valid)
     assert got.shape == (3, 2, 4, 6, 7) and torch.isfinite(got).all()
     torch.testing.assert_close(got.double(), expected, rtol=1e-5, atol=1e-5)
+
+
+def test_convlstm_cell_is_the_textbook_cell_in_value_and_gradient():
+    """The cell's tanh (computed through the sigmoid, faster on CPU) gives the textbook ConvLSTM to float
+    rounding, for pre-activations from tiny to saturating, and the same gradients."""
+    torch.manual_seed(0)
+    cell = ConvLSTMCell(3, 4, 3)
+    x = (torch.randn(2, 3, 6, 5) * torch.tensor([1e-4, 1.0, 300.0]).reshape(1, 3, 1, 1)).requires_grad_(True)
+    h0, c0 = torch.randn(2, 4, 6, 5), torch.randn(2, 4, 6, 5) * 50
+
+    def textbook(x):
+        i, f, o, g = cell.gates(torch.cat([x, h0], dim=1)).chunk(4, dim=1)
+        c = torch.sigmoid(f) * c0 + torch.sigmoid(i) * torch.tanh(g)
+        return torch.sigmoid(o) * torch.tanh(c), c
+
+    (h, (_, c)), (h_ref, c_ref) = cell(x, (h0, c0)), textbook(x)
+    torch.testing.assert_close(h, h_ref, rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(c, c_ref, rtol=1e-5, atol=1e-5)
+    grad, = torch.autograd.grad((h * h_ref.detach()).sum() + c.sum(), x)
+    grad_ref, = torch.autograd.grad((h_ref * h_ref.detach()).sum() + c_ref.sum(), x)
+    torch.testing.assert_close(grad, grad_ref, rtol=1e-4, atol=1e-5)
+    with torch.inference_mode():  # the in-place path gives the same values
+        torch.testing.assert_close(cell(x.detach(), (h0, c0))[0], h_ref.detach(), rtol=1e-5, atol=1e-6)
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.bfloat16])
