@@ -10,8 +10,8 @@ do not fit it.
 from __future__ import annotations
 
 import json
-import math
 import logging
+import math
 import os
 import struct
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -228,8 +228,9 @@ def merge_aligned_candidates(old: RmbNet, difference: float) -> RmbNet:
     weight = state[f"{first}.0.weight"].clone()
     weight[:, -2] += weight[:, -1]
     state[f"{first}.0.weight"] = weight[:, :-1]
-    slope = 1.0 / (1.0 + math.exp(-difference))
-    offset = math.log1p(math.exp(difference)) - slope * difference
+    slope = 0.5 * (1.0 + math.tanh(0.5 * difference))  # sigmoid, finite for any difference
+    softplus = max(difference, 0.0) + math.log1p(math.exp(-abs(difference)))  # no overflow for large differences
+    offset = softplus - slope * difference
     for name in ("weight", "bias"):
         logits = state[f"{last}.{name}"].clone()
         logits[-2] = (1.0 - slope) * logits[-2] + slope * logits[-1]

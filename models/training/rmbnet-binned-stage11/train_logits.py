@@ -8,7 +8,7 @@ from rmbvideo.train.batch import Batch
 from rmbvideo.net.weights import load_model
 def main():
     cfg = load_recipe(bundled_recipe("video-aligned-sharp-floor-cpu"))
-    net, _ = load_model("models/rmbnet-binned.safetensors")
+    net, _ = load_model("models/training/rmbnet-binned/stage10.safetensors")
     rows = []
     orig = net.decoder.forward
     def hooked(*a, **k):
