@@ -133,13 +133,15 @@ def test_config_for_frames_counts_the_trials_of_whole_frames_and_sharp_images():
     assert (config.trials, config.sharp_trials) == (80, 16) and AlignedBoxConfig.for_frames(4).trials == 32
 
 
-@pytest.mark.parametrize("concurrent", [False, True])
-def test_worker_gives_the_box_means_in_call_order_and_reports_a_failure_to_the_caller(concurrent):
+@pytest.mark.parametrize("workers", [0, 1, 3])
+def test_worker_gives_the_box_means_in_call_order_and_reports_a_failure_to_the_caller(workers):
+    """Inline, one thread beside, or a pool: the box's means bit for bit (every flow and mean is a function of the
+    frames alone, whichever thread makes it), and a failure reaches the caller."""
     from rmbvideo.recon.aligned_worker import AlignedWorker
 
     rng = np.random.default_rng(3)
     rates = rng.random((6, 24, 32)).astype(np.float32)
-    box, worker = AlignedBox(), AlignedWorker(AlignedBoxConfig(), concurrent=concurrent)
+    box, worker = AlignedBox(), AlignedWorker(AlignedBoxConfig(), workers=workers)
     for k, rate in enumerate(rates):
         box.add(k, rate)
         worker.add(k, rate)

@@ -372,3 +372,40 @@ def test_aligned_candidate_is_checked_round_trips_and_passes_through_exactly():
         with pytest.raises(ValueError, match="aligned window mean"):
             model.forward_sequence(i_s, i_m, convention=1.0)
     torch.testing.assert_close(out, (i_a / (7 * 10)).clamp(0, 1) * (7 / BIN_TRIALS), rtol=2e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("kw", [dict(), dict(readout="pure-m", blend=True, centre_windows=(2, 4), aligned=True)])
+def test_step_run_is_the_steps_one_by_one(kw):
+    """A run of K windows in one batched pass (the ConvLSTMs stepping through it in order) gives what K calls of
+    ``step`` give, from a carried state, to float rounding; a run of one is a step."""
+    from rmbvideo.recon.rmbnet import inference_copy
+
+    torch.manual_seed(0)
+    model = RmbNet(RmbNetConfig(w=2, width=0.25, **kw)).eval()
+    net = inference_copy(model)  # channels-last, as the engine runs it
+    frames, h, w = 12, 19, 26
+    i_s = torch.randint(0, 81, (frames, h, w)).float()
+    i_m = torch.randint(0, 7 * 81, (frames, h, w)).float()
+    i_c = torch.randint(0, 7 * 8 * 4, (frames, 2, h, w)).float() if kw else None
+    aligned = torch.rand(frames, h, w) * 7 * 80 if kw else None
+    with torch.inference_mode():
+        encoded = net.encode(i_s, i_m, range(frames), i_c)
+        state, steps = None, []
+        for i in range(frames):
+            window = [encoded[j] for j in window_indices(i, 2, frames)]
+            t, state = net.step(window, state, {}, valid=window_valid(i, 2, frames),
+                                aligned=None if aligned is None else aligned[i : i + 1])
+            steps.append(t)
+            if i == 2:
+                carried = state
+        t, last = net.step_run(encoded[1:11], carried, aligned=None if aligned is None else aligned[3:9])
+        one, _ = net.step_run(encoded[1:6], carried, aligned=None if aligned is None else aligned[3:4])
+        after, _ = net.step([encoded[j] for j in window_indices(9, 2, frames)], last, {},
+                            aligned=None if aligned is None else aligned[9:10])
+    expected = torch.cat(steps[3:9])
+    assert t.shape == expected.shape == (6, 1, h, w) and torch.isfinite(t).all()
+    torch.testing.assert_close(t, expected, rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(one, steps[3], rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(after, steps[9], rtol=1e-5, atol=1e-6)
+    with pytest.raises(ValueError, match="at least 5 frames"):
+        net.step_run(encoded[:4], None)

@@ -52,10 +52,12 @@ def stream(model: RmbNet, chunks: list, **kw):
     return frames, engine
 
 
-def test_chunk_size_independent_and_equal_to_forward_sequence():
+@pytest.mark.parametrize("frame_batch", [1, 3, 32])
+def test_chunk_size_independent_and_equal_to_forward_sequence(frame_batch):
+    """Whatever the chunks and however many frames each batched pass makes (``frame_batch``)."""
     model = tiny()
     data = rmb_stream(95)
-    results = {size: stream(model, split(data, size))[0] for size in (1, 7, 95)}
+    results = {size: stream(model, split(data, size), frame_batch=frame_batch)[0] for size in (1, 7, 95)}
     prelim = PreliminaryFrames(n=10)
     pframes = prelim.push(data) + prelim.flush()
     assert len(pframes) == 9
@@ -112,12 +114,13 @@ def test_long_run_state_does_not_grow():
     assert peaks[1] <= 1.5 * peaks[0] + 1e-3
 
 
-def test_nonfinite_network_output_is_guarded():
+@pytest.mark.parametrize("frame_batch", [1, 4])
+def test_nonfinite_network_output_is_guarded(frame_batch):
     model = tiny()
     with torch.no_grad():
         model.decoder.head[1].bias.fill_(float("nan"))
-    frames, engine = stream(model, [rmb_stream(40)])
-    assert len(frames) == 4 and engine.nonfinite_frames == 4
+    frames, engine = stream(model, [rmb_stream(90)], frame_batch=frame_batch)
+    assert len(frames) == 9 and engine.nonfinite_frames == 9
     assert all(np.isfinite(f.image).all() and (f.image >= 0).all() for f in frames)
 
 
@@ -270,3 +273,33 @@ def test_aligned_means_beside_the_network_give_the_same_frames_bit_for_bit():
         assert [f.index for f in beside] == [f.index for f in inline]
         assert np.array_equal(np.stack([f.image for f in beside]), np.stack([f.image for f in inline]))
         assert engine.stage_seconds["aligned mean"] > 0
+
+
+def test_aligned_means_of_a_worker_pool_in_batched_passes_give_the_frames_of_the_plain_run(monkeypatch):
+    """With the network on a GPU the aligned means come from a pool of threads (every core but one) and the network
+    makes batched runs of frames: the frames are those of the inline, frame-by-frame run (the means bit for bit,
+    the network's output to float rounding)."""
+    import rmbvideo.recon.rmbnet as engine_module
+
+    torch.manual_seed(0)
+    model = RmbNet(RmbNetConfig(w=2, width=0.25, readout="pure-m", blend=True, aligned=True, aligned_radius=4,
+                                aligned_shift=True, aligned_centre=2)).eval()
+    with torch.no_grad():
+        model.decoder.head[-1].bias[-1] = 3.0
+    rng = np.random.default_rng(8)
+    multi = rng.integers(0, 8, (135, H, W)).astype(np.uint8)
+    data = RmbChunk((multi > 3).astype(np.uint8), multi, np.ones((135, H), bool), start=0, rate_hz=10_000.0)
+    plain, _ = stream(model, [data], threads=1)
+    monkeypatch.setattr(engine_module, "aligned_workers", lambda device, beside: 3)
+    for size, batch in ((9, 4), (135, 32)):
+        pooled, engine = stream(model, split(data, size), threads=1, frame_batch=batch)
+        assert engine._aligned_box.pooled and engine.stage_seconds["aligned mean"] > 0
+        assert [f.index for f in pooled] == [f.index for f in plain]
+        np.testing.assert_allclose(np.stack([f.image for f in pooled]), np.stack([f.image for f in plain]),
+                                   rtol=1e-5, atol=1e-6)
+        assert not engine._aligned_box._box._rates.keys() - set(range(135 // 10 - 8, 135 // 10))
+
+
+def test_frame_batch_is_checked():
+    with pytest.raises(ValueError, match="frame_batch"):
+        RmbNetReconstructor(tiny(), device="cpu", frame_batch=0)

@@ -42,6 +42,9 @@ def rmbnet_options(func):
         click.option("--convention", type=click.Choice(list(CONVENTIONS)), default="physical", show_default=True,
                      help="What made the spikes: physical (a camera: pixels reset at a spike) or spikezoo (streams "
                           "simulated in the accumulate-and-subtract rate convention, e.g. spikezoo's REDS)."),
+        click.option("--frame-batch", type=click.IntRange(min=1), default=None,
+                     help="Output frames RMB-Net makes per batched pass (its ConvLSTM still steps through them in "
+                          "order; the same frames) [default: 32 on a GPU, 1 on a CPU, where batching gains nothing]."),
     ]
     for option in reversed(options):
         func = option(func)
@@ -103,11 +106,11 @@ def reconstruct(input_path: Path, outdir: Path, method: str, window, step, fmt: 
                 width, height, flip,
                 header_cols, rate_hz,
                 start_s: float, duration_s, chunk_planes: int, model, align: str, device: str,
-                upsampling: str, precision: str, threads, convention: str, overwrite: bool, nits_per_unit,
+                upsampling: str, precision: str, threads, convention: str, frame_batch, overwrite: bool, nits_per_unit,
                 quiet: bool) -> None:
     """Reconstruct a .dat capture INPUT into frames in OUTDIR."""
     extra = dict(model=model, align=align, device=device, upsampling=upsampling, precision=precision,
-                 threads=threads, convention=convention)
+                 threads=threads, convention=convention, frame_batch=frame_batch)
     summary = run_reconstruction(
         input_path, outdir, method=method, window=window, step=step, fmt=fmt, fps=fps,
         pixel_format=pixel_format, tonemap=tonemap, exr_dtype=exr_dtype, readout=readout, start_s=start_s,

@@ -4,6 +4,7 @@ from step i-1 to step i for flicker-free video (paper Sec. 4.2)."""
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 LstmState = tuple[torch.Tensor, torch.Tensor]
@@ -35,7 +36,30 @@ class ConvLSTMCell(nn.Module):
             zeros = x.new_zeros(x.shape[0], self.hidden, *x.shape[-2:])
             state = (zeros, zeros)
         h, c = state
-        gates = self.gates(torch.cat([x, h.to(x.dtype)], dim=1))
+        return self._update(self.gates(torch.cat([x, h.to(x.dtype)], dim=1)), c)
+
+    def run(self, x: torch.Tensor, state: LstmState | None) -> tuple[torch.Tensor, LstmState]:
+        """``forward`` over a sequence x (K,C,H,W) of batch size 1, one step per item -> h (K,hidden,H,W) and the
+        last state: the gates' input part (a convolution of a concatenation is the sum of its parts' convolutions)
+        runs on all K at once, and only the hidden part steps through them in order."""
+        weight = self.gates.weight
+        inputs = x.shape[1]
+        gates_x = F.conv2d(x, weight[:, :inputs], self.gates.bias, padding=self.gates.padding)
+        hidden_weight = weight[:, inputs:].contiguous(memory_format=torch.channels_last)
+        outputs = []
+        for k in range(x.shape[0]):
+            gates = gates_x[k : k + 1]
+            if state is None:
+                c = torch.zeros_like(gates[:, : self.hidden], memory_format=torch.contiguous_format)
+            else:
+                h, c = state
+                gates = gates + F.conv2d(h.to(x.dtype), hidden_weight, padding=self.gates.padding)
+            h, state = self._update(gates, c)
+            outputs.append(h)
+        return torch.cat(outputs), state
+
+    def _update(self, gates: torch.Tensor, c: torch.Tensor) -> tuple[torch.Tensor, LstmState]:
+        """The gate arithmetic: the 4*hidden gate pre-activations and the cell state -> h and the new (h, c)."""
         # On a channels-last tensor each gate is a strided channel slice (inner loops of ``hidden``
         # elements): the gate arithmetic runs 3-5x faster on a contiguous copy, and only h goes back.
         channels_last = not gates.is_contiguous() and gates.is_contiguous(memory_format=torch.channels_last)

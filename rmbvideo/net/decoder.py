@@ -46,12 +46,28 @@ class Decoder(nn.Module):
         inputs: torch.Tensor,
         state: DecoderState | None,
     ) -> tuple[torch.Tensor, DecoderState]:
+        return self._decode(fused, reference, inputs, state, run=False)
+
+    def forward_run(
+        self,
+        fused: torch.Tensor,
+        reference: list[torch.Tensor],
+        inputs: torch.Tensor,
+        state: DecoderState | None,
+    ) -> tuple[torch.Tensor, DecoderState]:
+        """``forward`` over K consecutive steps of batch size 1 stacked along the batch (K,...): every layer but
+        the ConvLSTMs' recurrences runs on all K at once (``ConvLSTMCell.run``); the state is the last step's."""
+        return self._decode(fused, reference, inputs, state, run=True)
+
+    def _decode(self, fused: torch.Tensor, reference: list[torch.Tensor], inputs: torch.Tensor,
+                state: DecoderState | None, run: bool) -> tuple[torch.Tensor, DecoderState]:
         s3, s2, s1 = state if state is not None else (None, None, None)
-        x, s3 = self.lstm3(torch.cat([fused, reference[2]], dim=1), s3)
+        lstm3, lstm2, lstm1 = ((cell.run if run else cell) for cell in (self.lstm3, self.lstm2, self.lstm1))
+        x, s3 = lstm3(torch.cat([fused, reference[2]], dim=1), s3)
         x = self.up3(F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False))
-        x, s2 = self.lstm2(self.fuse2(torch.cat([x, reference[1]], dim=1)), s2)
+        x, s2 = lstm2(self.fuse2(torch.cat([x, reference[1]], dim=1)), s2)
         x = self.up2(F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False))
-        x, s1 = self.lstm1(self.fuse1(torch.cat([x, reference[0]], dim=1)), s1)
+        x, s1 = lstm1(self.fuse1(torch.cat([x, reference[0]], dim=1)), s1)
         x = self.up1(F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False))
         # both parts channels-last (as x is), so the cat writes the layout the head's conv reads
         z = self.head(torch.cat([x, inputs.to(x.dtype).contiguous(memory_format=torch.channels_last)], dim=1))

@@ -108,6 +108,35 @@ def _stack(tensors: Sequence[torch.Tensor]) -> torch.Tensor:
     return tensors[0].unsqueeze(0) if len(tensors) == 1 else torch.stack(list(tensors))
 
 
+def _stack_frames(frames: Sequence[EncodedFrame], index: int) -> EncodedFrame:
+    """Frames of batch size 1 as one frame whose batch holds them in order (``index`` names it in pair caches)."""
+    first = frames[0]
+
+    def cat(tensors: Sequence[torch.Tensor]) -> torch.Tensor:
+        return tensors[0] if len(tensors) == 1 else torch.cat(list(tensors))
+
+    def per_scale(name: str) -> list[torch.Tensor]:
+        return [cat([getattr(f, name)[s] for f in frames]) for s in range(len(getattr(first, name)))]
+
+    return EncodedFrame(
+        index=index, size=first.size, rates=cat([f.rates for f in frames]), inputs=cat([f.inputs for f in frames]),
+        f_s=per_scale("f_s"), f_m=per_scale("f_m"), query_parts=per_scale("query_parts"),
+        key_parts=per_scale("key_parts"), f_ms=per_scale("f_ms"),
+        centre=None if first.centre is None else cat([f.centre for f in frames]),
+    )
+
+
+@dataclass
+class _Prepared:
+    """A step's work before the decoder: its reference frame, the decoder's inputs (fused, reference features,
+    head inputs), and what the blend reads (the pooled rates, the aligned rate)."""
+
+    reference: EncodedFrame
+    decoder_inputs: tuple[torch.Tensor, list[torch.Tensor], torch.Tensor]
+    pooled: list[torch.Tensor]
+    aligned_rate: torch.Tensor | None
+
+
 class RmbNet(nn.Module):
     """The whole network; ``forward_sequence`` is the plain, non-streaming reference path."""
 
@@ -326,7 +355,35 @@ class RmbNet(nn.Module):
         valid = [True] * len(window) if valid is None else list(valid)
         if not valid[self.config.w]:
             raise ValueError("the reference frame of a window must be valid")
-        cache = {} if cache is None else cache
+        prepared = self._prepare(window, {} if cache is None else cache, valid, convention, aligned)
+        z, state = self.decoder(*prepared.decoder_inputs, state)
+        return self._finish(z, prepared, convention), state
+
+    def step_run(
+        self, frames: Sequence[EncodedFrame], state: DecoderState | None, convention: torch.Tensor | float = 0.0,
+        aligned: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, DecoderState]:
+        """K consecutive output steps in one batched pass: ``frames`` are 2w+K consecutive encoded frames (every
+        window position real, each frame of batch size 1), the outputs are for frames[w .. w+K-1].
+
+        The same as K calls of ``step`` (to float rounding): everything but the decoder's ConvLSTM recurrences
+        runs on the K windows at once, and the recurrences step through them in order
+        (``Decoder.forward_run``). On a GPU this turns hundreds of tiny launches per frame into a few per run.
+        ``aligned``: the K references' aligned means, (K,H,W) or (K,2,H,W). Returns t (K,1,H,W) and the state.
+        """
+        count = len(frames) - 2 * self.config.w
+        if count < 1:
+            raise ValueError(f"a run needs at least {self.config.window} frames, got {len(frames)}")
+        if any(frame.rates.shape[0] != 1 for frame in frames):
+            raise ValueError("step_run reads frames of batch size 1")
+        window = [_stack_frames(frames[p : p + count], p) for p in range(self.config.window)]
+        prepared = self._prepare(window, {}, [True] * len(window), convention, aligned)
+        z, state = self.decoder.forward_run(*prepared.decoder_inputs, state)
+        return self._finish(z, prepared, convention), state
+
+    def _prepare(self, window: Sequence[EncodedFrame], cache: PairCache, valid: list[bool],
+                 convention: torch.Tensor | float, aligned: torch.Tensor | None) -> "_Prepared":
+        """Everything of a step before the decoder: the attention, the temporal fusion and the head's inputs."""
         ref = window[self.config.w]
         mask = None if all(valid) else valid
         reference = [canonical_batch(self._bit_fused(s, [ref], window, cache, mask)[0]) for s in range(2)]
@@ -335,17 +392,21 @@ class RmbNet(nn.Module):
         fused = self.time_fusion(f_ms_coarse, mask).contiguous(memory_format=torch.channels_last)
         pooled = self._pooled_rates(window, valid)
         aligned_rate = self.normalise_aligned(aligned, ref.size)
-        z, state = self.decoder(fused, reference, self._head_inputs(window, valid, convention, pooled, aligned_rate),
-                                state)
+        inputs = self._head_inputs(window, valid, convention, pooled, aligned_rate)
+        return _Prepared(ref, (fused, reference, inputs), pooled, aligned_rate)
+
+    def _finish(self, z: torch.Tensor, prepared: "_Prepared", convention: torch.Tensor | float) -> torch.Tensor:
+        """The head's output z -> t = T(G) (the blend of the candidates when the config has it), unpadded."""
         t = F.softplus(z[:, :1].float()).clamp(max=self.config.output_max)
+        ref = prepared.reference
         if self.config.blend:
             cfg = self.config
-            candidates = box_candidates([mean[:, 1:2] for mean in pooled], cfg.level, convention, ref.centre,
-                                        aligned_rate)
+            candidates = box_candidates([mean[:, 1:2] for mean in prepared.pooled], cfg.level, convention,
+                                        ref.centre, prepared.aligned_rate)
             mixed = blend(self.to_linear(t), candidates, z[:, 1:])
             t = mu_law(mixed, cfg.output_mu).clamp(max=cfg.output_max)
         h, w = ref.size
-        return t[..., :h, :w], state
+        return t[..., :h, :w]
 
     def to_linear(self, t: torch.Tensor) -> torch.Tensor:
         """Mu-law-domain output -> linear HDR (>= 0, finite)."""

@@ -17,6 +17,7 @@ outwards one step at a time (one remap per neighbour).
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
@@ -88,9 +89,8 @@ class AlignedBox:
 
     def __init__(self, config: AlignedBoxConfig | None = None) -> None:
         self.config = config or AlignedBoxConfig()
-        self._dis = cv2.DISOpticalFlow_create(DIS_PRESETS[self.config.preset])
-        self._dis.setGradientDescentIterations(self.config.descent_iterations)
-        self._dis.setVariationalRefinementIterations(self.config.refinement_iterations)
+        self._local = threading.local()  # one DIS object per thread: several threads may compute flows at once
+        self._lock = threading.Lock()  # guards the stores' changes against an eviction iterating over them
         self._rates: dict[int, np.ndarray] = {}
         self._sharp: dict[int, np.ndarray] = {}
         self._images: dict[int, np.ndarray] = {}
@@ -101,24 +101,41 @@ class AlignedBox:
     def add(self, index: int, rate: np.ndarray, sharp: np.ndarray | None = None) -> None:
         """Keep frame ``index``'s rate image and, if given, its sharp image (both clipped to [0, 1], NaN as 0)."""
         rate = _clean(rate)
-        self._rates[index] = rate
-        if sharp is not None:
-            self._sharp[index] = _clean(sharp)
         blurred = cv2.GaussianBlur(rate, (0, 0), self.config.sigma) if self.config.sigma > 0 else rate
-        self._images[index] = np.sqrt(np.maximum(blurred, 0.0))
+        image = np.sqrt(np.maximum(blurred, 0.0))
         # white of the 8-bit flow images: a high percentile, so a few bright lights do not darken the rest
-        self._whites[index] = float(np.percentile(self._images[index], 99.5))
-        if self._grid is None or self._grid[0].shape != rate.shape:
-            h, w = rate.shape
-            self._grid = tuple(np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32)))
+        white = float(np.percentile(image, 99.5))
+        with self._lock:
+            if self._grid is None or self._grid[0].shape != rate.shape:
+                h, w = rate.shape
+                self._grid = tuple(np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32)))
+            self._rates[index], self._images[index], self._whites[index] = rate, image, white
+            if sharp is not None:
+                self._sharp[index] = _clean(sharp)
 
     def evict(self, oldest_needed: int) -> None:
         """Forget frames (and flows) older than ``oldest_needed``."""
-        for store in (self._rates, self._sharp, self._images, self._whites):
-            for key in [k for k in store if k < oldest_needed]:
-                del store[key]
-        for key in [k for k in self._flows if min(k) < oldest_needed]:
-            del self._flows[key]
+        with self._lock:
+            for store in (self._rates, self._sharp, self._images, self._whites):
+                for key in [k for k in store if k < oldest_needed]:
+                    del store[key]
+            for key in [k for k in self._flows if min(k) < oldest_needed]:
+                del self._flows[key]
+
+    def _dis(self) -> cv2.DISOpticalFlow:
+        """This thread's DIS object (made on first use)."""
+        dis = getattr(self._local, "dis", None)
+        if dis is None:
+            dis = cv2.DISOpticalFlow_create(DIS_PRESETS[self.config.preset])
+            dis.setGradientDescentIterations(self.config.descent_iterations)
+            dis.setVariationalRefinementIterations(self.config.refinement_iterations)
+            self._local.dis = dis
+        return dis
+
+    def flows_between(self, a: int) -> None:
+        """Compute the flows between frames ``a - 1`` and ``a`` both ways now (a worker pool's task; the flows are
+        the same whichever thread computes them)."""
+        self._step_flow(a, a - 1)
 
     def _step_flow(self, a: int, b: int) -> np.ndarray:
         """Flow from frame ``a`` to its neighbour ``b`` (a(x) ~ b(x + F(x))): DIS on square-root images
@@ -131,14 +148,16 @@ class AlignedBox:
             for _ in range(INVERSION_ITERATIONS):
                 back = -cv2.remap(forward, gx + back[..., 0], gy + back[..., 1], cv2.INTER_LINEAR,
                                   borderMode=cv2.BORDER_REPLICATE)
-            self._flows[(a, b)] = back
+            with self._lock:
+                self._flows[(a, b)] = back
         if (a, b) not in self._flows:
             ia, ib = self._images[a], self._images[b]
             scale = 255.0 / max(self._whites[a], self._whites[b], 1e-3)
             a8 = np.clip(ia * scale + 0.5, 0, 255).astype(np.uint8)
             b8 = np.clip(ib * scale + 0.5, 0, 255).astype(np.uint8)
-            flow = self._dis.calc(a8, b8, None)
-            self._flows[(a, b)] = np.nan_to_num(flow, nan=0.0, posinf=0.0, neginf=0.0)
+            flow = np.nan_to_num(self._dis().calc(a8, b8, None), nan=0.0, posinf=0.0, neginf=0.0)
+            with self._lock:
+                self._flows[(a, b)] = flow
         return self._flows[(a, b)]
 
     def _flows_from(self, i: int, neighbours: Sequence[int]) -> Iterator[tuple[int, np.ndarray]]:

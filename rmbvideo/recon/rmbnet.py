@@ -42,11 +42,11 @@ from rmbvideo.net.model import (
     window_valid,
 )
 from rmbvideo.recon.aligned_box import AlignedBoxConfig, aligned_window
-from rmbvideo.recon.aligned_worker import AlignedMean, AlignedWorker
+from rmbvideo.recon.aligned_worker import AlignedMean, AlignedWorker, Ready
 from rmbvideo.recon.precision import PRECISIONS, uses_bf16
 from rmbvideo.recon.prelim import MultiUpsampler, PreliminaryFrames, select_centre
 from rmbvideo.sensor.conventions import CONVENTIONS
-from rmbvideo.threads import compute_threads, default_threads, work_beside
+from rmbvideo.threads import available_cores, compute_threads, default_threads, work_beside
 
 log = logging.getLogger(__name__)
 
@@ -101,6 +101,22 @@ def resolve_device(device: str | torch.device) -> torch.device:
 
 #: frames whose aligned means a concurrent worker may make ahead of the network (bounds the memory they hold)
 ALIGNED_AHEAD = 2
+#: output frames per batched pass on a GPU (``frame_batch``'s default there; on a CPU batching gains nothing)
+GPU_FRAME_BATCH = 32
+
+
+def default_frame_batch(device: torch.device) -> int:
+    """Output frames per batched pass by default: ``GPU_FRAME_BATCH`` on a GPU, 1 (frame by frame) elsewhere."""
+    return GPU_FRAME_BATCH if device.type == "cuda" else 1
+
+
+def aligned_workers(device: torch.device, beside: bool) -> int:
+    """Threads for the aligned window means: with the network on a GPU every core but one (the network's feeder)
+    makes them, since the network outruns one core's optical flow; on a CPU one beside the network when a core is
+    free for it (``rmbvideo.threads.work_beside``), else none (inline)."""
+    if device.type == "cuda":
+        return max(1, available_cores() - 1)
+    return 1 if beside else 0
 
 
 class RmbNetReconstructor:
@@ -113,6 +129,9 @@ class RmbNetReconstructor:
     aligned window means computes them in a thread of their own beside the network, which gets the rest,
     when two or more are given or, under the policy, when a second core is idle
     (``rmbvideo.recon.aligned_worker``; the frames are the same bit for bit).
+    ``frame_batch``: output frames made per batched pass (``RmbNet.step_run``: everything but the ConvLSTM
+    recurrences on the whole run of frames at once; the same frames to float rounding); None: 32 on a GPU, 1 on a
+    CPU, where batching gains nothing. With the network on a GPU, the aligned means use every core but one.
     ``n`` is the readouts per preliminary frame when RmbChunks are pushed (default: the model's N)
     and ``upsampler`` the band upsampler they go through (default: flow-free interpolation; see
     ``rmbvideo.recon.flow.FlowUpsampler``).
@@ -130,6 +149,7 @@ class RmbNetReconstructor:
         upsampler: MultiUpsampler | None = None,
         threads: int | None = None,
         convention: str = "physical",
+        frame_batch: int | None = None,
     ) -> None:
         if threads is not None and threads < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
@@ -139,13 +159,16 @@ class RmbNetReconstructor:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
         if convention not in CONVENTIONS:
             raise ValueError(f"convention must be one of {CONVENTIONS}, got {convention!r}")
+        if frame_batch is not None and frame_batch < 1:
+            raise ValueError(f"frame_batch must be >= 1, got {frame_batch}")
         self._convention = float(CONVENTIONS.index(convention))
         self.device = resolve_device(device)
         self.model = model.to(self.device).eval()
         self._autocast = uses_bf16(precision, self.device)
         self._net = inference_copy(self.model, bf16=self._autocast)
         self._threads = threads if threads is not None else default_threads()
-        beside = work_beside(threads)
+        self.frame_batch = frame_batch if frame_batch is not None else default_frame_batch(self.device)
+        workers = aligned_workers(self.device, work_beside(threads))
         self.align = align
         self.n = model.config.n if n is None else n
         self._w = model.config.w
@@ -156,7 +179,7 @@ class RmbNetReconstructor:
         self._pair_cache: PairCache = {}
         self._flow_cache: dict = {}
         self._aligned_box = (AlignedWorker(AlignedBoxConfig.for_frames(self.n, self._net.config.aligned_centre),
-                                           concurrent=beside)
+                                           workers=workers)
                              if self._net.config.aligned else None)
         self._received = 0
         self._next_out = 0
@@ -249,18 +272,33 @@ class RmbNetReconstructor:
             ready = []
             while self._next_out + len(ready) < self._received and (final or self._ready(self._next_out + len(ready))):
                 ready.append(self._next_out + len(ready))
-            # a concurrent worker makes the next frames' aligned means while the network makes this one
-            ahead = ALIGNED_AHEAD if self.aligned_beside else 0
+            # a concurrent worker makes the next frames' aligned means while the network makes this one; a pool
+            # of workers, all of the frames ready now
+            ahead = (len(ready) if self._aligned_box is not None and self._aligned_box.pooled
+                     else ALIGNED_AHEAD if self.aligned_beside else 0)
             means: dict[int, AlignedMean | None] = {}
-            out = []
-            for k, i in enumerate(ready):
-                for j in ready[k : k + ahead + 1]:
+            out: list[Frame] = []
+            for run in self._runs(ready, count):
+                for j in ready[ready.index(run[0]) : ready.index(run[-1]) + ahead + 1]:
                     if j not in means:
                         means[j] = self._aligned(j, count)
-                out.append(self._emit(i, count, means.pop(i)))
-                self._next_out = i + 1
+                out += (self._emit_run(run, count, [means.pop(i) for i in run]) if len(run) > 1
+                        else [self._emit(run[0], count, means.pop(run[0]))])
+                self._next_out = run[-1] + 1
                 self._evict(self._next_out)
         return out
+
+    def _runs(self, ready: list[int], count: int | None) -> list[list[int]]:
+        """``ready`` in runs of up to ``frame_batch`` frames whose windows are whole (a window cut by the clip's edge
+        is a run of its own, made by ``step``)."""
+        runs: list[list[int]] = []
+        for i in ready:
+            whole = i >= self._w and (count is None or i + self._w < count)
+            if whole and runs and len(runs[-1]) < self.frame_batch and runs[-1][-1] == i - 1 and runs[-1][-1] >= self._w:
+                runs[-1].append(i)
+            else:
+                runs.append([i])
+        return runs
 
     def _ready(self, i: int) -> bool:
         """Frame ``i`` can be made before the capture ends: its window and, for a model that reads it,
@@ -336,7 +374,7 @@ class RmbNetReconstructor:
         config = self._net.config
         return self._aligned_box.mean(i, aligned_window(i, config.aligned_half_width, count, config.aligned_shift))
 
-    def _emit(self, i: int, count: int | None, mean: AlignedMean | None) -> Frame:
+    def _emit(self, i: int, count: int | None, mean: AlignedMean | Ready | None) -> Frame:
         """Frame ``i`` from its window and its queued aligned mean ((H,W) or (2,H,W) rates, made sums here)."""
         aligned = (None if mean is None
                    else torch.from_numpy(mean.result() * (BIN_TRIALS * self.n)).unsqueeze(0).to(self.device))
@@ -352,6 +390,20 @@ class RmbNetReconstructor:
         image = self._net.to_linear(t)[0, 0].float().cpu().numpy()
         source = self._raw[i]
         return Frame(index=int(source.index), time_s=float(source.time_s), image=image)
+
+    def _emit_run(self, run: list[int], count: int | None, means: list[AlignedMean | None]) -> list[Frame]:
+        """Frames ``run`` (consecutive, their windows whole) in one batched pass (``RmbNet.step_run``); a run with
+        a NaN/Inf frame is made again frame by frame, so the state is reset right after the bad frame."""
+        rates = None if means[0] is None else [m.result() for m in means]  # type: ignore[union-attr]
+        aligned = None if rates is None else torch.from_numpy(np.stack(rates) * (BIN_TRIALS * self.n)).to(self.device)
+        frames = [self._encoded[j] for j in range(run[0] - self._w, run[-1] + self._w + 1)]
+        t, state = self._net.step_run(frames, self._state, convention=self._convention, aligned=aligned)
+        if not bool(torch.isfinite(t).all()):
+            return [self._emit(i, count, None if rates is None else Ready(rates[k])) for k, i in enumerate(run)]
+        self._state = state
+        images = self._net.to_linear(t)[:, 0].float().cpu().numpy()
+        return [Frame(index=int(self._raw[i].index), time_s=float(self._raw[i].time_s), image=images[k])
+                for k, i in enumerate(run)]
 
     def _evict(self, next_out: int) -> None:
         """Forget what no frame from ``next_out`` on needs: the network looks w frames back, the aligned mean
@@ -380,6 +432,7 @@ def make_rmbnet(
     w: int | None = None,
     convention: str = "physical",
     readout: str | None = None,
+    frame_batch: int | None = None,
 ) -> RmbNetReconstructor:
     """Pipeline factory for method "rmbnet": ``model`` is a .safetensors path; ``upsampling`` is
     "interp" (flow-free band interpolation) or a flow method ("dis", "farneback", "tvl1").
@@ -388,7 +441,8 @@ def make_rmbnet(
     ``convention``: the sensor convention that made the stream (``CONVENTIONS``: "physical" for a
     camera, "spikezoo" for streams simulated in the rate convention); models without the
     convention input ignore it. ``readout``: without ``model``, the shipped model trained on that
-    readout design (the default model's when None)."""
+    readout design (the default model's when None). ``frame_batch``: output frames per batched pass
+    (``RmbNetReconstructor``)."""
     from rmbvideo.errors import ModelError
     from rmbvideo.net.weights import default_model_path, shipped_model_with_window
     from rmbvideo.recon.flow import FlowUpsampler
@@ -399,7 +453,7 @@ def make_rmbnet(
     upsampler = None if upsampling == "interp" else FlowUpsampler(method=upsampling)
     recon = RmbNetReconstructor.from_file(
         model, device=device, input_mode=input_mode, align=align, precision=precision, upsampler=upsampler,
-        threads=threads, convention=convention,
+        threads=threads, convention=convention, frame_batch=frame_batch,
     )
     if w is not None and recon.network.config.w != w:
         raise ModelError(f"{model}: the model's window half-width is w = {recon.network.config.w}, not {w}")
