@@ -32,6 +32,7 @@ class SizeResult:
     binned: str
     device: str
     precision: str
+    frame_batch: int | None
     frames: int
     fps: float
     network_fps: float
@@ -42,11 +43,13 @@ class SizeResult:
         return asdict(self)
 
 
-def _cli_fps(path: Path, width: int, height: int, device: str, precision: str, out: Path) -> float | None:
+def _cli_fps(path: Path, width: int, height: int, device: str, precision: str, frame_batch: int | None,
+             out: Path) -> float | None:
     """Frames/s that ``rmbvideo reconstruct --format null`` reports for ``path`` (None if it failed)."""
+    batch = [] if frame_batch is None else ["--frame-batch", str(frame_batch)]
     done = subprocess.run([sys.executable, "-m", "rmbvideo", "reconstruct", str(path), "-o", str(out),
                            "--format", "null", "--width", str(width), "--height", str(height), "--device", device,
-                           "--precision", precision, "--overwrite"], capture_output=True, text=True)
+                           "--precision", precision, "--overwrite", *batch], capture_output=True, text=True)
     match = _CLI_RATE.search(done.stderr)
     if done.returncode == 0 and match:
         return float(match.group(1))
@@ -58,9 +61,9 @@ def _cli_fps(path: Path, width: int, height: int, device: str, precision: str, o
 
 def bench_sizes(device: str, sizes: tuple[tuple[int, int], ...] = DEFAULT_SIZES,
                 precisions: tuple[str, ...] = ("fp32", "bf16"), frames: int = 120,
-                cli: bool = True) -> list[SizeResult]:
-    """Measure the default model at each raw ``size`` (width, height) and precision: ``frames`` output
-    frames per run (20 raw planes each)."""
+                cli: bool = True, frame_batches: tuple[int | None, ...] = (None,)) -> list[SizeResult]:
+    """Measure the default model at each raw ``size`` (width, height), precision and frame batch (None: the
+    engine's default for the device): ``frames`` output frames per run (20 raw planes each)."""
     results = []
     with tempfile.TemporaryDirectory(prefix="rmbvideo-sizes-") as folder:
         work = Path(folder)
@@ -68,31 +71,35 @@ def bench_sizes(device: str, sizes: tuple[tuple[int, int], ...] = DEFAULT_SIZES,
             path = write_random_capture(work / f"c{width}x{height}.dat", 20 * frames, width, height)
             capture = dict(width=width, height=height)
             for precision in precisions:
-                options = dict(device=device, precision=precision)
-                run_reconstruction(path, work / "warm", fmt="null", duration_s=0.02, capture=capture,
-                                   extra_options=options, overwrite=True)
-                summary = run_reconstruction(path, work / "out", fmt="null", capture=capture,
-                                             extra_options=options, overwrite=True)
-                network_s = summary.stages.get("network", 0.0)
-                results.append(SizeResult(
-                    raw=f"{width}x{height}", binned=f"{width // 2}x{height // 2}", device=device,
-                    precision=precision, frames=summary.frames, fps=summary.frames_per_second,
-                    network_fps=summary.frames / network_s if network_s > 0 else 0.0,
-                    cli_fps=_cli_fps(path, width, height, device, precision, work / "cli") if cli else None,
-                    stage_ms={k: 1e3 * v / max(summary.frames, 1) for k, v in summary.stages.items()},
-                ))
+                for batch in frame_batches:
+                    options = dict(device=device, precision=precision, frame_batch=batch)
+                    run_reconstruction(path, work / "warm", fmt="null", duration_s=0.1, capture=capture,
+                                       extra_options=options, overwrite=True)
+                    summary = run_reconstruction(path, work / "out", fmt="null", capture=capture,
+                                                 extra_options=options, overwrite=True)
+                    network_s = summary.stages.get("network", 0.0)
+                    results.append(SizeResult(
+                        raw=f"{width}x{height}", binned=f"{width // 2}x{height // 2}", device=device,
+                        precision=precision, frame_batch=batch, frames=summary.frames,
+                        fps=summary.frames_per_second, network_fps=summary.frames / network_s if network_s > 0 else 0.0,
+                        cli_fps=(_cli_fps(path, width, height, device, precision, batch, work / "cli") if cli
+                                 else None),
+                        stage_ms={k: 1e3 * v / max(summary.frames, 1) for k, v in summary.stages.items()},
+                    ))
             path.unlink()
     return results
 
 
 def sizes_table(results: list[SizeResult]) -> str:
     """Markdown table of ``results``."""
-    stages = ("read", "readout", "preliminary frames", "network")
-    lines = ["| binned (raw) | device | precision | frames/s end to end | frames/s network | frames/s `reconstruct` "
-             "| " + " | ".join(f"{s} ms/frame" for s in stages) + " |",
-             "|---|---|---|---:|---:|---:|" + "---:|" * len(stages)]
+    stages = ("read", "readout", "preliminary frames", "network", "aligned mean")
+    lines = ["| binned (raw) | device | precision | frame batch | frames/s end to end | frames/s network "
+             "| frames/s `reconstruct` | " + " | ".join(f"{s} ms/frame" for s in stages) + " |",
+             "|---|---|---|---:|---:|---:|---:|" + "---:|" * len(stages)]
     for r in results:
         cli = f"{r.cli_fps:.1f}" if r.cli_fps is not None else "n/a"
-        lines.append(f"| {r.binned} ({r.raw}) | {r.device} | {r.precision} | {r.fps:.1f} | {r.network_fps:.1f} | {cli} | "
-                     + " | ".join(f"{r.stage_ms.get(s, 0.0):.2f}" for s in stages) + " |")
+        batch = "default" if r.frame_batch is None else str(r.frame_batch)
+        lines.append(f"| {r.binned} ({r.raw}) | {r.device} | {r.precision} | {batch} | {r.fps:.1f} | "
+                     f"{r.network_fps:.1f} | {cli} | " + " | ".join(f"{r.stage_ms.get(s, 0.0):.2f}" for s in stages)
+                     + " |")
     return "\n".join(lines) + "\n"

@@ -259,7 +259,9 @@ class RmbNetReconstructor:
 
     def _threads_for(self) -> tuple[int, int]:
         """(torch, OpenCV) threads: with the aligned means in a thread of their own, that thread is
-        OpenCV's one and the network gets the others (at least one)."""
+        OpenCV's one and the network gets the others (at least one); in a pool, each of its threads is one."""
+        if self._aligned_box is not None and self._aligned_box.pooled:
+            return self._threads, 1
         if self.aligned_beside:
             return max(1, self._threads - 1), 1
         return self._threads, self._threads
