@@ -139,9 +139,13 @@ def test_worker_gives_the_box_means_in_call_order_and_reports_a_failure_to_the_c
     frames alone, whichever thread makes it), and a failure reaches the caller."""
     from rmbvideo.recon.aligned_worker import AlignedWorker
 
+    import cv2
+
     rng = np.random.default_rng(3)
     rates = rng.random((6, 24, 32)).astype(np.float32)
+    cv_threads = cv2.getNumThreads()
     box, worker = AlignedBox(), AlignedWorker(AlignedBoxConfig(), workers=workers)
+    assert cv2.getNumThreads() == (1 if workers >= 2 else cv_threads)  # a pool's threads each run OpenCV on one
     for k, rate in enumerate(rates):
         box.add(k, rate)
         worker.add(k, rate)
@@ -153,3 +157,4 @@ def test_worker_gives_the_box_means_in_call_order_and_reports_a_failure_to_the_c
         worker.mean(2, [1, 2, 3]).result()
     assert worker.busy_seconds > 0
     worker.close()
+    assert cv2.getNumThreads() == cv_threads

@@ -303,3 +303,13 @@ def test_aligned_means_of_a_worker_pool_in_batched_passes_give_the_frames_of_the
 def test_frame_batch_is_checked():
     with pytest.raises(ValueError, match="frame_batch"):
         RmbNetReconstructor(tiny(), device="cpu", frame_batch=0)
+
+
+def test_default_frame_batch_is_one_on_a_cpu_and_bounded_by_frame_size_on_a_gpu():
+    from rmbvideo.recon.rmbnet import GPU_BATCH_PIXELS, GPU_FRAME_BATCH, default_frame_batch
+
+    assert default_frame_batch(torch.device("cpu"), (125, 200)) == 1
+    assert default_frame_batch(torch.device("cuda"), (125, 200)) == GPU_FRAME_BATCH
+    big = default_frame_batch(torch.device("cuda"), (1000, 1000))
+    assert 1 <= big < GPU_FRAME_BATCH and big * 1000 * 1000 <= GPU_BATCH_PIXELS
+    assert default_frame_batch(torch.device("cuda"), (8000, 8000)) == 1

@@ -44,7 +44,8 @@ def rmbnet_options(func):
                           "simulated in the accumulate-and-subtract rate convention, e.g. spikezoo's REDS)."),
         click.option("--frame-batch", type=click.IntRange(min=1), default=None,
                      help="Output frames RMB-Net makes per batched pass (its ConvLSTM still steps through them in "
-                          "order; the same frames) [default: 32 on a GPU, 1 on a CPU, where batching gains nothing]."),
+                          "order; the same frames) [default: up to 128 on a GPU, fewer for large frames; 1 on a CPU, "
+                          "where batching gains nothing]."),
     ]
     for option in reversed(options):
         func = option(func)

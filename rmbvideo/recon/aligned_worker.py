@@ -18,6 +18,7 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
+import cv2
 import numpy as np
 
 from rmbvideo.recon.aligned_box import AlignedBox, AlignedBoxConfig
@@ -50,6 +51,12 @@ class AlignedWorker:
         self.workers = workers
         self._executor = (ThreadPoolExecutor(max_workers=workers, thread_name_prefix="aligned-mean")
                           if workers else None)
+        # a pool's threads are its parallelism: each OpenCV call in them gets one thread (the count is process-wide,
+        # so it holds until close(); seen on a 16-core GPU host: 15 workers each starting OpenCV's 16 threads spent
+        # 8x the time per frame of one worker)
+        self._cv_threads = cv2.getNumThreads() if workers >= 2 else None
+        if self._cv_threads is not None:
+            cv2.setNumThreads(1)
         self._pending: list[Future] = []  # adds and evictions not yet known to have succeeded
         self._added: dict[int, Future] = {}  # a pool's frames and flows to their predecessors, by frame
         self._flowed: dict[int, Future] = {}
@@ -150,6 +157,9 @@ class AlignedWorker:
         """Let the background threads end (queued work still finishes)."""
         if self._executor is not None:
             self._executor.shutdown(wait=False)
+        if self._cv_threads is not None:
+            cv2.setNumThreads(self._cv_threads)
+            self._cv_threads = None
 
 
 class AlignedMean:
