@@ -254,17 +254,22 @@ def test_aligned_model_stream_equals_forward_sequence_with_the_aligned_means(rad
         model.forward_sequence(torch.from_numpy(np.stack([p.i_s for p in pframes]))[None], torch.from_numpy(i_m)[None])
 
 
-def test_aligned_means_beside_the_network_give_the_same_frames_bit_for_bit():
-    """With two threads the aligned window means run in a worker thread of their own beside the network
-    (one thread each); the frames are those of the inline run with the same chunks."""
+def aligned_model_and_stream(seed: int) -> tuple[RmbNet, RmbChunk]:
+    """A tiny model that reads the aligned means (their candidate weighted up, so a wrong one shows) and 135
+    readouts of random multi-bit counts."""
     torch.manual_seed(0)
     model = RmbNet(RmbNetConfig(w=2, width=0.25, readout="pure-m", blend=True, aligned=True, aligned_radius=4,
                                 aligned_shift=True, aligned_centre=2)).eval()
     with torch.no_grad():
         model.decoder.head[-1].bias[-1] = 3.0
-    rng = np.random.default_rng(7)
-    multi = rng.integers(0, 8, (135, H, W)).astype(np.uint8)
-    data = RmbChunk((multi > 3).astype(np.uint8), multi, np.ones((135, H), bool), start=0, rate_hz=10_000.0)
+    multi = np.random.default_rng(seed).integers(0, 8, (135, H, W)).astype(np.uint8)
+    return model, RmbChunk((multi > 3).astype(np.uint8), multi, np.ones((135, H), bool), start=0, rate_hz=10_000.0)
+
+
+def test_aligned_means_beside_the_network_give_the_same_frames_bit_for_bit():
+    """With two threads the aligned window means run in a worker thread of their own beside the network
+    (one thread each); the frames are those of the inline run with the same chunks."""
+    model, data = aligned_model_and_stream(7)
     for size in (9, 135):
         inline, inline_engine = stream(model, split(data, size), threads=1)
         assert not inline_engine.aligned_beside
@@ -281,14 +286,7 @@ def test_aligned_means_of_a_worker_pool_in_batched_passes_give_the_frames_of_the
     the network's output to float rounding)."""
     import rmbvideo.recon.rmbnet as engine_module
 
-    torch.manual_seed(0)
-    model = RmbNet(RmbNetConfig(w=2, width=0.25, readout="pure-m", blend=True, aligned=True, aligned_radius=4,
-                                aligned_shift=True, aligned_centre=2)).eval()
-    with torch.no_grad():
-        model.decoder.head[-1].bias[-1] = 3.0
-    rng = np.random.default_rng(8)
-    multi = rng.integers(0, 8, (135, H, W)).astype(np.uint8)
-    data = RmbChunk((multi > 3).astype(np.uint8), multi, np.ones((135, H), bool), start=0, rate_hz=10_000.0)
+    model, data = aligned_model_and_stream(8)
     plain, _ = stream(model, [data], threads=1)
     monkeypatch.setattr(engine_module, "aligned_workers", lambda device, beside: 3)
     for size, batch in ((9, 4), (135, 32)):

@@ -45,22 +45,11 @@ class Decoder(nn.Module):
         reference: list[torch.Tensor],
         inputs: torch.Tensor,
         state: DecoderState | None,
+        run: bool = False,
     ) -> tuple[torch.Tensor, DecoderState]:
-        return self._decode(fused, reference, inputs, state, run=False)
-
-    def forward_run(
-        self,
-        fused: torch.Tensor,
-        reference: list[torch.Tensor],
-        inputs: torch.Tensor,
-        state: DecoderState | None,
-    ) -> tuple[torch.Tensor, DecoderState]:
-        """``forward`` over K consecutive steps of batch size 1 stacked along the batch (K,...): every layer but
-        the ConvLSTMs' recurrences runs on all K at once (``ConvLSTMCell.run``); the state is the last step's."""
-        return self._decode(fused, reference, inputs, state, run=True)
-
-    def _decode(self, fused: torch.Tensor, reference: list[torch.Tensor], inputs: torch.Tensor,
-                state: DecoderState | None, run: bool) -> tuple[torch.Tensor, DecoderState]:
+        """One step, or with ``run`` K consecutive steps of batch size 1 stacked along the batch (K,...): then every
+        layer but the ConvLSTMs' recurrences runs on all K at once (``ConvLSTMCell.run``); the state is the last
+        step's."""
         s3, s2, s1 = state if state is not None else (None, None, None)
         lstm3, lstm2, lstm1 = ((cell.run if run else cell) for cell in (self.lstm3, self.lstm2, self.lstm1))
         x, s3 = lstm3(torch.cat([fused, reference[2]], dim=1), s3)

@@ -368,7 +368,7 @@ class RmbNet(nn.Module):
 
         The same as K calls of ``step`` (to float rounding): everything but the decoder's ConvLSTM recurrences
         runs on the K windows at once, and the recurrences step through them in order
-        (``Decoder.forward_run``). On a GPU this turns hundreds of tiny launches per frame into a few per run.
+        (``Decoder.forward`` with ``run``). On a GPU this turns hundreds of tiny launches per frame into a few per run.
         ``aligned``: the K references' aligned means, (K,H,W) or (K,2,H,W). Returns t (K,1,H,W) and the state.
         """
         count = len(frames) - 2 * self.config.w
@@ -378,7 +378,7 @@ class RmbNet(nn.Module):
             raise ValueError("step_run reads frames of batch size 1")
         window = [_stack_frames(frames[p : p + count], p) for p in range(self.config.window)]
         prepared = self._prepare(window, {}, [True] * len(window), convention, aligned)
-        z, state = self.decoder.forward_run(*prepared.decoder_inputs, state)
+        z, state = self.decoder(*prepared.decoder_inputs, state, run=True)
         return self._finish(z, prepared, convention), state
 
     def _prepare(self, window: Sequence[EncodedFrame], cache: PairCache, valid: list[bool],
