@@ -129,9 +129,11 @@ def test_alignment_with_flow_runs_and_is_chunk_independent():
     data = rmb_stream(60)
     a = np.stack([f.image for f in stream(model, split(data, 13), align="dis")[0]])
     b = np.stack([f.image for f in stream(model, [data], align="dis")[0]])
+    batched = np.stack([f.image for f in stream(model, [data], align="dis", frame_batch=8)[0]])
     c = np.stack([f.image for f in stream(model, [data])[0]])
     assert a.shape == (6, H, W) and np.isfinite(a).all()
     np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
+    np.testing.assert_array_equal(batched, b)  # aligned windows are made one by one whatever the frame batch
     assert not np.allclose(a, c)
 
 

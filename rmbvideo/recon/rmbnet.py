@@ -307,11 +307,13 @@ class RmbNetReconstructor:
 
     def _runs(self, ready: list[int], count: int | None) -> list[list[int]]:
         """``ready`` in runs of up to ``frame_batch`` frames whose windows are whole (a window cut by the clip's edge
-        is a run of its own, made by ``step``)."""
+        is a run of its own, made by ``step``). With ``align`` each window is warped to its own reference and encoded
+        afresh, so every frame is a run of its own."""
+        limit = self.frame_batch if self.align == "none" else 1
         runs: list[list[int]] = []
         for i in ready:
             whole = i >= self._w and (count is None or i + self._w < count)
-            if whole and runs and len(runs[-1]) < self.frame_batch and runs[-1][-1] == i - 1 and runs[-1][-1] >= self._w:
+            if whole and runs and len(runs[-1]) < limit and runs[-1][-1] == i - 1 and runs[-1][-1] >= self._w:
                 runs[-1].append(i)
             else:
                 runs.append([i])
