@@ -45,7 +45,7 @@ def rmbnet_options(func):
         click.option("--frame-batch", type=click.IntRange(min=1), default=None,
                      help="Output frames RMB-Net makes per batched pass (its ConvLSTM still steps through them in "
                           "order; the same frames) [default: up to 128 on a GPU, fewer for large frames; 1 on a CPU, "
-                          "where batching gains nothing]."),
+                          "where batching loses]."),
     ]
     for option in reversed(options):
         func = option(func)

@@ -102,10 +102,10 @@ def resolve_device(device: str | torch.device) -> torch.device:
 #: frames whose aligned means a concurrent worker may make ahead of the network (bounds the memory they hold)
 ALIGNED_AHEAD = 2
 #: output frames per batched pass on a GPU at most (``frame_batch``'s default there, where a pass of 128 made 200x125
-#: frames 1.1-1.3x as fast as one of 32 on an H200; on a CPU batching gains nothing), and the binned pixels one pass
-#: may hold (its activations and pair logits take about 300 bytes a pixel: 5 GB)
+#: frames 1.1-1.3x as fast as one of 32 on an H200; on a CPU batching loses), and the binned pixels one pass
+#: may hold (its activations and pair logits peak at about 1.2 kB a pixel in fp32, measured on the CPU: 5 GB)
 GPU_FRAME_BATCH = 128
-GPU_BATCH_PIXELS = 1 << 24
+GPU_BATCH_PIXELS = 1 << 22
 
 
 def default_frame_batch(device: torch.device, size: tuple[int, int] | None = None) -> int:
@@ -139,7 +139,7 @@ class RmbNetReconstructor:
     ``frame_batch``: output frames made per batched pass (``RmbNet.step_run``: everything but the ConvLSTM
     recurrences on the whole run of frames at once; the same frames to float rounding); None: up to 128 on a GPU
     (``default_frame_batch``; a pass is also bounded by the frames one pushed chunk completes), 1 on a CPU, where
-    batching gains nothing. With the network on a GPU, the aligned means use every core but one.
+    batching loses. With the network on a GPU, the aligned means use every core but one.
     ``n`` is the readouts per preliminary frame when RmbChunks are pushed (default: the model's N)
     and ``upsampler`` the band upsampler they go through (default: flow-free interpolation; see
     ``rmbvideo.recon.flow.FlowUpsampler``).
