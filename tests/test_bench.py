@@ -172,9 +172,10 @@ def test_bench_sizes_times_each_size_and_precision_with_the_network_inside_the_r
         assert 0 < row["fps"] <= row["network_fps"]  # the network is part of the end-to-end run
         assert set(row["stage_ms"]) >= {"read", "preliminary frames", "network"}
     batched = runner.invoke(main, ["bench", "sizes", "--size", "64x48", "--frames", "10", "--no-cli", "--json",
-                                   "--precision", "fp32", "--frame-batch", "1", "--frame-batch", "4"])
+                                   "--precision", "fp32", "--frame-batch", "1", "--frame-batch", "4", "--threads", "1"])
     assert batched.exit_code == 0, batched.output
     rows = json.loads(batched.output)
-    assert [(r["precision"], r["frame_batch"], r["frames"]) for r in rows] == [("fp32", 1, 10), ("fp32", 4, 10)]
+    assert [(r["precision"], r["frame_batch"], r["threads"], r["frames"]) for r in rows] == [
+        ("fp32", 1, 1, 10), ("fp32", 4, 1, 10)]
     bad = runner.invoke(main, ["bench", "sizes", "--size", "65x48"])
     assert bad.exit_code != 0 and "even raw size" in bad.output

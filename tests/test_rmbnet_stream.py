@@ -290,7 +290,7 @@ def test_aligned_means_of_a_worker_pool_in_batched_passes_give_the_frames_of_the
 
     model, data = aligned_model_and_stream(8)
     plain, _ = stream(model, [data], threads=1)
-    monkeypatch.setattr(engine_module, "aligned_workers", lambda device, beside: 3)
+    monkeypatch.setattr(engine_module, "aligned_workers", lambda device, threads: 3)
     for size, batch in ((9, 4), (135, 32)):
         pooled, engine = stream(model, split(data, size), threads=1, frame_batch=batch)
         assert engine._aligned_box.pooled and engine.stage_seconds["aligned mean"] > 0
@@ -313,3 +313,13 @@ def test_default_frame_batch_is_one_on_a_cpu_and_bounded_by_frame_size_on_a_gpu(
     big = default_frame_batch(torch.device("cuda"), (1000, 1000))
     assert 1 <= big < GPU_FRAME_BATCH and big * 1000 * 1000 <= GPU_BATCH_PIXELS
     assert default_frame_batch(torch.device("cuda"), (8000, 8000)) == 1
+
+
+def test_aligned_workers_follow_threads_on_a_gpu_and_the_policy_on_a_cpu():
+    from rmbvideo.recon.rmbnet import aligned_workers
+    from rmbvideo.threads import available_cores
+
+    cuda, cpu = torch.device("cuda"), torch.device("cpu")
+    assert aligned_workers(cuda, 4) == 4 and aligned_workers(cuda, 1) == 1
+    assert aligned_workers(cuda, None) == max(1, available_cores() - 1)
+    assert aligned_workers(cpu, 1) == 0 and aligned_workers(cpu, 3) == 1  # inline, or one thread beside

@@ -38,7 +38,8 @@ def rmbnet_options(func):
         click.option("--threads", type=click.IntRange(min=1), default=None,
                      help="CPU threads [default: the thread policy: for the network 1 on a busy or 2-core machine, "
                   "else the idle cores, at most 8; RMB-Net's aligned window means in a thread of their own "
-                  "when a second core is idle]. With 2 or more, the aligned means take one of them."),
+                  "when a second core is idle; with the network on a GPU, every core but one for them]. With 2 or "
+                  "more, the aligned means take one of them; on a GPU they take them all."),
         click.option("--convention", type=click.Choice(list(CONVENTIONS)), default="physical", show_default=True,
                      help="What made the spikes: physical (a camera: pixels reset at a spike) or spikezoo (streams "
                           "simulated in the accumulate-and-subtract rate convention, e.g. spikezoo's REDS)."),

@@ -117,13 +117,13 @@ def default_frame_batch(device: torch.device, size: tuple[int, int] | None = Non
     return max(1, min(GPU_FRAME_BATCH, GPU_BATCH_PIXELS // pixels))
 
 
-def aligned_workers(device: torch.device, beside: bool) -> int:
-    """Threads for the aligned window means: with the network on a GPU every core but one (the network's feeder)
-    makes them, since the network outruns one core's optical flow; on a CPU one beside the network when a core is
-    free for it (``rmbvideo.threads.work_beside``), else none (inline)."""
+def aligned_workers(device: torch.device, threads: int | None) -> int:
+    """Threads for the aligned window means: with the network on a GPU, ``threads`` when given, else every core but
+    one (the network's feeder), since the network outruns one core's optical flow; on a CPU one beside the network
+    when a core is free for it (``rmbvideo.threads.work_beside``), else none (inline)."""
     if device.type == "cuda":
-        return max(1, available_cores() - 1)
-    return 1 if beside else 0
+        return threads if threads is not None else max(1, available_cores() - 1)
+    return 1 if work_beside(threads) else 0
 
 
 class RmbNetReconstructor:
@@ -139,7 +139,7 @@ class RmbNetReconstructor:
     ``frame_batch``: output frames made per batched pass (``RmbNet.step_run``: everything but the ConvLSTM
     recurrences on the whole run of frames at once; the same frames to float rounding); None: up to 128 on a GPU
     (``default_frame_batch``; a pass is also bounded by the frames one pushed chunk completes), 1 on a CPU, where
-    batching loses. With the network on a GPU, the aligned means use every core but one.
+    batching loses. With the network on a GPU, the aligned means use ``threads`` threads (default: every core but one).
     ``n`` is the readouts per preliminary frame when RmbChunks are pushed (default: the model's N)
     and ``upsampler`` the band upsampler they go through (default: flow-free interpolation; see
     ``rmbvideo.recon.flow.FlowUpsampler``).
@@ -176,7 +176,7 @@ class RmbNetReconstructor:
         self._net = inference_copy(self.model, bf16=self._autocast)
         self._threads = threads if threads is not None else default_threads()
         self._frame_batch = frame_batch
-        workers = aligned_workers(self.device, work_beside(threads))
+        workers = aligned_workers(self.device, threads)
         self.align = align
         self.n = model.config.n if n is None else n
         self._w = model.config.w
@@ -289,7 +289,7 @@ class RmbNetReconstructor:
             means: dict[int, AlignedMean | None] = {}
             out: list[Frame] = []
             for run in self._runs(ready, count):
-                for j in ready[ready.index(run[0]) : ready.index(run[-1]) + ahead + 1]:
+                for j in range(run[0], min(run[-1] + ahead + 1, ready[-1] + 1)):  # ready is consecutive
                     if j not in means:
                         means[j] = self._aligned(j, count)
                 out += (self._emit_run(run, count, [means.pop(i) for i in run]) if len(run) > 1
