@@ -94,6 +94,12 @@ def window_valid(i: int, w: int, count: int | None) -> list[bool]:
     return [0 <= j <= last for j in range(i - w, i + w + 1)]
 
 
+def priming_frames(prime: int, count: int | None) -> range:
+    """The frames a clip's first state is primed over, in the order the backward run takes them: ``prime`` .. 1,
+    those inside a clip of ``count`` frames (None: not known, all)."""
+    return range(prime if count is None else min(prime, count - 1), 0, -1)
+
+
 def canonical_batch(t: torch.Tensor) -> torch.Tensor:
     """``t`` (B,C,H,W) as a view whose batch stride is C*H*W when B = 1: indexing an unflattened stack can leave
     a size-1 batch dim with stride C, and cat/conv then no longer read a channels-last tensor as one (they
@@ -359,6 +365,16 @@ class RmbNet(nn.Module):
         z, state = self.decoder(*prepared.decoder_inputs, state)
         return self._finish(z, prepared, convention), state
 
+    def step_backward(
+        self, window: Sequence[EncodedFrame], state: DecoderState | None, valid: Sequence[bool] | None = None,
+        convention: torch.Tensor | float = 0.0, aligned: torch.Tensor | None = None,
+    ) -> DecoderState:
+        """The state after one step of the network run backwards in time: ``step`` on the window (in time order,
+        with its ``valid``) reversed. A clip's first frames have no past; a state primed backwards over the frames
+        after them (``priming_frames``) gives them their future as later frames get their past."""
+        valid = [True] * len(window) if valid is None else list(valid)
+        return self.step(window[::-1], state, valid=valid[::-1], convention=convention, aligned=aligned)[1]
+
     def step_run(
         self, frames: Sequence[EncodedFrame], state: DecoderState | None, convention: torch.Tensor | float = 0.0,
         aligned: torch.Tensor | None = None,
@@ -421,9 +437,12 @@ class RmbNet(nn.Module):
         convention: torch.Tensor | float = 0.0,
         i_c: torch.Tensor | None = None,
         i_a: torch.Tensor | None = None,
+        prime: int = 0,
     ) -> tuple[torch.Tensor, DecoderState | None]:
         """Reconstruct a whole sequence (B,K,H,W) of preliminary sums -> (B,K,H,W) and final state.
 
+        Without a ``state``, the first frame's is primed backwards over frames ``prime`` .. 1 (``step_backward``;
+        the streaming engine's default is 2w).
         Linear HDR by default; ``linear=False`` returns the mu-law domain (the training loss domain).
         ``i_c`` (B,K,C,H,W): central sums, when the config has centre windows; ``i_a`` (B,K,H,W) or
         (B,K,2,H,W): each frame's aligned mean(s) of the multi-bit sums, when the config has ``aligned``.
@@ -433,6 +452,10 @@ class RmbNet(nn.Module):
             i_s.transpose(0, 1).flatten(0, 1), i_m.transpose(0, 1).flatten(0, 1), range(count),
             None if i_c is None else i_c.transpose(0, 1).flatten(0, 1),
         )
+        for i in priming_frames(prime, count) if state is None else ():
+            state = self.step_backward([frames[j] for j in window_indices(i, self.config.w, count)], state,
+                                       window_valid(i, self.config.w, count), convention,
+                                       None if i_a is None else i_a[:, i])
         outputs = []
         for i in range(count):
             window = [frames[j] for j in window_indices(i, self.config.w, count)]

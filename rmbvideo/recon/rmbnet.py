@@ -3,9 +3,11 @@
 Each preliminary frame is encoded once and kept in a ring buffer of the last 2w+1 encodings; XBA
 pair logits (which depend on a pair of frames only) are cached while both frames are in the
 buffer; the ConvLSTM state is carried from frame to frame, so the output is the same however the
-input is chunked, and equal to ``RmbNet.forward_sequence`` over the whole capture. Output frame i
-needs frames up to i+w, so output lags input by w frames until ``flush``. At the edges of the
-capture the window's positions past the edge are left out (``window_valid``).
+input is chunked, and equal to ``RmbNet.forward_sequence`` over the whole capture (with the same ``prime``).
+Output frame i needs frames up to i+w, so output lags input by w frames until ``flush``. At the edges of the
+capture the window's positions past the edge are left out (``window_valid``); the first frame's state is primed
+by running the network backwards over the 2w frames after it (``RmbNet.step_backward``), so the first frames
+read their future through the state as later frames read their past (the first output waits for 3w + 1 frames).
 
 A model with ``config.aligned`` also gets each reference frame's motion-compensated window mean
 (``rmbvideo.recon.aligned_box``: consecutive DIS flows, computed once per frame and kept while needed).
@@ -38,6 +40,7 @@ from rmbvideo.net.model import (
     EncodedFrame,
     PairCache,
     RmbNet,
+    priming_frames,
     window_indices,
     window_valid,
 )
@@ -140,6 +143,7 @@ class RmbNetReconstructor:
     recurrences on the whole run of frames at once; the same frames to float rounding); None: up to 128 on a GPU
     (``default_frame_batch``; a pass is also bounded by the frames one pushed chunk completes), 1 on a CPU, where
     batching loses. With the network on a GPU, the aligned means use ``threads`` threads (default: every core but one).
+    ``prime``: frames the first frame's state is primed over, backwards in time (default 2w; 0: a fresh state).
     ``n`` is the readouts per preliminary frame when RmbChunks are pushed (default: the model's N)
     and ``upsampler`` the band upsampler they go through (default: flow-free interpolation; see
     ``rmbvideo.recon.flow.FlowUpsampler``).
@@ -158,6 +162,7 @@ class RmbNetReconstructor:
         threads: int | None = None,
         convention: str = "physical",
         frame_batch: int | None = None,
+        prime: int | None = None,
     ) -> None:
         if threads is not None and threads < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
@@ -169,6 +174,8 @@ class RmbNetReconstructor:
             raise ValueError(f"convention must be one of {CONVENTIONS}, got {convention!r}")
         if frame_batch is not None and frame_batch < 1:
             raise ValueError(f"frame_batch must be >= 1, got {frame_batch}")
+        if prime is not None and prime < 0:
+            raise ValueError(f"prime must be >= 0, got {prime}")
         self._convention = float(CONVENTIONS.index(convention))
         self.device = resolve_device(device)
         self.model = model.to(self.device).eval()
@@ -180,6 +187,9 @@ class RmbNetReconstructor:
         self.align = align
         self.n = model.config.n if n is None else n
         self._w = model.config.w
+        self._prime = 2 * self._w if prime is None else prime
+        self._kept_means: dict[int, Ready] = {}
+        self._primed = False
         self._upsampler = upsampler
         self._prelim: PreliminaryFrames | None = None
         self._raw: dict[int, PrelimLike] = {}
@@ -279,8 +289,11 @@ class RmbNetReconstructor:
         with compute_threads(torch_threads, cv_threads), torch.inference_mode(), self._precision():
             self._accept(frames)
             count = self._received if final else None
+            if not self._primed and (final or self._ready(self._prime)):
+                self._prime_state(count)
             ready = []
-            while self._next_out + len(ready) < self._received and (final or self._ready(self._next_out + len(ready))):
+            while self._primed and self._next_out + len(ready) < self._received and (
+                    final or self._ready(self._next_out + len(ready))):
                 ready.append(self._next_out + len(ready))
             # a concurrent worker makes the next frames' aligned means while the network makes this one; a pool
             # of workers, all of the frames ready now
@@ -291,7 +304,7 @@ class RmbNetReconstructor:
             for run in self._runs(ready, count):
                 for j in range(run[0], min(run[-1] + ahead + 1, ready[-1] + 1)):  # ready is consecutive
                     if j not in means:
-                        means[j] = self._aligned(j, count)
+                        means[j] = self._kept_means.pop(j, None) or self._aligned(j, count)
                 out += (self._emit_run(run, count, [means.pop(i) for i in run]) if len(run) > 1
                         else [self._emit(run[0], count, means.pop(run[0]))])
                 self._next_out = run[-1] + 1
@@ -318,6 +331,20 @@ class RmbNetReconstructor:
             else:
                 runs.append([i])
         return runs
+
+    def _prime_state(self, count: int | None) -> None:
+        """The state frame 0 starts from: the network run backwards over frames ``prime`` .. 1
+        (``RmbNet.step_backward``), so the first frames, which have no past, read their future through the state as
+        later frames read their past. Encodings and aligned means do not depend on the direction of time; the means
+        are kept for the frames' own turn."""
+        self._primed, state = True, None
+        for i in priming_frames(self._prime, count):
+            mean = self._aligned(i, count)
+            if mean is not None:
+                self._kept_means[i] = mean = Ready(mean.result())
+            state = self._net.step_backward(self._window(i, count), state, window_valid(i, self._w, count),
+                                            self._convention, self._aligned_input(mean))
+        self._state = state
 
     def _ready(self, i: int) -> bool:
         """Frame ``i`` can be made before the capture ends: its window and, for a model that reads it,
@@ -393,13 +420,17 @@ class RmbNetReconstructor:
         config = self._net.config
         return self._aligned_box.mean(i, aligned_window(i, config.aligned_half_width, count, config.aligned_shift))
 
+    def _aligned_input(self, mean: AlignedMean | Ready | None) -> torch.Tensor | None:
+        """A queued aligned mean ((H,W) or (2,H,W) rates) as the network's input: sums, (1,...) on the device."""
+        if mean is None:
+            return None
+        return torch.from_numpy(mean.result() * (BIN_TRIALS * self.n)).unsqueeze(0).to(self.device)
+
     def _emit(self, i: int, count: int | None, mean: AlignedMean | Ready | None) -> Frame:
         """Frame ``i`` from its window and its queued aligned mean ((H,W) or (2,H,W) rates, made sums here)."""
-        aligned = (None if mean is None
-                   else torch.from_numpy(mean.result() * (BIN_TRIALS * self.n)).unsqueeze(0).to(self.device))
         cache = self._pair_cache if self.align == "none" else None
         t, state = self._net.step(self._window(i, count), self._state, cache, valid=window_valid(i, self._w, count),
-                                  convention=self._convention, aligned=aligned)
+                                  convention=self._convention, aligned=self._aligned_input(mean))
         if not bool(torch.isfinite(t).all()):
             self.nonfinite_frames += 1
             log.warning("RMB-Net produced NaN/Inf in frame %d; replaced by 0 and reset the recurrent state", i)
@@ -452,6 +483,7 @@ def make_rmbnet(
     convention: str = "physical",
     readout: str | None = None,
     frame_batch: int | None = None,
+    prime: int | None = None,
 ) -> RmbNetReconstructor:
     """Pipeline factory for method "rmbnet": ``model`` is a .safetensors path; ``upsampling`` is
     "interp" (flow-free band interpolation) or a flow method ("dis", "farneback", "tvl1").
@@ -460,8 +492,8 @@ def make_rmbnet(
     ``convention``: the sensor convention that made the stream (``CONVENTIONS``: "physical" for a
     camera, "spikezoo" for streams simulated in the rate convention); models without the
     convention input ignore it. ``readout``: without ``model``, the shipped model trained on that
-    readout design (the default model's when None). ``frame_batch``: output frames per batched pass
-    (``RmbNetReconstructor``)."""
+    readout design (the default model's when None). ``frame_batch``: output frames per batched pass and ``prime``
+    the frames the first state is primed over (``RmbNetReconstructor``)."""
     from rmbvideo.errors import ModelError
     from rmbvideo.net.weights import default_model_path, shipped_model_with_window
     from rmbvideo.recon.flow import FlowUpsampler
@@ -472,7 +504,7 @@ def make_rmbnet(
     upsampler = None if upsampling == "interp" else FlowUpsampler(method=upsampling)
     recon = RmbNetReconstructor.from_file(
         model, device=device, input_mode=input_mode, align=align, precision=precision, upsampler=upsampler,
-        threads=threads, convention=convention, frame_batch=frame_batch,
+        threads=threads, convention=convention, frame_batch=frame_batch, prime=prime,
     )
     if w is not None and recon.network.config.w != w:
         raise ModelError(f"{model}: the model's window half-width is w = {recon.network.config.w}, not {w}")
