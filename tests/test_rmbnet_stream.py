@@ -64,7 +64,7 @@ def test_chunk_size_independent_and_equal_to_forward_sequence(frame_batch):
     with torch.inference_mode():
         reference = model.forward_sequence(torch.from_numpy(np.stack([p.i_s for p in pframes]))[None],
                                            torch.from_numpy(np.stack([p.i_m for p in pframes]))[None],
-                                           prime=2 * model.config.w)[0][0]
+                                           prime=model.config.w)[0][0]
     for size, frames in results.items():
         assert [f.index for f in frames] == [p.index for p in pframes], size
         assert [f.time_s for f in frames] == [p.time_s for p in pframes]
@@ -75,24 +75,24 @@ def test_chunk_size_independent_and_equal_to_forward_sequence(frame_batch):
 
 
 def test_first_frames_start_from_a_state_primed_backwards_over_the_frames_after_them():
-    """The default engine primes frame 0's state by running the network backwards over frames 2w .. 1: that
+    """The default engine primes frame 0's state by running the network backwards over frames w .. 1: that
     changes the first frames and nothing that the state has forgotten; ``prime=0`` is the plain forward pass,
     a clip shorter than the priming is primed over what it has, and priming is the same whatever the chunks."""
     model = tiny()
     data = rmb_stream(95)
     prelim = PreliminaryFrames(n=10)
     pframes = prelim.push(data) + prelim.flush()
-    head = split(data, 30)[0]
+    head = split(data, 20)[0]
     prelim = PreliminaryFrames(n=10)
     short_frames = prelim.push(head) + prelim.flush()
-    assert len(short_frames) == 3
+    assert len(short_frames) == 2
     i_s, i_m = (torch.from_numpy(np.stack([getattr(p, k) for p in pframes]))[None] for k in ("i_s", "i_m"))
     s_s, s_m = (torch.from_numpy(np.stack([getattr(p, k) for p in short_frames]))[None] for k in ("i_s", "i_m"))
     with torch.inference_mode():
         plain = model.forward_sequence(i_s, i_m)[0][0].numpy()
-        primed = model.forward_sequence(i_s, i_m, prime=2 * model.config.w)[0][0].numpy()
-        short = model.forward_sequence(s_s, s_m, prime=2 * model.config.w)[0][0].numpy()
-        short_primed_over_what_it_has = model.forward_sequence(s_s, s_m, prime=2)[0][0].numpy()
+        primed = model.forward_sequence(i_s, i_m, prime=model.config.w)[0][0].numpy()
+        short = model.forward_sequence(s_s, s_m, prime=model.config.w)[0][0].numpy()
+        short_primed_over_what_it_has = model.forward_sequence(s_s, s_m, prime=1)[0][0].numpy()
     assert not np.allclose(plain[0], primed[0], rtol=1e-3)
     np.testing.assert_allclose(short, short_primed_over_what_it_has, rtol=1e-6)
     unprimed = np.stack([f.image for f in stream(model, split(data, 7), prime=0)[0]])
@@ -111,7 +111,7 @@ def test_ring_buffer_and_caches_stay_bounded():
     rng = np.random.default_rng(1)
     engine = RmbNetReconstructor(model, device="cpu")
     window = model.config.window
-    primed = 3 * model.config.w + 1  # before the first frame: the windows of the 2w frames its state is primed over
+    primed = 2 * model.config.w + 1  # before the first frame: the windows of the w frames its state is primed over
     for k in range(30):
         engine.push(PrelimFrame(k, k * 1e-3, rng.integers(0, 11, (H, W)).astype(np.float32),
                                 rng.integers(0, 71, (H, W)).astype(np.float32), np.ones(H, bool)))
@@ -183,7 +183,7 @@ def test_blend_model_streams_chunk_independent_on_every_bin_count():
     with torch.inference_mode():
         reference = model.forward_sequence(torch.from_numpy(np.stack([p.i_s for p in pframes]))[None],
                                            torch.from_numpy(np.stack([p.i_m for p in pframes]))[None],
-                                           prime=2 * model.config.w)[0][0]
+                                           prime=model.config.w)[0][0]
     for size in (1, 13, 95):
         images = np.stack([f.image for f in stream(model, split(data, size))[0]])
         assert np.isfinite(images).all() and (images >= 0).all()
@@ -202,7 +202,7 @@ def test_centre_windows_stream_equals_forward_sequence_and_need_the_sums():
         reference = model.forward_sequence(
             torch.from_numpy(np.stack([p.i_s for p in pframes]))[None],
             torch.from_numpy(np.stack([p.i_m for p in pframes]))[None],
-            i_c=torch.from_numpy(np.stack([p.i_c[[0, 2]] for p in pframes]))[None], prime=2 * model.config.w)[0][0]
+            i_c=torch.from_numpy(np.stack([p.i_c[[0, 2]] for p in pframes]))[None], prime=model.config.w)[0][0]
     for size in (7, 95):
         images = np.stack([f.image for f in stream(model, split(data, size))[0]])
         np.testing.assert_allclose(images, reference.numpy(), rtol=1e-5, atol=1e-7 * float(reference.max()))
@@ -280,7 +280,7 @@ def test_aligned_model_stream_equals_forward_sequence_with_the_aligned_means(rad
     with torch.inference_mode():
         reference = model.forward_sequence(torch.from_numpy(np.stack([p.i_s for p in pframes]))[None],
                                            torch.from_numpy(i_m)[None], i_a=torch.from_numpy(i_a)[None],
-                                           prime=2 * model.config.w)[0][0]
+                                           prime=model.config.w)[0][0]
         plain = model.forward_sequence(torch.from_numpy(np.stack([p.i_s for p in pframes]))[None],
                                        torch.from_numpy(i_m)[None], i_a=torch.from_numpy(np.ascontiguousarray(i_a[:, ::-1]) if sharp else i_m)[None])[0][0]
     assert not np.allclose(reference.numpy(), plain.numpy())

@@ -10,6 +10,8 @@
   for 125 binned rows); the amplitude (dB) of the per-frame PSNR at that period, against the floor
   the same fit reads at other periods, on a slow pan and a still scene, beside methods that read the
   band.
+- Long captures: a still textured scene over 100 frames, in both conventions: the mean quality early (the
+  state as young as in the held-out sequences and training clips) against the second half.
 - Dark-end bias: a flat, static field at levels 1e-3..1 (charge per raw plane relative to the
   threshold) through the physical emission model: the mean output over the clip's second half
   relative to the level, and the output's spatial coefficient of variation (invented texture).
@@ -126,9 +128,11 @@ def edge_report(seq: Sequence, method: str = "rmbnet", options: dict | None = No
                       psnr[mid] - mu_law_psnr(as_first, truth), psnr[mid] - mu_law_psnr(as_last, truth))
 
 
-def band_sequence(width: int, height: int, frames: int, static: bool = False, seed: int = 1_600_000) -> Sequence:
+def band_sequence(width: int, height: int, frames: int, static: bool = False, seed: int = 1_600_000,
+                  convention: str = "physical") -> Sequence:
     """A long held-out video sequence for the rolling-band check: slow motion, or (``static``) a still
-    textured scene, where the per-frame PSNR varies with nothing but noise and the band's phase."""
+    textured scene, where the per-frame PSNR varies with nothing but noise and the band's phase; in the
+    physical convention or spikezoo's (a still scene there: the spikes are periodic, with no noise)."""
     from rmbvideo.evaluate.heldout import (
         HeldoutConfig,
         VideoHeldout,
@@ -137,9 +141,10 @@ def band_sequence(width: int, height: int, frames: int, static: bool = False, se
     from rmbvideo.scenes.video import VideoSceneRanges
 
     if static:
-        kind = VideoHeldout("static", VideoSceneRanges(static_probability=1.0, shake_px=0.0, zoom_rate=0.0,
-                                                       max_objects=0, median_rate=(0.02, 0.2)))
-        seed += 1
+        kind = VideoHeldout("static" if convention == "physical" else f"static-{convention}",
+                            VideoSceneRanges(static_probability=1.0, shake_px=0.0, zoom_rate=0.0,
+                                             max_objects=0, median_rate=(0.02, 0.2)), convention)
+        seed += 1 if convention == "physical" else 2
     else:
         kind = VideoHeldout("slow", VideoSceneRanges(camera_speed=(0.02, 0.05), static_probability=0.0,
                                                      object_speed=(0.01, 0.05), median_rate=(0.02, 0.2)))
@@ -186,6 +191,25 @@ def band_report(label: str, method: str, options: dict, seq: Sequence, period: f
     images = run_rmb(method, options, seq)
     psnr = [mu_law_psnr(images[i], np.minimum(seq.gt[i], 1.0)) for i in range(3, len(seq.gt) - 3)]
     return BandReport(label, seq.name, psnr, band_oscillation_db(psnr, period), oscillation_floor_db(psnr, period))
+
+
+@dataclass(frozen=True)
+class StateAgeReport:
+    """Per-frame mu-law PSNR of a long still clip, and its means early (frames 3-8: the state is as young as in
+    the held-out sequences, which is as old as training clips make it) and late (the second half: what a long
+    capture gets once the state has settled)."""
+
+    sequence: str
+    psnr: list[float]
+    early_db: float
+    late_db: float
+
+
+def state_age_report(method: str, options: dict, seq: Sequence) -> StateAgeReport:
+    """How a still scene's quality changes as the recurrent state ages over a long clip (the content does not)."""
+    images = run_rmb(method, options, seq)
+    psnr = [mu_law_psnr(images[i], np.minimum(seq.gt[i], 1.0)) for i in range(len(seq.gt))]
+    return StateAgeReport(seq.name, psnr, float(np.mean(psnr[3:9])), float(np.mean(psnr[len(psnr) // 2:])))
 
 
 def flat_field_chunks(level: float, width: int, height: int, readouts: int, seed: int = 0) -> list[RmbChunk]:
@@ -264,6 +288,17 @@ def write_checks(out_dir, method: str, options: dict, sequences: Seq[Sequence], 
               "quality.", "",
               "| method | sequence | amplitude at the band period (dB) | floor (dB) |", "|---|---|---:|---:|"]
     lines += [f"| {b.method} | {b.sequence} | {b.amplitude_db:.3f} | {b.floor_db:.3f} |" for b in bands]
+    long_frames = 40 if quick else 100
+    ages = [state_age_report(method, options, band_sequence(width, height, long_frames, static=True,
+                                                             convention=convention))
+            for convention in ("physical", "spikezoo")]
+    lines += ["", "## Long captures: a still scene as the recurrent state ages", "",
+              f"Still textured scenes of {long_frames} frames at {width}x{height}, in the physical convention "
+              "(noise) and spikezoo's (periodic spikes, no noise); the content never changes, so any trend is the "
+              "state's age. Early: frames 3-8 (as old as the state gets in the held-out sequences); late: the "
+              "second half (what a long capture gets).", "",
+              "| sequence | early (dB) | late (dB) | late - early (dB) |", "|---|---:|---:|---:|"]
+    lines += [f"| {a.sequence} | {a.early_db:.2f} | {a.late_db:.2f} | {a.late_db - a.early_db:+.2f} |" for a in ages]
     lines += [
               "", "## Dark end (flat static field, physical noise)", "",
               "| level (charge/plane/threshold) | relative bias | spatial CV of a frame |", "|---:|---:|---:|"]
@@ -280,7 +315,7 @@ def write_checks(out_dir, method: str, options: dict, sequences: Seq[Sequence], 
         import matplotlib.pyplot as plt
     except ImportError:
         return written
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4))
+    fig, axes = plt.subplots(1, 4, figsize=(20, 4))
     for name, report in edges.items():
         axes[0].plot(report.psnr, marker=".", label=name)
     axes[0].set(xlabel="frame", ylabel="mu-law PSNR (dB)", title="per-frame quality: clip edges")
@@ -293,6 +328,10 @@ def write_checks(out_dir, method: str, options: dict, sequences: Seq[Sequence], 
     axes[1].set(xlabel="frame", ylabel="mu-law PSNR - mean (dB)",
                 title=f"still scene, band cycle {period:.2f} frames")
     axes[1].legend(fontsize=7)
+    for age in ages:
+        axes[3].plot(age.psnr, marker=".", label=f"{age.sequence}: late - early {age.late_db - age.early_db:+.2f} dB")
+    axes[3].set(xlabel="frame", ylabel="mu-law PSNR (dB)", title="long still clips: the state's age")
+    axes[3].legend(fontsize=7)
     levels = list(bias)
     axes[2].semilogx(levels, [100 * bias[v][0] for v in levels], marker="o")
     axes[2].axhspan(-5, 5, color="green", alpha=0.15)

@@ -6,8 +6,8 @@ buffer; the ConvLSTM state is carried from frame to frame, so the output is the 
 input is chunked, and equal to ``RmbNet.forward_sequence`` over the whole capture (with the same ``prime``).
 Output frame i needs frames up to i+w, so output lags input by w frames until ``flush``. At the edges of the
 capture the window's positions past the edge are left out (``window_valid``); the first frame's state is primed
-by running the network backwards over the 2w frames after it (``RmbNet.step_backward``), so the first frames
-read their future through the state as later frames read their past (the first output waits for 3w + 1 frames).
+by running the network backwards over the w frames after it (``RmbNet.step_backward``), so the first frames
+read their future through the state as later frames read their past (the first output waits for 2w + 1 frames).
 
 A model with ``config.aligned`` also gets each reference frame's motion-compensated window mean
 (``rmbvideo.recon.aligned_box``: consecutive DIS flows, computed once per frame and kept while needed).
@@ -143,7 +143,7 @@ class RmbNetReconstructor:
     recurrences on the whole run of frames at once; the same frames to float rounding); None: up to 128 on a GPU
     (``default_frame_batch``; a pass is also bounded by the frames one pushed chunk completes), 1 on a CPU, where
     batching loses. With the network on a GPU, the aligned means use ``threads`` threads (default: every core but one).
-    ``prime``: frames the first frame's state is primed over, backwards in time (default 2w; 0: a fresh state).
+    ``prime``: frames the first frame's state is primed over, backwards in time (default w; 0: a fresh state).
     ``n`` is the readouts per preliminary frame when RmbChunks are pushed (default: the model's N)
     and ``upsampler`` the band upsampler they go through (default: flow-free interpolation; see
     ``rmbvideo.recon.flow.FlowUpsampler``).
@@ -187,7 +187,7 @@ class RmbNetReconstructor:
         self.align = align
         self.n = model.config.n if n is None else n
         self._w = model.config.w
-        self._prime = 2 * self._w if prime is None else prime
+        self._prime = self._w if prime is None else prime
         self._kept_means: dict[int, Ready] = {}
         self._primed = False
         self._upsampler = upsampler
