@@ -210,7 +210,8 @@ def test_development_sequences_use_other_seeds_than_the_validation_set():
 def test_development_scores_candidates_on_the_given_sets(sequence, models_dir, tmp_path):
     """Each candidate gets finite scores on every development sequence, edge-frame deltas, a dark-end
     bias, and one table row; two different models score differently."""
-    from rmbvideo.evaluate.development import markdown, score_candidates
+    from rmbvideo.evaluate.development import LONG_SEED, markdown, score_candidates
+    from rmbvideo.evaluate.video_checks import band_sequence
 
     torch.set_num_threads(1)
     (tmp_path / "other").mkdir()
@@ -219,12 +220,14 @@ def test_development_scores_candidates_on_the_given_sets(sequence, models_dir, t
     save_model(other, RmbNet(RmbNetConfig(w=1, width=0.25)), ModelCard(name="other"))
     models = [models_dir / "rmbnet-binned.safetensors", other]
     done = []
-    scores = score_candidates(models, [sequence], clips=[], real=[], done=lambda: done.append(1))
+    still = band_sequence(32, 24, 12, static=True, seed=LONG_SEED, convention="spikezoo")
+    scores = score_candidates(models, [sequence], clips=[], real=[], done=lambda: done.append(1), long=[still])
     assert len(done) == 2 and [s.name for s in scores] == [f"{models_dir.name}/rmbnet-binned", "other/rmbnet-binned"]
     for s in scores:
         assert list(s.sequences) == [sequence.name] and math.isfinite(s.sequence_mean)
         assert math.isfinite(s.first_frame_db) and math.isfinite(s.last_frame_db) and math.isfinite(s.dark_bias)
         assert not s.clips and not s.real
+        assert list(s.state_age) == [still.name] and math.isfinite(s.state_age[still.name])
     assert scores[0].sequences != scores[1].sequences
     table = markdown(scores, models)
     assert table.count("| other/rmbnet-binned |") == 2 and "—" in table

@@ -19,6 +19,7 @@ from rmbvideo.train.checkpoint import load_checkpoint
 from rmbvideo.train.config import RECIPES_DIR, load_recipe
 from rmbvideo.train.dataset import SampleCache, SampleSpec, simulate_sample
 from rmbvideo.train.batch import Batch
+from rmbvideo.net.model import window_indices
 from rmbvideo.train.loop import Trainer, segment_losses, train_batch
 from rmbvideo.train.validation import tfw_prediction
 from rmbvideo.train.loss import LossConfig
@@ -192,6 +193,39 @@ def test_tbptt_cuts_the_graph_between_segments(tmp_path):
     assert len(set(sizes[1:])) == 1  # later segments do not grow: the graph is bounded
     whole = next(segment_losses(model, batch, tbptt=5, loss_config=LossConfig()))
     assert _graph_size(whole.loss) > 3 * sizes[1]
+
+
+def test_aged_passes_start_the_supervised_run_from_a_state_run_over_the_outputs_without_gradients(tmp_path):
+    """One pass is the engine's priming (backwards over the outputs after the first); three passes go back, forth and
+    back; the state carries no graph, and the supervised losses change with it."""
+    from rmbvideo.train.loop import aged_state
+
+    sample = SampleCache(tmp_path, SampleSpec(mode="binned", crop=16, frames=8, n=4, warmup_frames=1)).get(0)
+    batch = Batch.from_samples([sample], torch.device("cpu"))
+    model = _tiny_model()
+    w, count = model.config.w, batch.i_s.shape[1]
+    outputs = range(w, count - w)
+    assert aged_state(model, batch, outputs, 0) is None
+    with torch.no_grad():
+        frames = model.encode(batch.i_s[0], batch.i_m[0], range(count))
+        state = None
+        for i in reversed(outputs[1:]):
+            state = model.step_backward([frames[j] for j in window_indices(i, w, count)], state)
+        primed = state
+        for i in outputs[:-1]:
+            state = model.step([frames[j] for j in window_indices(i, w, count)], state)[1]
+        for i in reversed(outputs[1:]):
+            state = model.step_backward([frames[j] for j in window_indices(i, w, count)], state)
+    for passes, expected in ((1, primed), (3, state)):
+        aged = aged_state(model, batch, outputs, passes)
+        for (h, c), (h_ref, c_ref) in zip(aged, expected):
+            assert not h.requires_grad and h.grad_fn is None
+            torch.testing.assert_close(h, h_ref)
+            torch.testing.assert_close(c, c_ref)
+    fresh = next(segment_losses(model, batch, tbptt=1, loss_config=LossConfig()))
+    old = next(segment_losses(model, batch, tbptt=1, loss_config=LossConfig(), aged_passes=3))
+    assert fresh.state_in is None and old.state_in is not None
+    assert not torch.isclose(fresh.loss, old.loss)
 
 
 def _csv_steps(path: Path) -> list[int]:

@@ -294,3 +294,22 @@ def test_edge_cost_cuts_the_stream_where_the_frames_are_and_scores_the_same_mome
     as_first = mu_law_psnr(cut[0], np.minimum(seq.gt[mid], 1.0))
     assert report.first_edge_cost_db == pytest.approx(report.psnr[mid] - as_first)
     assert np.isfinite(report.last_edge_cost_db) and report.first_edge_cost_db != 0.0
+
+
+def test_long_still_clips_hold_one_scene_in_either_convention_and_report_early_and_late_quality():
+    """The state-age check's clips: the ground truth never changes (a still scene), the convention is the one asked
+    for, the spikes differ between conventions, and the report's means are those of frames 3-8 and the second half."""
+    import json
+
+    from rmbvideo.evaluate.video_checks import band_sequence, state_age_report
+
+    physical = band_sequence(32, 24, 12, static=True, seed=1_700_000)
+    spikezoo = band_sequence(32, 24, 12, static=True, seed=1_700_000, convention="spikezoo")
+    for seq, convention in ((physical, "physical"), (spikezoo, "spikezoo")):
+        assert json.loads(seq.description)["convention"] == convention
+        assert np.allclose(seq.gt, seq.gt[:1], rtol=1e-6)
+    assert physical.name != spikezoo.name and not np.array_equal(physical.multi, spikezoo.multi)
+    report = state_age_report("tfw", {"window": 10, "step": 10}, spikezoo)
+    assert len(report.psnr) == 12 and report.sequence == spikezoo.name
+    assert report.early_db == pytest.approx(np.mean(report.psnr[3:9]))
+    assert report.late_db == pytest.approx(np.mean(report.psnr[6:]))

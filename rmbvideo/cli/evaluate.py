@@ -54,7 +54,7 @@ def _development(out_dir: Path, models: list[Path], cache_dir: Path | None, real
     """Score ``models`` on the development sets; write ``development.md``."""
     from tqdm import tqdm
 
-    from rmbvideo.evaluate.development import markdown, score_candidates
+    from rmbvideo.evaluate.development import long_clips, markdown, score_candidates
     from rmbvideo.evaluate.heldout import default_cache_dir, load_development
     from rmbvideo.evaluate.real_video import find_streams
     from rmbvideo.evaluate.texture_pans import texture_pan_folder
@@ -67,7 +67,7 @@ def _development(out_dir: Path, models: list[Path], cache_dir: Path | None, real
     clips = find_streams(texture_pan_folder(cache_dir if cache_dir is not None else default_cache_dir()))
     real = find_streams(real_video) if real_video is not None else []
     with tqdm(total=len(models), disable=not progress, unit="model", desc="development") as bar:
-        scores = score_candidates(models, sequences, clips, real, device, done=lambda: bar.update(1))
+        scores = score_candidates(models, sequences, clips, real, device, done=lambda: bar.update(1), long=long_clips())
     path = out_dir / "development.md"
     atomic_write_text(path, markdown(scores, models))
     return path

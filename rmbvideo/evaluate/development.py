@@ -4,8 +4,9 @@ at the evaluation's held-out tables.
 Per model file: the mean mu-law PSNR of each development sequence's scored frames
 (``heldout.load_development``: the held-out kinds drawn from other evaluation seeds), the first and last
 frames against their clip's median (dB), the development clips (texture pans in spikezoo's convention),
-the real-video streams when given, and the dark-end bias at 1e-3 on a flat field of seed 1 (the
-evaluation's own dark check uses seed 0).
+the real-video streams when given, the dark-end bias at 1e-3 on a flat field of seed 1 (the
+evaluation's own dark check uses seed 0), and how a long still clip's quality changes as the recurrent
+state ages (late minus early, in both conventions; other seeds than the evaluation's long captures).
 """
 
 from __future__ import annotations
@@ -20,12 +21,16 @@ from rmbvideo.evaluate.harness import MethodSpec, run_frames, score_frames
 from rmbvideo.evaluate.heldout import Sequence
 from rmbvideo.evaluate.metrics import mu_law_psnr
 from rmbvideo.evaluate.real_video import CONVENTION, RealRow, RealStream, score_stream
-from rmbvideo.evaluate.video_checks import dark_bias
+from rmbvideo.evaluate.video_checks import band_sequence, dark_bias, state_age_report
 from rmbvideo.net.weights import load_model
 
 #: flat-field seed of the dark-end bias used for choosing (seed 0 is the evaluation's check)
 DARK_SEED = 1
 DARK_LEVEL = 1e-3
+#: the long still clips' seed (the evaluation's are ``band_sequence``'s default), size and length
+LONG_SEED = 1_700_000
+LONG_SIZE = (112, 64)
+LONG_FRAMES = 60
 
 
 @dataclass(frozen=True)
@@ -39,6 +44,7 @@ class DevelopmentScore:
     clips: dict[str, float]
     real: dict[str, float]
     dark_bias: float  # relative bias of the mean output at DARK_LEVEL
+    state_age: dict[str, float]  # long still clip -> late minus early mean (dB)
 
     @property
     def sequence_mean(self) -> float:
@@ -76,22 +82,30 @@ def score_streams(model: Path, streams: Seq[RealStream], device: str = "cpu") ->
     return {s.name: score_stream(s, [row])["candidate"].psnr for s in streams}
 
 
+def long_clips() -> list[Sequence]:
+    """The development's long still clips, in the physical convention and spikezoo's."""
+    return [band_sequence(*LONG_SIZE, LONG_FRAMES, static=True, seed=LONG_SEED, convention=convention)
+            for convention in ("physical", "spikezoo")]
+
+
 def score_candidate(model: Path, sequences: Seq[Sequence], clips: Seq[RealStream], real: Seq[RealStream],
-                    device: str = "cpu", name: str | None = None) -> DevelopmentScore:
-    """Every development figure of one model file."""
+                    device: str = "cpu", name: str | None = None, long: Seq[Sequence] = ()) -> DevelopmentScore:
+    """Every development figure of one model file (``long``: still clips for the state's age)."""
     seq_scores, first, last = score_sequences(model, sequences, device)
-    bias = dark_bias("rmbnet", {"model": Path(model), "device": device, "threads": 1}, levels=(DARK_LEVEL,),
-                     seed=DARK_SEED)[DARK_LEVEL][0]
+    options = {"model": Path(model), "device": device, "threads": 1}
+    bias = dark_bias("rmbnet", options, levels=(DARK_LEVEL,), seed=DARK_SEED)[DARK_LEVEL][0]
+    ages = {a.sequence: a.late_db - a.early_db for a in (state_age_report("rmbnet", options, seq) for seq in long)}
     return DevelopmentScore(name or f"{Path(model).parent.name}/{Path(model).stem}", seq_scores, first, last, score_streams(model, clips, device),
-                            score_streams(model, real, device), bias)
+                            score_streams(model, real, device), bias, ages)
 
 
 def score_candidates(models: Seq[Path], sequences: Seq[Sequence], clips: Seq[RealStream], real: Seq[RealStream],
-                     device: str = "cpu", done: Callable[[], None] | None = None) -> list[DevelopmentScore]:
+                     device: str = "cpu", done: Callable[[], None] | None = None,
+                     long: Seq[Sequence] = ()) -> list[DevelopmentScore]:
     """``score_candidate`` for each model; ``done`` is called after each (a progress bar)."""
     scores = []
     for model in models:
-        scores.append(score_candidate(model, sequences, clips, real, device))
+        scores.append(score_candidate(model, sequences, clips, real, device, long=long))
         if done is not None:
             done()
     return scores
@@ -106,15 +120,19 @@ def markdown(scores: Seq[DevelopmentScore], models: Seq[Path]) -> str:
     lines = ["# Development sets: candidate models", "",
              "Never the evaluation's held-out tables: choose a training stage here, then run the full evaluation once.", "",
              "| model | development sequences (mu-PSNR) | first / last frame vs median (dB) | development clips (PSNR) "
-             "| real-video streams (PSNR) | dark end at 1e-3 (seed 1) |", "|---|---:|---:|---:|---:|---:|"]
+             "| real-video streams (PSNR) | dark end at 1e-3 (seed 1) | long still clips: late - early (dB) |",
+             "|---|---:|---:|---:|---:|---:|---|"]
     for s in scores:
+        ages = " / ".join(f"{value:+.2f}" for value in s.state_age.values()) or "—"
         lines.append(f"| {s.name} | {s.sequence_mean:.2f} | {s.first_frame_db:+.2f} / {s.last_frame_db:+.2f} | "
-                     f"{_mean(s.clips)} | {_mean(s.real)} | {100 * s.dark_bias:+.1f} % |")
+                     f"{_mean(s.clips)} | {_mean(s.real)} | {100 * s.dark_bias:+.1f} % | {ages} |")
     lines += ["", "Per set (dB):", ""]
-    columns = [name for s in scores[:1] for name in [*s.sequences, *s.clips, *s.real]]
+    columns = [name for s in scores[:1] for name in [*s.sequences, *s.clips, *s.real, *s.state_age]]
     lines += ["| model | " + " | ".join(columns) + " |", "|---|" + "---:|" * len(columns)]
     for s in scores:
-        values = {**s.sequences, **s.clips, **s.real}
+        values = {**s.sequences, **s.clips, **s.real, **s.state_age}
         lines.append(f"| {s.name} | " + " | ".join(f"{values[c]:.2f}" for c in columns) + " |")
-    lines += ["", "Models: " + ", ".join(f"`{m}`" for m in models), ""]
+    lines += ["", "Long still clips (the last columns): late (second half) minus early (frames 3-8) mean mu-law PSNR "
+              "of a still scene, what the recurrent state's age alone does.",
+              "", "Models: " + ", ".join(f"`{m}`" for m in models), ""]
     return "\n".join(lines)

@@ -72,6 +72,10 @@ class OptimConfig:
     val_every: int = 250
     checkpoint_every: int = 50
     edges: float = 0.0  # fraction of steps that also supervise a sample's first/last w outputs as a clip's edges
+    # passes over a sample's outputs without gradients, alternately backwards and forwards and ending backwards at the
+    # first, before the supervised run: its state is then as old as a long capture's (passes x outputs steps; one pass
+    # is how the engine primes a clip's first frame)
+    aged_passes: int = 0
     trainable: tuple[str, ...] = ()
 
 
@@ -213,6 +217,8 @@ def _check_ranges(config: TrainConfig, path: Path) -> None:
         problems.append("data.count, data.val_count, data.steps, data.reuse and data.workers must be >= 1")
     if not 0 < d.exposure[0] <= d.exposure[1]:
         problems.append("data.exposure must be [low, high] with 0 < low <= high")
+    if o.aged_passes < 0:
+        problems.append("optim.aged_passes must be >= 0")
     if o.lr <= 0 or o.lr_final <= 0 or o.steps < 1 or o.batch < 1 or o.tbptt < 1:
         problems.append("optim.lr, lr_final, steps, batch and tbptt must be positive")
     if not 0.0 <= o.edges <= 1.0:

@@ -84,22 +84,51 @@ class SegmentLoss:
     state_in: DecoderState | None
 
 
+def _encode_all(model: RmbNet, batch: Batch, lo: int, hi: int) -> list:
+    """The encodings of the batch's frames ``lo .. hi-1``."""
+    return model.encode(batch.i_s[:, lo:hi].transpose(0, 1).flatten(0, 1),
+                        batch.i_m[:, lo:hi].transpose(0, 1).flatten(0, 1), range(lo, hi),
+                        None if batch.i_c is None else batch.i_c[:, lo:hi].transpose(0, 1).flatten(0, 1))
+
+
+def aged_state(model: RmbNet, batch: Batch, outputs: range, passes: int) -> DecoderState | None:
+    """The state a sample's supervised run starts from after ``passes`` runs over its ``outputs`` without gradients,
+    alternately backwards and forwards and ending backwards at the first (``RmbNet.step_backward``): a state as old
+    as a long capture's, where the sample alone would only give states as young as it is long."""
+    if passes < 1:
+        return None
+    w, count = model.config.w, batch.i_s.shape[1]
+    order = list(outputs)
+    state: DecoderState | None = None
+    with torch.no_grad():
+        frames = _encode_all(model, batch, 0, count)
+        for remaining in range(passes, 0, -1):
+            for i in (order[:0:-1] if remaining % 2 else order[:-1]):
+                window = [frames[j] for j in window_indices(i, w, count)]
+                aligned = None if batch.i_a is None else batch.i_a[:, i]
+                if remaining % 2:
+                    state = model.step_backward(window, state, window_valid(i, w, count), batch.convention, aligned)
+                else:
+                    state = model.step(window, state, valid=window_valid(i, w, count), convention=batch.convention,
+                                       aligned=aligned)[1]
+    return detach_state(state)
+
+
 def segment_losses(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossConfig,
-                   edges: bool = False) -> Iterator[SegmentLoss]:
+                   edges: bool = False, aged_passes: int = 0) -> Iterator[SegmentLoss]:
     """Yield the TBPTT segments of one batch in order; the caller back-propagates each before
     asking for the next, so only one segment's graph exists at a time. The sample's first frame
-    starts the recurrent state, as a clip's first frame does."""
+    starts the recurrent state, as a clip's first frame does, or, with ``aged_passes``, the state
+    those passes leave (``aged_state``)."""
     w = model.config.w
     count = batch.i_s.shape[1]
     supervised = output_range(count, w, edges)
     outputs = len(supervised)
-    state: DecoderState | None = None
+    state: DecoderState | None = aged_state(model, batch, supervised, aged_passes)
     for first in range(supervised.start, supervised.stop, tbptt):
         last = min(first + tbptt, supervised.stop) - 1
         lo, hi = max(first - w, 0), min(last + w + 1, count)
-        frames = model.encode(batch.i_s[:, lo:hi].transpose(0, 1).flatten(0, 1),
-                              batch.i_m[:, lo:hi].transpose(0, 1).flatten(0, 1), range(lo, hi),
-                              None if batch.i_c is None else batch.i_c[:, lo:hi].transpose(0, 1).flatten(0, 1))
+        frames = _encode_all(model, batch, lo, hi)
         cache: dict = {}
         state_in = state
         segment_loss = torch.zeros((), device=batch.i_s.device)
@@ -141,13 +170,13 @@ def train_mode(model: nn.Module) -> None:
 
 
 def train_batch(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossConfig,
-                edges: bool = False) -> dict[str, float]:
+                edges: bool = False, aged_passes: int = 0) -> dict[str, float]:
     """Forward and backward one batch with TBPTT (gradients accumulate in ``.grad``; the caller
     steps the optimizer). Returns the mean loss and its parts over the supervised outputs."""
     train_mode(model)
     outputs = len(output_range(batch.i_s.shape[1], model.config.w, edges))
     totals = {"loss": 0.0, "l2": 0.0, "ssim": 0.0, "edge": 0.0, "linear": 0.0, "regional": 0.0}
-    for segment in segment_losses(model, batch, tbptt, loss_config, edges):
+    for segment in segment_losses(model, batch, tbptt, loss_config, edges, aged_passes):
         segment.loss.backward()
         for key, value in segment.parts.items():
             totals[key] += value
@@ -272,7 +301,7 @@ class Trainer:
                     group["lr"] = lr
                 self.optimizer.zero_grad(set_to_none=True)
                 edges = bool(np.random.default_rng([cfg.seed, step, 2]).random() < cfg.optim.edges)
-                losses = train_batch(self.model, batch, cfg.optim.tbptt, cfg.loss, edges)
+                losses = train_batch(self.model, batch, cfg.optim.tbptt, cfg.loss, edges, cfg.optim.aged_passes)
                 if not all(math.isfinite(v) for v in losses.values()):
                     raise FloatingPointError(f"step {step}: non-finite loss {losses} (seeds {self.step_seeds(step)})")
                 torch.nn.utils.clip_grad_norm_(self.model.parameters(), cfg.optim.grad_clip)
@@ -326,7 +355,8 @@ class Trainer:
                              f"grad-norm clip {cfg.optim.grad_clip}"
                              + (f"; trained only {', '.join(cfg.optim.trainable)} (the rest frozen)" if cfg.optim.trainable else ""),
                 "tbptt": f"{cfg.data.steps} consecutive outputs per sample, back-propagated in segments of "
-                         f"{cfg.optim.tbptt}",
+                         f"{cfg.optim.tbptt}" + (f", from a state aged by {cfg.optim.aged_passes} passes over the "
+                                                 "outputs without gradients" if cfg.optim.aged_passes else ""),
                 "loss": f"mu-law (mu={cfg.loss.mu:g}) L2 + {cfg.loss.ssim:g} x (1 - SSIM) + {cfg.loss.edge:g} x "
                         f"gradient L1" + (f" + {cfg.loss.linear:g} x linear L1 relative to the sample's mean"
                                           if cfg.loss.linear > 0 else "")
