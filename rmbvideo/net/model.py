@@ -393,9 +393,26 @@ class RmbNet(nn.Module):
         if any(frame.rates.shape[0] != 1 for frame in frames):
             raise ValueError("step_run reads frames of batch size 1")
         window = [_stack_frames(frames[p : p + count], p) for p in range(self.config.window)]
-        prepared = self._prepare(window, {}, [True] * len(window), convention, aligned)
+        cache = self._run_pair_logits(frames, count) if self.config.use_xba else {}
+        prepared = self._prepare(window, cache, [True] * len(window), convention, aligned)
         z, state = self.decoder(*prepared.decoder_inputs, state, run=True)
         return self._finish(z, prepared, convention), state
+
+    def _run_pair_logits(self, frames: Sequence[EncodedFrame], count: int) -> PairCache:
+        """A run's 1/8-scale XBA logits for every pair of window positions (p, p + d), keyed as ``_prepare`` asks for
+        them: one batched call per offset d over the distinct frame pairs, each position pair a view of it. The run's
+        stacked windows hold the same frame pair at up to 2w + 1 position pairs, which would compute it that often."""
+        last_position = 2 * self.config.w
+        queries = torch.cat([f.query_parts[2] for f in frames])
+        keys = torch.cat([f.key_parts[2] for f in frames])
+        cache: PairCache = {}
+        for d in range(-last_position, last_position + 1):
+            first, last = max(0, -d), min(last_position, last_position - d)  # positions p with p + d in the window
+            logits = self.xba[2].pair_logits(queries[None, first : last + count],
+                                             keys[None, first + d : last + d + count])[0]
+            for p in range(first, last + 1):
+                cache[(2, p, p + d)] = logits[p - first : p - first + count]
+        return cache
 
     def _prepare(self, window: Sequence[EncodedFrame], cache: PairCache, valid: list[bool],
                  convention: torch.Tensor | float, aligned: torch.Tensor | None) -> "_Prepared":
