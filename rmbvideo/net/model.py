@@ -458,11 +458,11 @@ class RmbNet(nn.Module):
     ) -> tuple[torch.Tensor, DecoderState | None]:
         """Reconstruct a whole sequence (B,K,H,W) of preliminary sums -> (B,K,H,W) and final state.
 
-        Without a ``state``, the first frame's is primed backwards over frames ``prime`` .. 1 (``step_backward``;
-        the streaming engine's default is w).
         Linear HDR by default; ``linear=False`` returns the mu-law domain (the training loss domain).
         ``i_c`` (B,K,C,H,W): central sums, when the config has centre windows; ``i_a`` (B,K,H,W) or
         (B,K,2,H,W): each frame's aligned mean(s) of the multi-bit sums, when the config has ``aligned``.
+        Without a ``state``, the first frame's is primed backwards over frames ``prime`` .. 1 (``step_backward``;
+        the streaming engine's default is w).
         """
         batch, count = i_s.shape[:2]
         frames = self.encode(
