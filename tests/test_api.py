@@ -41,3 +41,22 @@ def test_reconstruct_streams_the_cli_frames(tmp_path):
     with pytest.raises(OptionError, match="takes no option model"):
         rmbvideo.reconstruct(capture, method="tfp", model="x.safetensors")
     assert "torch" not in rmbvideo.__all__ and os.fspath(capture)
+
+
+def test_prime_reaches_the_engine_from_the_api_and_the_cli(tmp_path):
+    """``prime`` (``--prime``) sets how many frames RMB-Net's first state is primed over: 0 makes another first frame
+    than the default, and the CLI writes the API's frames."""
+    capture = tmp_path / "c.dat"
+    rmbvideo.simulate_capture(rmbvideo.load_scene("demo"), capture, duration_s=0.006)
+    options = dict(resolution="binned", threads=1, precision="fp32")
+    default = list(rmbvideo.reconstruct(capture, **options))
+    unprimed = list(rmbvideo.reconstruct(capture, prime=0, **options))
+    assert len(default) == len(unprimed) >= 5
+    assert not np.allclose(default[0].image, unprimed[0].image, rtol=1e-4)
+    from rmbvideo.cli import main
+
+    main(["reconstruct", str(capture), "-o", str(tmp_path / "out"), "--prime", "0", "--resolution", "binned",
+          "--threads", "1", "--precision", "fp32", "--format", "exr", "--exr-dtype", "float", "-q"],
+         standalone_mode=False)
+    for frame in unprimed:
+        np.testing.assert_array_equal(read_exr(tmp_path / "out" / f"frame_{frame.index:06d}.exr")[0], frame.image)

@@ -47,6 +47,10 @@ def rmbnet_options(func):
                      help="Output frames RMB-Net makes per batched pass (its ConvLSTM still steps through them in "
                           "order; the same frames) [default: up to 128 on a GPU, fewer for large frames; 1 on a CPU, "
                           "where batching loses]."),
+        click.option("--prime", type=click.IntRange(min=0), default=None,
+                     help="Frames after the first whose evidence RMB-Net's first frame reads through its recurrent "
+                          "state, by running the network backwards over them once (0: the first frames start from "
+                          "an empty state) [default: the model's w]."),
     ]
     for option in reversed(options):
         func = option(func)
@@ -108,11 +112,12 @@ def reconstruct(input_path: Path, outdir: Path, method: str, window, step, fmt: 
                 width, height, flip,
                 header_cols, rate_hz,
                 start_s: float, duration_s, chunk_planes: int, model, align: str, device: str,
-                upsampling: str, precision: str, threads, convention: str, frame_batch, overwrite: bool, nits_per_unit,
+                upsampling: str, precision: str, threads, convention: str, frame_batch, prime, overwrite: bool,
+                nits_per_unit,
                 quiet: bool) -> None:
     """Reconstruct a .dat capture INPUT into frames in OUTDIR."""
     extra = dict(model=model, align=align, device=device, upsampling=upsampling, precision=precision,
-                 threads=threads, convention=convention, frame_batch=frame_batch)
+                 threads=threads, convention=convention, frame_batch=frame_batch, prime=prime)
     summary = run_reconstruction(
         input_path, outdir, method=method, window=window, step=step, fmt=fmt, fps=fps,
         pixel_format=pixel_format, tonemap=tonemap, exr_dtype=exr_dtype, readout=readout, start_s=start_s,
