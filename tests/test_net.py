@@ -89,6 +89,57 @@ def test_convlstm_cell_is_the_textbook_cell_in_value_and_gradient():
         torch.testing.assert_close(cell(x.detach(), (h0, c0))[0], h_ref.detach(), rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.parametrize("channels_last", [False, True])
+def test_convlstm_recurrence_from_a_zero_state_is_the_run_from_none(channels_last):
+    """What a CUDA graph replays (the hidden part from an explicit state) gives ``run``'s values: from zeros those
+    of a run from no state, from a carried state those of the steps one by one; ``graphed`` off a GPU is ``run``."""
+    torch.manual_seed(1)
+    cell = ConvLSTMCell(3, 4, 3)
+    layout = torch.channels_last if channels_last else torch.contiguous_format
+    x = torch.randn(5, 3, 6, 7).contiguous(memory_format=layout)
+    with torch.inference_mode():
+        gates_x = torch.nn.functional.conv2d(x, cell.gates.weight[:, :3], cell.gates.bias, padding=1)
+        zeros = torch.zeros(1, 4, 6, 7)
+        hs, h, c = cell._recurrence(gates_x, zeros, zeros)
+        ref, (h_ref, c_ref) = cell.run(x, None)
+        torch.testing.assert_close(hs, ref, rtol=1e-6, atol=1e-7)
+        torch.testing.assert_close((h, c), (h_ref, c_ref), rtol=1e-6, atol=1e-7)
+        state, steps = None, []
+        for k in range(5):
+            out, state = cell(x[k : k + 1], state)
+            steps.append(out)
+        carried = cell._recurrence(gates_x[2:], *cell.run(x[:2], None)[1])
+        torch.testing.assert_close(carried[0], torch.cat(steps[2:]), rtol=1e-5, atol=1e-6)
+        graphed, _ = cell.run(x, None, graphed=True)
+        assert torch.equal(graphed, ref)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="CUDA graphs need a GPU")
+def test_cuda_graphs_replay_the_eager_recurrence():
+    """On a GPU, runs through the graph cache (eager the first time a shape is seen, captured the second, replayed
+    after) give the eager values, from a carried state, and return copies rather than the graph's memory."""
+    from rmbvideo.recon.rmbnet import inference_copy
+
+    torch.manual_seed(0)
+    net = inference_copy(RmbNet(RmbNetConfig(w=2, width=0.25)).eval().cuda())
+    frames = [torch.randint(0, 81, (14, 19, 26)).float().cuda(), torch.randint(0, 7 * 81, (14, 19, 26)).float().cuda()]
+    with torch.inference_mode():
+        encoded = net.encode(*frames, range(14))
+        for graphed in (False, True, True, True):
+            state, outputs = None, []
+            for start in (0, 5):
+                t, state = net.step_run(encoded[start : start + 9], state, graphed=graphed)
+                outputs.append(t)
+            if not graphed:
+                eager = outputs
+            first = outputs[0]
+            for got, expected in zip(outputs, eager):
+                torch.testing.assert_close(got, expected, rtol=1e-5, atol=1e-6)
+        net.step_run(encoded[5:14], state, graphed=True)
+        torch.testing.assert_close(first, eager[0], rtol=1e-5, atol=1e-6)
+    assert net.decoder.lstm1._graphs.enabled and net.decoder.lstm1._graphs._graphs
+
+
 @pytest.mark.parametrize("dtype", [torch.float32, torch.bfloat16])
 @pytest.mark.parametrize("channels_last", [False, True])
 def test_strided_max_pool_equals_max_pool_2d(dtype, channels_last):

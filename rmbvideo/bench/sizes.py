@@ -34,6 +34,7 @@ class SizeResult:
     precision: str
     frame_batch: int | None
     threads: int | None
+    cuda_graphs: bool
     frames: int
     fps: float
     network_fps: float
@@ -45,10 +46,11 @@ class SizeResult:
 
 
 def _cli_fps(path: Path, width: int, height: int, device: str, precision: str, frame_batch: int | None,
-             threads: int | None, out: Path) -> float | None:
+             threads: int | None, cuda_graphs: bool, out: Path) -> float | None:
     """Frames/s that ``rmbvideo reconstruct --format null`` reports for ``path`` (None if it failed)."""
     batch = [] if frame_batch is None else ["--frame-batch", str(frame_batch)]
     batch += [] if threads is None else ["--threads", str(threads)]
+    batch += [] if cuda_graphs else ["--no-cuda-graphs"]
     done = subprocess.run([sys.executable, "-m", "rmbvideo", "reconstruct", str(path), "-o", str(out),
                            "--format", "null", "--width", str(width), "--height", str(height), "--device", device,
                            "--precision", precision, "--overwrite", *batch], capture_output=True, text=True)
@@ -64,10 +66,11 @@ def _cli_fps(path: Path, width: int, height: int, device: str, precision: str, f
 def bench_sizes(device: str, sizes: tuple[tuple[int, int], ...] = DEFAULT_SIZES,
                 precisions: tuple[str, ...] = ("fp32", "bf16"), frames: int = 120,
                 cli: bool = True, frame_batches: tuple[int | None, ...] = (None,),
-                threads: int | None = None) -> list[SizeResult]:
+                threads: int | None = None, cuda_graphs: bool = True) -> list[SizeResult]:
     """Measure the default model at each raw ``size`` (width, height), precision and frame batch (None: the
     engine's default for the device): ``frames`` output frames per run (20 raw planes each). ``threads``: the
-    engine's (``RmbNetReconstructor``; on a GPU the aligned means' threads), None for the thread policy."""
+    engine's (``RmbNetReconstructor``; on a GPU the aligned means' threads), None for the thread policy; ``cuda_graphs``
+    the engine's."""
     results = []
     with tempfile.TemporaryDirectory(prefix="rmbvideo-sizes-") as folder:
         work = Path(folder)
@@ -76,7 +79,8 @@ def bench_sizes(device: str, sizes: tuple[tuple[int, int], ...] = DEFAULT_SIZES,
             capture = dict(width=width, height=height)
             for precision in precisions:
                 for batch in frame_batches:
-                    options = dict(device=device, precision=precision, frame_batch=batch, threads=threads)
+                    options = dict(device=device, precision=precision, frame_batch=batch, threads=threads,
+                                   cuda_graphs=cuda_graphs)
                     run_reconstruction(path, work / "warm", fmt="null", duration_s=0.1, capture=capture,
                                        extra_options=options, overwrite=True)
                     summary = run_reconstruction(path, work / "out", fmt="null", capture=capture,
@@ -84,9 +88,11 @@ def bench_sizes(device: str, sizes: tuple[tuple[int, int], ...] = DEFAULT_SIZES,
                     network_s = summary.stages.get("network", 0.0)
                     results.append(SizeResult(
                         raw=f"{width}x{height}", binned=f"{width // 2}x{height // 2}", device=device,
-                        precision=precision, frame_batch=batch, threads=threads, frames=summary.frames,
+                        precision=precision, frame_batch=batch, threads=threads, cuda_graphs=cuda_graphs,
+                        frames=summary.frames,
                         fps=summary.frames_per_second, network_fps=summary.frames / network_s if network_s > 0 else 0.0,
-                        cli_fps=(_cli_fps(path, width, height, device, precision, batch, threads, work / "cli") if cli
+                        cli_fps=(_cli_fps(path, width, height, device, precision, batch, threads, cuda_graphs,
+                                         work / "cli") if cli
                                  else None),
                         stage_ms={k: 1e3 * v / max(summary.frames, 1) for k, v in summary.stages.items()},
                     ))
@@ -97,14 +103,15 @@ def bench_sizes(device: str, sizes: tuple[tuple[int, int], ...] = DEFAULT_SIZES,
 def sizes_table(results: list[SizeResult]) -> str:
     """Markdown table of ``results``."""
     stages = ("read", "readout", "preliminary frames", "network", "aligned mean")
-    lines = ["| binned (raw) | device | precision | frame batch | threads | frames/s end to end | frames/s network "
+    lines = ["| binned (raw) | device | precision | frame batch | threads | CUDA graphs | frames/s end to end | frames/s network "
              "| frames/s `reconstruct` | " + " | ".join(f"{s} ms/frame" for s in stages) + " |",
-             "|---|---|---|---:|---:|---:|---:|---:|" + "---:|" * len(stages)]
+             "|---|---|---|---:|---:|---|---:|---:|---:|" + "---:|" * len(stages)]
     for r in results:
         cli = f"{r.cli_fps:.1f}" if r.cli_fps is not None else "n/a"
         batch = "default" if r.frame_batch is None else str(r.frame_batch)
         threads = "policy" if r.threads is None else str(r.threads)
-        lines.append(f"| {r.binned} ({r.raw}) | {r.device} | {r.precision} | {batch} | {threads} | {r.fps:.1f} | "
+        lines.append(f"| {r.binned} ({r.raw}) | {r.device} | {r.precision} | {batch} | {threads} | "
+                     f"{'yes' if r.cuda_graphs and r.device == 'cuda' else 'no'} | {r.fps:.1f} | "
                      f"{r.network_fps:.1f} | {cli} | " + " | ".join(f"{r.stage_ms.get(s, 0.0):.2f}" for s in stages)
                      + " |")
     return "\n".join(lines) + "\n"

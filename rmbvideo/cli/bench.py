@@ -192,10 +192,12 @@ def _size(text: str) -> tuple[int, int]:
 @click.option("--threads", type=click.IntRange(min=1), default=None,
               help="The engine's threads, as `reconstruct --threads` (on a GPU: the aligned means' threads) "
                    "[default: the thread policy].")
+@click.option("--cuda-graphs/--no-cuda-graphs", default=True, show_default=True,
+              help="The engine's CUDA graphs on a GPU, as `reconstruct --cuda-graphs`.")
 @click.option("--no-cli", is_flag=True, help="Leave out the `reconstruct` run in a fresh process.")
 @click.option("--json", "as_json", is_flag=True, help="Print the results as JSON.")
 def sizes(device: str, sizes: tuple[str, ...], frames: int, frame_batches: tuple[int, ...],
-          precisions: tuple[str, ...], threads: int | None, no_cli: bool, as_json: bool) -> None:
+          precisions: tuple[str, ...], threads: int | None, cuda_graphs: bool, no_cli: bool, as_json: bool) -> None:
     """RMB-Net frames/s by frame size and precision (fp32, bf16): end to end and the network alone."""
     import torch
 
@@ -205,7 +207,8 @@ def sizes(device: str, sizes: tuple[str, ...], frames: int, frame_batches: tuple
     if device == "cuda" and not torch.cuda.is_available():
         raise InputError("--device cuda: no CUDA device is available")
     results = bench_sizes(device, tuple(_size(s) for s in sizes), precisions=precisions, frames=frames,
-                          cli=not no_cli, frame_batches=frame_batches or (None,), threads=threads)
+                          cli=not no_cli, frame_batches=frame_batches or (None,), threads=threads,
+                          cuda_graphs=cuda_graphs)
     name = torch.cuda.get_device_name(0) if device == "cuda" else "CPU"
     click.echo(json.dumps([r.to_dict() for r in results], indent=2) if as_json
                else f"RMB-Net (shipped default) on {name}:\n" + sizes_table(results))

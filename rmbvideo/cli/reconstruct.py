@@ -51,6 +51,9 @@ def rmbnet_options(func):
                      help="Frames after the first whose evidence RMB-Net's first frame reads through its recurrent "
                           "state, by running the network backwards over them once (0: the first frames start from "
                           "an empty state) [default: the model's w]."),
+        click.option("--cuda-graphs/--no-cuda-graphs", default=True, show_default=True,
+                     help="On a GPU, replay RMB-Net's ConvLSTM steps through a batched pass as CUDA graphs (the same "
+                          "frames, fewer kernel launches)."),
     ]
     for option in reversed(options):
         func = option(func)
@@ -112,12 +115,14 @@ def reconstruct(input_path: Path, outdir: Path, method: str, window, step, fmt: 
                 width, height, flip,
                 header_cols, rate_hz,
                 start_s: float, duration_s, chunk_planes: int, model, align: str, device: str,
-                upsampling: str, precision: str, threads, convention: str, frame_batch, prime, overwrite: bool,
+                upsampling: str, precision: str, threads, convention: str, frame_batch, prime, cuda_graphs: bool,
+                overwrite: bool,
                 nits_per_unit,
                 quiet: bool) -> None:
     """Reconstruct a .dat capture INPUT into frames in OUTDIR."""
     extra = dict(model=model, align=align, device=device, upsampling=upsampling, precision=precision,
-                 threads=threads, convention=convention, frame_batch=frame_batch, prime=prime)
+                 threads=threads, convention=convention, frame_batch=frame_batch, prime=prime,
+                 cuda_graphs=cuda_graphs)
     summary = run_reconstruction(
         input_path, outdir, method=method, window=window, step=step, fmt=fmt, fps=fps,
         pixel_format=pixel_format, tonemap=tonemap, exr_dtype=exr_dtype, readout=readout, start_s=start_s,

@@ -7,6 +7,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from rmbvideo.net.cuda_graph import GraphCache
+
 LstmState = tuple[torch.Tensor, torch.Tensor]
 
 
@@ -38,14 +40,23 @@ class ConvLSTMCell(nn.Module):
         h, c = state
         return self._update(self.gates(torch.cat([x, h.to(x.dtype)], dim=1)), c)
 
-    def run(self, x: torch.Tensor, state: LstmState | None) -> tuple[torch.Tensor, LstmState]:
+    def run(self, x: torch.Tensor, state: LstmState | None, graphed: bool = False) -> tuple[torch.Tensor, LstmState]:
         """``forward`` over a sequence x (K,C,H,W) of batch size 1, one step per item -> h (K,hidden,H,W) and the
         last state: the gates' input part (a convolution of a concatenation is the sum of its parts' convolutions)
-        runs on all K at once, and only the hidden part steps through them in order."""
+        runs on all K at once, and only the hidden part steps through them in order. ``graphed``: on a GPU without
+        autograd, the steps replay as one CUDA graph per run shape seen twice (``GraphCache``; the same values)."""
         weight = self.gates.weight
-        inputs = x.shape[1]
-        gates_x = F.conv2d(x, weight[:, :inputs], self.gates.bias, padding=self.gates.padding)
-        hidden_weight = weight[:, inputs:].contiguous(memory_format=torch.channels_last)
+        gates_x = F.conv2d(x, weight[:, : x.shape[1]], self.gates.bias, padding=self.gates.padding)
+        if graphed and gates_x.is_cuda:
+            if state is None:  # a zero state is the same as none: its convolution adds exact zeros
+                h = gates_x.new_zeros((1, self.hidden, *gates_x.shape[-2:]))
+                layout = torch.channels_last if gates_x.is_contiguous(memory_format=torch.channels_last) else None
+                state = (h if layout is None else h.contiguous(memory_format=layout), h)
+            if "_graphs" not in self.__dict__:
+                self._graphs = GraphCache(self._recurrence)
+            outputs, h, c = self._graphs(gates_x, state[0].to(x.dtype), state[1])
+            return outputs, (h, c)
+        hidden_weight = weight[:, x.shape[1] :].contiguous(memory_format=torch.channels_last)
         outputs = []
         for k in range(x.shape[0]):
             gates = gates_x[k : k + 1]
@@ -57,6 +68,18 @@ class ConvLSTMCell(nn.Module):
             h, state = self._update(gates, c)
             outputs.append(h)
         return torch.cat(outputs), state
+
+    def _recurrence(self, gates_x: torch.Tensor, h: torch.Tensor, c: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """The hidden part of ``run`` from the state (h, c), as a pure function of tensors for a CUDA graph: every
+        step's h (K,hidden,H,W) and the last h and c."""
+        weight = self.gates.weight
+        hidden_weight = weight[:, weight.shape[1] - self.hidden :].contiguous(memory_format=torch.channels_last)
+        outputs = []
+        for k in range(gates_x.shape[0]):
+            gates = gates_x[k : k + 1] + F.conv2d(h.to(gates_x.dtype), hidden_weight, padding=self.gates.padding)
+            h, (_, c) = self._update(gates, c)
+            outputs.append(h)
+        return torch.cat(outputs), h, c
 
     def _update(self, gates: torch.Tensor, c: torch.Tensor) -> tuple[torch.Tensor, LstmState]:
         """The gate arithmetic: the 4*hidden gate pre-activations and the cell state -> h and the new (h, c)."""

@@ -3,6 +3,8 @@ links from the reference frame's F_ms(i) and one ConvLSTM layer per scale (three
 
 from __future__ import annotations
 
+import functools
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -46,12 +48,14 @@ class Decoder(nn.Module):
         inputs: torch.Tensor,
         state: DecoderState | None,
         run: bool = False,
+        graphed: bool = False,
     ) -> tuple[torch.Tensor, DecoderState]:
         """One step, or with ``run`` K consecutive steps of batch size 1 stacked along the batch (K,...): then every
-        layer but the ConvLSTMs' recurrences runs on all K at once (``ConvLSTMCell.run``); the state is the last
-        step's."""
+        layer but the ConvLSTMs' recurrences runs on all K at once (``ConvLSTMCell.run``, ``graphed`` as there); the
+        state is the last step's."""
         s3, s2, s1 = state if state is not None else (None, None, None)
-        lstm3, lstm2, lstm1 = ((cell.run if run else cell) for cell in (self.lstm3, self.lstm2, self.lstm1))
+        lstm3, lstm2, lstm1 = (functools.partial(cell.run, graphed=graphed) if run else cell
+                               for cell in (self.lstm3, self.lstm2, self.lstm1))
         x, s3 = lstm3(torch.cat([fused, reference[2]], dim=1), s3)
         x = self.up3(F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False))
         x, s2 = lstm2(self.fuse2(torch.cat([x, reference[1]], dim=1)), s2)

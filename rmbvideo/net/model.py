@@ -377,7 +377,7 @@ class RmbNet(nn.Module):
 
     def step_run(
         self, frames: Sequence[EncodedFrame], state: DecoderState | None, convention: torch.Tensor | float = 0.0,
-        aligned: torch.Tensor | None = None,
+        aligned: torch.Tensor | None = None, graphed: bool = False,
     ) -> tuple[torch.Tensor, DecoderState]:
         """K consecutive output steps in one batched pass: ``frames`` are 2w+K consecutive encoded frames (every
         window position real, each frame of batch size 1), the outputs are for frames[w .. w+K-1].
@@ -385,7 +385,8 @@ class RmbNet(nn.Module):
         The same as K calls of ``step`` (to float rounding): everything but the decoder's ConvLSTM recurrences
         runs on the K windows at once, and the recurrences step through them in order
         (``Decoder.forward`` with ``run``). On a GPU this turns hundreds of tiny launches per frame into a few per run.
-        ``aligned``: the K references' aligned means, (K,H,W) or (K,2,H,W). Returns t (K,1,H,W) and the state.
+        ``aligned``: the K references' aligned means, (K,H,W) or (K,2,H,W). ``graphed``: on a GPU without autograd the
+        recurrences replay as CUDA graphs (``ConvLSTMCell.run``). Returns t (K,1,H,W) and the state.
         """
         count = len(frames) - 2 * self.config.w
         if count < 1:
@@ -395,7 +396,7 @@ class RmbNet(nn.Module):
         window = [_stack_frames(frames[p : p + count], p) for p in range(self.config.window)]
         cache = self._run_pair_logits(frames, count) if self.config.use_xba else {}
         prepared = self._prepare(window, cache, [True] * len(window), convention, aligned)
-        z, state = self.decoder(*prepared.decoder_inputs, state, run=True)
+        z, state = self.decoder(*prepared.decoder_inputs, state, run=True, graphed=graphed)
         return self._finish(z, prepared, convention), state
 
     def _run_pair_logits(self, frames: Sequence[EncodedFrame], count: int) -> PairCache:

@@ -144,6 +144,7 @@ class RmbNetReconstructor:
     (``default_frame_batch``; a pass is also bounded by the frames one pushed chunk completes), 1 on a CPU, where
     batching loses. With the network on a GPU, the aligned means use ``threads`` threads (default: every core but one).
     ``prime``: frames the first frame's state is primed over, backwards in time (default w; 0: a fresh state).
+    ``cuda_graphs``: on a GPU, batched passes replay their ConvLSTM recurrences as CUDA graphs (the same frames).
     ``n`` is the readouts per preliminary frame when RmbChunks are pushed (default: the model's N)
     and ``upsampler`` the band upsampler they go through (default: flow-free interpolation; see
     ``rmbvideo.recon.flow.FlowUpsampler``).
@@ -163,6 +164,7 @@ class RmbNetReconstructor:
         convention: str = "physical",
         frame_batch: int | None = None,
         prime: int | None = None,
+        cuda_graphs: bool = True,
     ) -> None:
         if threads is not None and threads < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
@@ -183,6 +185,7 @@ class RmbNetReconstructor:
         self._net = inference_copy(self.model, bf16=self._autocast)
         self._threads = threads if threads is not None else default_threads()
         self._frame_batch = frame_batch
+        self._graphed = cuda_graphs and self.device.type == "cuda"
         workers = aligned_workers(self.device, threads)
         self.align = align
         self.n = model.config.n if n is None else n
@@ -447,7 +450,8 @@ class RmbNetReconstructor:
         rates = None if means[0] is None else [m.result() for m in means]  # type: ignore[union-attr]
         aligned = None if rates is None else torch.from_numpy(np.stack(rates) * (BIN_TRIALS * self.n)).to(self.device)
         frames = [self._encoded[j] for j in range(run[0] - self._w, run[-1] + self._w + 1)]
-        t, state = self._net.step_run(frames, self._state, convention=self._convention, aligned=aligned)
+        t, state = self._net.step_run(frames, self._state, convention=self._convention, aligned=aligned,
+                                      graphed=self._graphed)
         if not bool(torch.isfinite(t).all()):
             return [self._emit(i, count, None if rates is None else Ready(rates[k])) for k, i in enumerate(run)]
         self._state = state
@@ -484,6 +488,7 @@ def make_rmbnet(
     readout: str | None = None,
     frame_batch: int | None = None,
     prime: int | None = None,
+    cuda_graphs: bool = True,
 ) -> RmbNetReconstructor:
     """Pipeline factory for method "rmbnet": ``model`` is a .safetensors path; ``upsampling`` is
     "interp" (flow-free band interpolation) or a flow method ("dis", "farneback", "tvl1").
@@ -492,8 +497,8 @@ def make_rmbnet(
     ``convention``: the sensor convention that made the stream (``CONVENTIONS``: "physical" for a
     camera, "spikezoo" for streams simulated in the rate convention); models without the
     convention input ignore it. ``readout``: without ``model``, the shipped model trained on that
-    readout design (the default model's when None). ``frame_batch``: output frames per batched pass and ``prime``
-    the frames the first state is primed over (``RmbNetReconstructor``)."""
+    readout design (the default model's when None). ``frame_batch``: output frames per batched pass, ``prime``
+    the frames the first state is primed over and ``cuda_graphs`` (``RmbNetReconstructor``)."""
     from rmbvideo.errors import ModelError
     from rmbvideo.net.weights import default_model_path, shipped_model_with_window
     from rmbvideo.recon.flow import FlowUpsampler
@@ -504,7 +509,7 @@ def make_rmbnet(
     upsampler = None if upsampling == "interp" else FlowUpsampler(method=upsampling)
     recon = RmbNetReconstructor.from_file(
         model, device=device, input_mode=input_mode, align=align, precision=precision, upsampler=upsampler,
-        threads=threads, convention=convention, frame_batch=frame_batch, prime=prime,
+        threads=threads, convention=convention, frame_batch=frame_batch, prime=prime, cuda_graphs=cuda_graphs,
     )
     if w is not None and recon.network.config.w != w:
         raise ModelError(f"{model}: the model's window half-width is w = {recon.network.config.w}, not {w}")
