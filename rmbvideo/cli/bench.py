@@ -1,5 +1,5 @@
 """``rmbvideo bench``: what accuracy costs in time, on the held-out synthetic scenes; ``rmbvideo bench
-decode``: decode+bin speed."""
+decode``: decode+bin speed; ``sizes`` and ``network``: RMB-Net by frame size, in the engine and alone."""
 
 from __future__ import annotations
 
@@ -212,3 +212,39 @@ def sizes(device: str, sizes: tuple[str, ...], frames: int, frame_batches: tuple
     name = torch.cuda.get_device_name(0) if device == "cuda" else "CPU"
     click.echo(json.dumps([r.to_dict() for r in results], indent=2) if as_json
                else f"RMB-Net (shipped default) on {name}:\n" + sizes_table(results))
+
+
+def _run(text: str) -> tuple[int, int, int]:
+    """``WIDTHxHEIGHTxFRAMES`` (binned size, frames per batched pass) as a tuple."""
+    parts = text.lower().split("x")
+    if len(parts) != 3 or not all(p.isdigit() and int(p) >= 1 for p in parts) or min(map(int, parts[:2])) < 8:
+        raise click.BadParameter(f"{text!r}: expected binned WIDTHxHEIGHTxFRAMES, at least 8x8x1 (e.g. 200x125x128)")
+    width, height, frames = map(int, parts)
+    return width, height, frames
+
+
+@bench.command("network")
+@click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True,
+              help="Device of the network.")
+@click.option("--run", "runs", multiple=True, default=("200x125x128", "500x500x16"), show_default=True,
+              help="Binned WIDTHxHEIGHTxFRAMES: frame size and output frames per batched pass (repeatable).")
+@click.option("--precision", "precisions", type=click.Choice(["fp32", "bf16"]), multiple=True,
+              default=("fp32", "bf16"), show_default=True, help="Precision (repeatable).")
+@click.option("--threads", type=click.IntRange(min=1), default=1, show_default=True, help="Torch threads.")
+@click.option("--json", "as_json", is_flag=True, help="Print the results as JSON.")
+def network(device: str, runs: tuple[str, ...], precisions: tuple[str, ...], threads: int, as_json: bool) -> None:
+    """RMB-Net alone (encoders and batched pass on tensors on the device), with and without CUDA graphs on a GPU."""
+    import torch
+
+    from rmbvideo.bench.network import bench_network, network_table
+    from rmbvideo.errors import InputError
+    from rmbvideo.threads import compute_threads
+
+    if device == "cuda" and not torch.cuda.is_available():
+        raise InputError("--device cuda: no CUDA device is available")
+    with compute_threads(threads, 1):
+        results = bench_network(device, tuple(_run(r) for r in runs), precisions,
+                                graphs=(False, True) if device == "cuda" else (False,))
+    name = torch.cuda.get_device_name(0) if device == "cuda" else f"CPU, {threads} thread(s)"
+    click.echo(json.dumps([r.to_dict() for r in results], indent=2) if as_json
+               else f"RMB-Net alone (shipped default) on {name}:\n" + network_table(results))

@@ -1,0 +1,99 @@
+"""RMB-Net alone on one device: the encoders over a run's frames and its batched pass (``RmbNet.step_run``) on
+tensors already there, synchronised, with and without CUDA graphs. It is what the engine's network stage would cost
+with no pipeline around it (reading, preliminary frames, aligned means, copies back), so the two figures side by side
+show where a run's time goes. Inputs are random counts: the network's work does not depend on them."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+
+import torch
+
+from rmbvideo.net.model import RmbNet
+from rmbvideo.net.weights import default_model_path, load_model
+from rmbvideo.recon.rmbnet import inference_copy
+
+#: binned sizes (width, height) and frames per batched pass measured by default: the engine's GPU defaults there
+DEFAULT_RUNS = ((200, 125, 128), (500, 500, 16))
+
+
+@dataclass
+class NetworkResult:
+    """Milliseconds per frame of the encoders and of the batched pass (best of ``repeats``), and the frames/s of both."""
+
+    binned: str
+    device: str
+    precision: str
+    frame_batch: int
+    cuda_graphs: bool
+    encode_ms: float
+    step_run_ms: float
+
+    @property
+    def fps(self) -> float:
+        return 1e3 / (self.encode_ms + self.step_run_ms)
+
+    def to_dict(self) -> dict:
+        return {**asdict(self), "fps": self.fps}
+
+
+def _inputs(model: RmbNet, width: int, height: int, count: int, device: torch.device) -> tuple[torch.Tensor, ...]:
+    """Random preliminary sums for ``count`` output frames (2w more frames around them) and their aligned means."""
+    config, frames = model.config, count + 2 * model.config.w
+    g = torch.Generator().manual_seed(0)
+    i_s = torch.randint(0, 81, (frames, height, width), generator=g).float()
+    i_m = torch.randint(0, 7 * 81, (frames, height, width), generator=g).float()
+    i_c = torch.randint(0, 7 * 8 * 4, (frames, max(1, len(config.centre_windows)), height, width), generator=g).float()
+    aligned = torch.rand(count, height, width, generator=g) * 7 * 80
+    return tuple(t.to(device) for t in (i_s, i_m, i_c, aligned))
+
+
+def bench_network(device: str, runs: tuple[tuple[int, int, int], ...] = DEFAULT_RUNS,
+                  precisions: tuple[str, ...] = ("fp32", "bf16"), graphs: tuple[bool, ...] = (False, True),
+                  repeats: int = 5) -> list[NetworkResult]:
+    """Time the shipped default at each binned (width, height, frames per pass), precision and CUDA-graph setting:
+    ``repeats`` passes after a warm-up one (the graphs are captured in the warm-up), each carrying the last state."""
+    dev = torch.device(device)
+    model = load_model(default_model_path())[0].to(dev).eval()
+    config = model.config
+
+    def sync() -> None:
+        if dev.type == "cuda":
+            torch.cuda.synchronize(dev)
+
+    results = []
+    for width, height, count in runs:
+        i_s, i_m, i_c, aligned = _inputs(model, width, height, count, dev)
+        frames = range(count + 2 * config.w)
+        for precision in precisions:
+            bf16 = precision == "bf16"
+            net = inference_copy(model, bf16=bf16)
+            for graphed in graphs:
+                encode, passes, state = [], [], None
+                with torch.inference_mode(), torch.autocast(dev.type, dtype=torch.bfloat16, enabled=bf16):
+                    for repeat in range(repeats + 2):  # a shape's graph is captured on its second pass
+                        sync()
+                        began = time.perf_counter()
+                        encoded = net.encode(i_s, i_m, frames, i_c if config.centre_windows else None)
+                        sync()
+                        middle = time.perf_counter()
+                        _, state = net.step_run(encoded, state, aligned=aligned if config.aligned else None,
+                                                graphed=graphed)
+                        sync()
+                        if repeat >= 2:
+                            encode.append(middle - began)
+                            passes.append(time.perf_counter() - middle)
+                results.append(NetworkResult(f"{width}x{height}", device, precision, count, graphed,
+                                             1e3 * min(encode) / count, 1e3 * min(passes) / count))
+    return results
+
+
+def network_table(results: list[NetworkResult]) -> str:
+    """Markdown table of ``results``."""
+    lines = ["| binned | device | precision | frames per pass | CUDA graphs | encode ms/frame | batched pass ms/frame "
+             "| frames/s |", "|---|---|---|---:|---|---:|---:|---:|"]
+    for r in results:
+        lines.append(f"| {r.binned} | {r.device} | {r.precision} | {r.frame_batch} | {'yes' if r.cuda_graphs else 'no'} "
+                     f"| {r.encode_ms:.3f} | {r.step_run_ms:.3f} | {r.fps:.0f} |")
+    return "\n".join(lines) + "\n"
