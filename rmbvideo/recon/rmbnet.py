@@ -45,6 +45,7 @@ from rmbvideo.net.model import (
     window_valid,
 )
 from rmbvideo.recon.aligned_box import AlignedBoxConfig, aligned_window
+from rmbvideo.recon.aligned_batched import BatchedAlignedMean, BatchedAlignedWorker
 from rmbvideo.recon.aligned_worker import AlignedMean, AlignedWorker, Ready
 from rmbvideo.recon.precision import PRECISIONS, uses_bf16
 from rmbvideo.recon.prelim import MultiUpsampler, PreliminaryFrames, select_centre
@@ -129,6 +130,16 @@ def aligned_workers(device: torch.device, threads: int | None) -> int:
     return 1 if work_beside(threads) else 0
 
 
+def aligned_worker_for(device: torch.device, config: AlignedBoxConfig,
+                       workers: int) -> AlignedWorker | BatchedAlignedWorker:
+    """What makes the aligned window means: on a GPU, batches of them there (``BatchedAlignedWorker``: the DIS flows on
+    ``workers`` CPU threads, the warps and merges batched on the GPU, which a pool of CPU threads could not keep up
+    with); elsewhere OpenCV's inline or on ``workers`` threads (``AlignedWorker``; bit for bit the same)."""
+    if device.type == "cuda":
+        return BatchedAlignedWorker(config, device, workers)
+    return AlignedWorker(config, workers)
+
+
 class RmbNetReconstructor:
     """``push(chunk or prelim frames) -> list[Frame]``, ``flush() -> list[Frame]``.
 
@@ -142,7 +153,8 @@ class RmbNetReconstructor:
     ``frame_batch``: output frames made per batched pass (``RmbNet.step_run``: everything but the ConvLSTM
     recurrences on the whole run of frames at once; the same frames to float rounding); None: up to 128 on a GPU
     (``default_frame_batch``; a pass is also bounded by the frames one pushed chunk completes), 1 on a CPU, where
-    batching loses. With the network on a GPU, the aligned means use ``threads`` threads (default: every core but one).
+    batching loses. With the network on a GPU, the aligned means are made there in batches, their optical flows on ``threads``
+    CPU threads (default: every core but one; ``aligned_worker_for``).
     ``prime``: frames the first frame's state is primed over, backwards in time (default w; 0: a fresh state).
     ``cuda_graphs``: on a GPU, batched passes replay their ConvLSTM recurrences as CUDA graphs (the same frames).
     ``n`` is the readouts per preliminary frame when RmbChunks are pushed (default: the model's N)
@@ -199,8 +211,8 @@ class RmbNetReconstructor:
         self._encoded: dict[int, EncodedFrame] = {}
         self._pair_cache: PairCache = {}
         self._flow_cache: dict = {}
-        self._aligned_box = (AlignedWorker(AlignedBoxConfig.for_frames(self.n, self._net.config.aligned_centre),
-                                           workers=workers)
+        self._aligned_box = (aligned_worker_for(self.device, AlignedBoxConfig.for_frames(
+                                 self.n, self._net.config.aligned_centre), workers)
                              if self._net.config.aligned else None)
         self._received = 0
         self._next_out = 0
@@ -416,7 +428,7 @@ class RmbNetReconstructor:
             raise InputError(f"preliminary frame {frames[0].index}: {exc}") from None
         return torch.from_numpy(sums).to(self.device)
 
-    def _aligned(self, i: int, count: int | None) -> AlignedMean | None:
+    def _aligned(self, i: int, count: int | None) -> AlignedMean | BatchedAlignedMean | None:
         """Frame ``i``'s aligned window mean(s), queued, for a model that reads them."""
         if self._aligned_box is None:
             return None

@@ -1,0 +1,225 @@
+"""The aligned window means of ``rmbvideo.recon.aligned_box`` for many frames at once, in torch on the network's
+device: the same DIS flows (OpenCV, on a pool of CPU threads, which DIS runs without the interpreter lock), then
+the flows' inversion and composition, the warps and the robust merge batched over the frames with ``grid_sample``.
+
+On a GPU the per-frame work of ``AlignedBox.mean`` (30 remaps and 20 merges, each a few small OpenCV and numpy
+calls) is what a pool of CPU threads could not do as fast as the network makes frames: its Python steps take
+turns on the interpreter lock. Here it is a few dozen batched kernels per run. Bilinear sampling is at the exact
+positions, where OpenCV rounds them to 1/32 pixel, so the means agree with ``AlignedBox``'s to float and that
+rounding (tested), not bit for bit.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+
+import cv2
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from rmbvideo.recon.aligned_box import INVERSION_ITERATIONS, AlignedBox, AlignedBoxConfig
+
+Request = tuple[int, tuple[int, ...]]
+
+
+def warp(image: torch.Tensor, flow: torch.Tensor) -> torch.Tensor:
+    """``image`` (B,C,H,W) sampled at x + flow(x) (flow (B,2,H,W) in pixels, x then y), bilinear, the border
+    replicated: ``cv2.remap`` with ``INTER_LINEAR`` and ``BORDER_REPLICATE`` at exact positions."""
+    _, _, h, w = flow.shape
+    xs = torch.arange(w, device=flow.device, dtype=flow.dtype)
+    ys = torch.arange(h, device=flow.device, dtype=flow.dtype)
+    gx = (xs + flow[:, 0]) * (2.0 / max(w - 1, 1)) - 1.0
+    gy = (ys[:, None] + flow[:, 1]) * (2.0 / max(h - 1, 1)) - 1.0
+    return F.grid_sample(image, torch.stack([gx, gy], dim=-1), mode="bilinear", padding_mode="border",
+                         align_corners=True)
+
+
+def _inside(flow: torch.Tensor) -> torch.Tensor:
+    """(B,1,H,W): where x + flow(x) falls inside the frame (the evidence a warped neighbour has)."""
+    _, _, h, w = flow.shape
+    x = torch.arange(w, device=flow.device, dtype=flow.dtype) + flow[:, 0]
+    y = torch.arange(h, device=flow.device, dtype=flow.dtype)[:, None] + flow[:, 1]
+    return ((x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)).unsqueeze(1).to(flow.dtype)
+
+
+class _BatchedMerge:
+    """``aligned_box._RobustMerge`` for a batch of references, one channel per kind (rate, sharp) with its own
+    variance."""
+
+    def __init__(self, reference: torch.Tensor, variance: torch.Tensor, config: AlignedBoxConfig) -> None:
+        self._patch, self._tau, self._variance = config.patch, config.tau, variance
+        self._angle = self._arcsine_sqrt(self._local(reference))
+        self.total, self.weights = reference.clone(), torch.ones_like(reference)
+
+    def _local(self, a: torch.Tensor) -> torch.Tensor:
+        pad = self._patch // 2
+        return F.avg_pool2d(F.pad(a, (pad, self._patch - 1 - pad, pad, self._patch - 1 - pad), mode="replicate"),
+                            self._patch, stride=1)
+
+    @staticmethod
+    def _arcsine_sqrt(p: torch.Tensor) -> torch.Tensor:
+        return 2.0 * torch.asin(torch.sqrt(p.clamp(0.0, 1.0)))
+
+    def add(self, rows: torch.Tensor, warped: torch.Tensor, inside: torch.Tensor) -> None:
+        """Merge ``warped`` neighbours into the references ``rows`` (indices into the batch)."""
+        z2 = (self._arcsine_sqrt(self._local(warped)) - self._angle[rows]).square() / self._variance
+        weight = (self._tau / z2.clamp(min=1e-12)).clamp(max=1.0) * inside
+        self.weights[rows] += weight
+        self.total[rows] += weight * warped
+
+    def result(self) -> torch.Tensor:
+        return self.total / self.weights
+
+
+class BatchedAlignedMean:
+    """One frame's aligned mean, queued: ``result()`` computes every queued mean at once the first time."""
+
+    def __init__(self, worker: "BatchedAlignedWorker", request: Request) -> None:
+        self._worker, self._request = worker, request
+
+    def result(self) -> np.ndarray:
+        return self._worker._result(self._request)
+
+
+class BatchedAlignedWorker:
+    """``AlignedWorker``'s interface (``add``, ``mean``, ``evict``, ``close``, ``busy_seconds``, ``waited_seconds``)
+    with the means computed in batches on ``device``: each queued mean is made, with every other queued one,
+    when the first of them is asked for. ``workers``: CPU threads for the DIS flows (at least 1)."""
+
+    pooled = True
+    concurrent = True
+
+    def __init__(self, config: AlignedBoxConfig, device: torch.device | str, workers: int) -> None:
+        self.config = config
+        self.device = torch.device(device)
+        self._box = AlignedBox(config)  # the frames' flow images and the DIS flows between neighbours
+        self._executor = ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="aligned-flow")
+        self._cv_threads = cv2.getNumThreads()
+        cv2.setNumThreads(1)  # the pool's threads are the parallelism (the count is process-wide, until close())
+        self._lock = threading.Lock()
+        self._images: dict[int, torch.Tensor] = {}  # (C,H,W) on the device: rate, then sharp
+        self._added: dict[int, Future] = {}  # frames' flow images, made on the pool
+        self._flows: dict[int, Future] = {}  # DIS flow from frame k - 1 to k, by k
+        self._steps: dict[tuple[int, int], torch.Tensor] = {}  # one-step flows (2,H,W) on the device
+        self._queued: list[Request] = []
+        self._done: dict[Request, np.ndarray] = {}
+        self.busy_seconds = 0.0
+        self.waited_seconds = 0.0
+
+    def add(self, index: int, rate: np.ndarray, sharp: np.ndarray | None = None) -> None:
+        """Keep frame ``index`` (its images on the device, cleaned as ``AlignedBox.add`` cleans them) and queue, on
+        the pool, its flow image (``AlignedBox.add``) and the flow from frame ``index - 1`` to it."""
+        kinds = [rate] + ([sharp] if sharp is not None else [])
+        images = torch.from_numpy(np.stack([np.asarray(k, np.float32) for k in kinds])).to(self.device)
+        self._images[index] = torch.nan_to_num(images, nan=0.0).clamp_(0.0, 1.0)
+        self._added[index] = self._executor.submit(self._timed, self._box.add, index, rate, sharp)
+        if index - 1 in self._added:
+            needs = (self._added[index - 1], self._added[index])
+            self._flows[index] = self._executor.submit(self._timed, self._flow, index, needs)
+
+    def _flow(self, index: int, needs: tuple[Future, Future]) -> np.ndarray:
+        """DIS from frame ``index - 1`` to ``index`` once both are added (queued earlier, so a thread of the pool is
+        on them or done: no deadlock)."""
+        for need in needs:
+            need.result()
+        return self._box._step_flow(index - 1, index)
+
+    def _timed(self, func, *args):
+        began = time.perf_counter()
+        try:
+            return func(*args)
+        finally:
+            with self._lock:
+                self.busy_seconds += time.perf_counter() - began
+
+    def mean(self, i: int, neighbours: Sequence[int]) -> BatchedAlignedMean:
+        """Queue frame ``i``'s aligned mean over ``neighbours`` (``AlignedBox.mean``)."""
+        request = (i, tuple(neighbours))
+        self._queued.append(request)
+        return BatchedAlignedMean(self, request)
+
+    def evict(self, oldest_needed: int) -> None:
+        """Forget frames (and flows) older than ``oldest_needed``; queued means are made first."""
+        if self._queued:
+            self._compute()
+        for key in [k for k in self._flows if k - 1 < oldest_needed]:
+            self._flows.pop(key).result()
+        for key in [k for k in self._added if k < oldest_needed]:
+            self._added.pop(key).result()
+        for key in [k for k in self._images if k < oldest_needed]:
+            del self._images[key]
+        for key in [k for k in self._steps if min(k) < oldest_needed]:
+            del self._steps[key]
+        self._box.evict(oldest_needed)
+
+    def close(self) -> None:
+        """Let the flow threads end and give OpenCV its thread count back."""
+        self._executor.shutdown(wait=False)
+        if self._cv_threads is not None:
+            cv2.setNumThreads(self._cv_threads)
+            self._cv_threads = None
+
+    def _result(self, request: Request) -> np.ndarray:
+        if request not in self._done:
+            self._compute()
+        return self._done.pop(request)
+
+    def _step(self, a: int, b: int) -> torch.Tensor:
+        """The one-step flow from frame ``a`` to ``b = a +- 1`` on the device; backwards the forward flow inverted
+        (B(x) = -F(x + B(x)), as ``AlignedBox``)."""
+        if (a, b) not in self._steps:
+            if b > a:
+                self._steps[(a, b)] = torch.from_numpy(self._flows[b].result()).permute(2, 0, 1).to(self.device)
+            else:
+                forward = self._step(b, a)[None]
+                back = -forward
+                for _ in range(INVERSION_ITERATIONS):
+                    back = -warp(forward, back)
+                self._steps[(a, b)] = back[0]
+        return self._steps[(a, b)]
+
+    def _compute(self) -> None:
+        """Every queued mean in one batch: per side, each step outwards composes the batch's flows one frame
+        further (F(i, k + 1) = F(i, k) + F(k, k + 1) at x + F(i, k)) and merges the neighbours reached."""
+        requests, self._queued = self._queued, []
+        waited = time.perf_counter()
+        for i, neighbours in requests:  # the flows a request reads, made on the pool
+            for k in range(min(i, *neighbours) + 1, max(i, *neighbours) + 1):
+                if k in self._flows:
+                    self._flows[k].result()
+        began = time.perf_counter()
+        cfg = self.config
+        reference = torch.stack([self._images[i] for i, _ in requests])
+        variance = torch.tensor([2.0 / (t * cfg.patch * cfg.patch) for t in (cfg.trials, cfg.sharp_trials)],
+                                dtype=reference.dtype, device=self.device)[: reference.shape[1]].reshape(1, -1, 1, 1)
+        merge = _BatchedMerge(reference, variance, cfg)
+        for d in (-1, 1):
+            far = [max([(j - i) * d for j in set(n) - {i} if (j - i) * d > 0], default=0) for i, n in requests]
+            flow: torch.Tensor | None = None
+            for s in range(1, max(far, default=0) + 1):
+                rows = [r for r, f in enumerate(far) if f >= s]
+                steps = torch.stack([self._step(requests[r][0] + d * (s - 1), requests[r][0] + d * s) for r in rows])
+                if flow is None:
+                    flow = steps
+                else:
+                    keep = [k for k, r in enumerate(previous) if r in set(rows)]
+                    flow = flow[keep]
+                    flow = flow + warp(steps, flow)
+                previous = rows
+                reached = [k for k, r in enumerate(rows) if requests[r][0] + d * s in requests[r][1]]
+                if reached:
+                    picked = flow[reached]
+                    images = torch.stack([self._images[requests[rows[k]][0] + d * s] for k in reached])
+                    merge.add(torch.tensor([rows[k] for k in reached], device=self.device), warp(images, picked),
+                              _inside(picked))
+        means = merge.result().cpu().numpy()
+        for request, mean in zip(requests, means):
+            self._done[request] = mean[0] if mean.shape[0] == 1 else mean
+        ended = time.perf_counter()
+        with self._lock:  # the batch's own time is the stage's work, and the caller's wait like the flows'
+            self.busy_seconds += ended - began
+        self.waited_seconds += ended - waited

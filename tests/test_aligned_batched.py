@@ -1,0 +1,93 @@
+"""The aligned window means batched in torch (``recon.aligned_batched``, the GPU's way): the means of
+``AlignedBox`` to float and OpenCV's 1/32-pixel rounding of sample positions, streamed and evicted as the engine
+does; and through the engine, the frames of the OpenCV means to that precision."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from rmbvideo.recon.aligned_batched import BatchedAlignedWorker, warp
+from rmbvideo.recon.aligned_box import AlignedBox, AlignedBoxConfig, aligned_window
+from tests.test_aligned_box import noisy, texture
+
+
+def test_warp_is_bilinear_sampling_with_the_border_replicated():
+    image = torch.arange(12, dtype=torch.float32).reshape(1, 1, 3, 4)
+    flow = torch.zeros(1, 2, 3, 4)
+    assert torch.equal(warp(image, flow), image)
+    flow[:, 0] = 0.5  # half a pixel right: the mean of each pair, the last column replicated
+    expected = torch.tensor([[0.5, 1.5, 2.5, 3.0], [4.5, 5.5, 6.5, 7.0], [8.5, 9.5, 10.5, 11.0]])
+    torch.testing.assert_close(warp(image, flow)[0, 0], expected)
+    flow[:, 0], flow[:, 1] = -2.0, 5.0  # far outside: the nearest border pixel
+    torch.testing.assert_close(warp(image, flow)[0, 0], torch.tensor([8.0, 8.0, 8.0, 9.0]).expand(3, 4))
+
+
+DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+
+
+@pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.parametrize("sharp", [False, True])
+def test_batched_means_are_the_opencv_means_streamed_with_evictions(sharp, device):
+    """A texture panned 2 px a frame (and a still stretch), its frames added one at a time and its means asked for in
+    runs as the engine does, windows slid inwards at both ends; old frames evicted after each run."""
+    rng = np.random.default_rng(3)
+    scene = texture(4, (48, 64 + 40))
+    count, radius = 17, 3
+    shifts = [min(2 * k, 20) for k in range(count)]
+    frames = [noisy(scene[:, s : s + 64], rng) for s in shifts]
+    sharps = [noisy(scene[:, s : s + 64], rng, 16) for s in shifts] if sharp else [None] * count
+    config = AlignedBoxConfig.for_frames(10, 2 if sharp else 0)
+    box = AlignedBox(config)
+    for k in range(count):
+        box.add(k, frames[k], sharps[k])
+    expected = [box.mean(i, aligned_window(i, radius, count, shift=True)) for i in range(count)]
+
+    worker = BatchedAlignedWorker(config, device, workers=2)
+    got, added = {}, 0
+    for run in ([0, 1, 2, 3], [4, 5, 6, 7, 8, 9], [10, 11, 12, 13, 14, 15, 16]):
+        while added < min(count, run[-1] + 2 * radius + 1):
+            worker.add(added, frames[added], sharps[added])
+            added += 1
+        handles = {i: worker.mean(i, aligned_window(i, radius, count, shift=True)) for i in run}
+        got.update({i: h.result() for i, h in handles.items()})
+        worker.evict(run[-1] + 1 - 2 * radius)
+    worker.close()
+    assert sorted(got) == list(range(count))
+    for i in range(count):
+        assert got[i].shape == expected[i].shape and got[i].dtype == np.float32 and np.isfinite(got[i]).all()
+        difference = np.abs(got[i] - expected[i])
+        assert difference.mean() < 1e-4 and np.quantile(difference, 0.999) < 2e-3, (i, difference.max())
+    assert worker.busy_seconds > 0 and set(worker._images) == set(range(count - 2 * radius - 1, count)) - set(
+        range(0, 16 + 1 - 2 * radius))
+
+
+def test_black_and_saturated_frames_stay_finite():
+    config = AlignedBoxConfig.for_frames(10)
+    worker = BatchedAlignedWorker(config, "cpu", workers=1)
+    frames = [np.zeros((16, 24), np.float32), np.ones((16, 24), np.float32), np.full((16, 24), np.nan, np.float32)]
+    for k, frame in enumerate(frames):
+        worker.add(k, frame)
+    means = [worker.mean(i, range(3)).result() for i in range(3)]
+    worker.close()
+    assert all(np.isfinite(m).all() and (m >= 0).all() and (m <= 1).all() for m in means)
+
+
+def test_the_engine_with_batched_means_gives_the_frames_of_the_opencv_means(monkeypatch):
+    """What a GPU runs, forced onto the CPU: batched aligned means and batched passes of the network give the
+    frames of the plain run to the means' precision."""
+    import rmbvideo.recon.rmbnet as engine_module
+    from tests.test_rmbnet_stream import aligned_model_and_stream, split, stream
+
+    model, data = aligned_model_and_stream(8)
+    plain, _ = stream(model, [data], threads=1)
+    monkeypatch.setattr(engine_module, "aligned_worker_for",
+                        lambda device, config, workers: BatchedAlignedWorker(config, device, 2))
+    batched, engine = stream(model, split(data, 45), threads=1, frame_batch=8)
+    assert isinstance(engine._aligned_box, BatchedAlignedWorker) and engine.stage_seconds["aligned mean"] > 0
+    assert [f.index for f in batched] == [f.index for f in plain]
+    images, reference = np.stack([f.image for f in batched]), np.stack([f.image for f in plain])
+    assert np.isfinite(images).all()
+    relative = np.abs(images - reference) / np.maximum(reference, 1e-3)  # random frames: the flows are noise, and
+    assert relative.mean() < 1e-3 and np.quantile(relative, 0.99) < 5e-3  # a rounded position moves a mean most
