@@ -359,3 +359,25 @@ def test_aligned_workers_follow_threads_on_a_gpu_and_the_policy_on_a_cpu():
     assert aligned_workers(cuda, 4) == 4 and aligned_workers(cuda, 1) == 1
     assert aligned_workers(cuda, None) == max(1, available_cores() - 1)
     assert aligned_workers(cpu, 1) == 0 and aligned_workers(cpu, 3) == 1  # inline, or one thread beside
+
+
+def test_a_failing_cuda_graph_falls_back_to_the_eager_pass_with_a_warning(monkeypatch, caplog):
+    """A batched pass whose CUDA graphs fail (a driver or capture problem on a user's GPU) is made again without them,
+    once, with a warning: the same frames as a run that never asked for graphs."""
+    model = tiny()
+    data = rmb_stream(95)
+    plain, _ = stream(model, [data], frame_batch=8)
+    original = RmbNet.step_run
+
+    def failing(self, *args, graphed: bool = False, **kw):
+        if graphed:
+            raise RuntimeError("CUDA error: operation not permitted when stream is capturing")
+        return original(self, *args, **kw)
+
+    monkeypatch.setattr(RmbNet, "step_run", failing)
+    engine = RmbNetReconstructor(model, device="cpu", precision="fp32", frame_batch=8)
+    engine._graphed = True  # as on a GPU
+    with caplog.at_level("WARNING"):
+        frames = engine.push(data) + engine.flush()
+    assert not engine._graphed and sum("CUDA graphs failed" in r.message for r in caplog.records) == 1
+    np.testing.assert_array_equal(np.stack([f.image for f in frames]), np.stack([f.image for f in plain]))

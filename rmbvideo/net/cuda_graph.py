@@ -3,14 +3,12 @@ launches a few dozen tiny kernels a frame, whose launch cost (Python included) e
 
 from __future__ import annotations
 
-import logging
 from collections import OrderedDict
 from typing import Callable
 
 import torch
 
 Tensors = tuple[torch.Tensor, ...]
-log = logging.getLogger(__name__)
 
 
 def _signature(tensors: Tensors) -> tuple:
@@ -23,30 +21,24 @@ class GraphCache:
     once runs eagerly, so a clip's one-off last run costs no capture. Outputs are copies, never the graph's memory.
 
     ``fn`` must be a pure function of its tensors and of tensors that keep their address (a module's weights), free
-    of host synchronisation, and run without autograd. Anything but CUDA tensors runs eagerly, and a capture that
-    fails is logged once and turns the cache off."""
+    of host synchronisation, and run without autograd. Anything but CUDA tensors runs eagerly; a capture that fails
+    raises (the caller may run ``fn`` eagerly instead)."""
 
     def __init__(self, fn: Callable[..., Tensors], capacity: int = 4) -> None:
         self.fn = fn
         self.capacity = capacity
-        self.enabled = True
         self._seen: set[tuple] = set()
         self._graphs: OrderedDict[tuple, tuple[torch.cuda.CUDAGraph, Tensors, Tensors]] = OrderedDict()
 
     def __call__(self, *tensors: torch.Tensor) -> Tensors:
-        if not (self.enabled and all(t.is_cuda for t in tensors)) or torch.is_grad_enabled():
+        if not all(t.is_cuda for t in tensors) or torch.is_grad_enabled():
             return self.fn(*tensors)
         key = _signature(tensors)
         if key not in self._graphs:
             if key not in self._seen:
                 self._seen.add(key)
                 return self.fn(*tensors)
-            try:
-                self._graphs[key] = self._capture(tensors)
-            except RuntimeError as error:
-                log.warning("CUDA graph capture failed, running eagerly: %s", error)
-                self.enabled = False
-                return self.fn(*tensors)
+            self._graphs[key] = self._capture(tensors)
             while len(self._graphs) > self.capacity:
                 self._graphs.popitem(last=False)
         self._graphs.move_to_end(key)

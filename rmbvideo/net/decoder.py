@@ -3,8 +3,6 @@ links from the reference frame's F_ms(i) and one ConvLSTM layer per scale (three
 
 from __future__ import annotations
 
-import functools
-
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -54,8 +52,10 @@ class Decoder(nn.Module):
         layer but the ConvLSTMs' recurrences runs on all K at once (``ConvLSTMCell.run``, ``graphed`` as there); the
         state is the last step's."""
         s3, s2, s1 = state if state is not None else (None, None, None)
-        lstm3, lstm2, lstm1 = (functools.partial(cell.run, graphed=graphed) if run else cell
-                               for cell in (self.lstm3, self.lstm2, self.lstm1))
+        def recurrent(cell: ConvLSTMCell):
+            return (lambda x, s: cell.run(x, s, graphed)) if run else cell
+
+        lstm3, lstm2, lstm1 = (recurrent(cell) for cell in (self.lstm3, self.lstm2, self.lstm1))
         x, s3 = lstm3(torch.cat([fused, reference[2]], dim=1), s3)
         x = self.up3(F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False))
         x, s2 = lstm2(self.fuse2(torch.cat([x, reference[1]], dim=1)), s2)

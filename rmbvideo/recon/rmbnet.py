@@ -462,8 +462,15 @@ class RmbNetReconstructor:
         rates = None if means[0] is None else [m.result() for m in means]  # type: ignore[union-attr]
         aligned = None if rates is None else torch.from_numpy(np.stack(rates) * (BIN_TRIALS * self.n)).to(self.device)
         frames = [self._encoded[j] for j in range(run[0] - self._w, run[-1] + self._w + 1)]
-        t, state = self._net.step_run(frames, self._state, convention=self._convention, aligned=aligned,
-                                      graphed=self._graphed)
+        try:
+            t, state = self._net.step_run(frames, self._state, convention=self._convention, aligned=aligned,
+                                          graphed=self._graphed)
+        except RuntimeError as error:
+            if not self._graphed:
+                raise
+            log.warning("CUDA graphs failed (%s); RMB-Net runs without them", str(error).splitlines()[0])
+            self._graphed = False
+            t, state = self._net.step_run(frames, self._state, convention=self._convention, aligned=aligned)
         if not bool(torch.isfinite(t).all()):
             return [self._emit(i, count, None if rates is None else Ready(rates[k])) for k, i in enumerate(run)]
         self._state = state
