@@ -188,7 +188,7 @@ def test_full_resolution_evaluation_against_exact_full_size_ground_truth(tmp_pat
 
 
 @pytest.mark.parametrize("reach", [0, 30])
-def test_learned_detail_stage_starts_as_bilinear_stays_finite_and_streams(tmp_path: Path, reach: int) -> None:
+def test_learned_detail_stage_starts_as_bilinear_stays_finite_and_streams(tmp_path: Path, reach: int, monkeypatch) -> None:
     """A new detail stage is plain bilinear upsampling; any stage (with or without the TFI input) gives
     finite, non-negative frames of the camera's size, the same for every chunk size; weights round-trip
     through the safe loader, which refuses an RMB-Net card."""
@@ -232,15 +232,19 @@ def test_learned_detail_stage_starts_as_bilinear_stays_finite_and_streams(tmp_pa
         load_model(path)
     dat = _capture(tmp_path / "c.dat", planes=300)
     runs = []
-    for chunk in (50, 1000):
+    import rmbvideo.recon.full_resolution as full_module
+
+    for chunk, batch in ((50, 1), (1000, 1), (1000, 3)):  # a GPU's batches of frames (forced here) change nothing
+        monkeypatch.setattr(full_module, "detail_batch", lambda device, size, batch=batch: batch)
         recon = FullResolution(Tfw(window=10, step=10), RmbReadout("pure-m"), step=20, detail=loaded)
         sink = FrameCollector()
         reconstruct_stream(DatReader(dat, DatGeometry(64, 48)), recon, sink, chunk_planes=chunk)
         runs.append(sink.frames)
-    assert sorted(runs[0]) == sorted(runs[1]) and len(runs[0]) >= 10
+    assert sorted(runs[0]) == sorted(runs[1]) == sorted(runs[2]) and len(runs[0]) >= 10
     for index, frame in runs[0].items():
         assert frame.image.shape == (48, 64) and np.isfinite(frame.image).all() and (frame.image >= 0).all()
-        np.testing.assert_allclose(frame.image, runs[1][index].image, rtol=1e-5, atol=1e-7)
+        for other in runs[1:]:
+            np.testing.assert_allclose(frame.image, other[index].image, rtol=1e-5, atol=1e-7)
 
 
 def test_detail_training_writes_a_loadable_stage_and_resumes(tmp_path: Path) -> None:
@@ -277,3 +281,13 @@ def test_detail_sample_reads_tfi_at_the_frame_centre() -> None:
     bright = sample.rates[1] > 0.2
     assert bright.mean() > 0.5  # this seed's scene is mostly bright
     assert abs(float(np.median(tfi[bright] / sample.rates[1][bright])) - 1.0) < 0.1
+
+
+def test_the_detail_stage_batches_frames_on_a_gpu_only() -> None:
+    import torch
+
+    from rmbvideo.recon.full_resolution import DETAIL_BATCH_PIXELS, detail_batch
+
+    assert detail_batch(torch.device("cpu"), (250, 400)) == 1
+    assert detail_batch(torch.device("cuda"), (250, 400)) == DETAIL_BATCH_PIXELS // (250 * 400) > 1
+    assert detail_batch(torch.device("cuda"), (8000, 8000)) == 1

@@ -37,6 +37,8 @@ DEFAULT_DETAIL_WINDOW = 20  # raw planes: the frame interval, so moving detail i
 #: How the detail inside each 2x2 block is found: "learned" (the shipped detail stage), "classical"
 #: (the Wiener-gated TFP ratio), "auto" (learned when the detail stage is installed).
 DETAIL_KINDS = ("auto", "learned", "classical")
+#: full-resolution pixels one call of the detail stage holds on a GPU (its activations: under 1 kB a pixel)
+DETAIL_BATCH_PIXELS = 1 << 22
 
 
 @dataclass(frozen=True)
@@ -60,22 +62,33 @@ def detail_stage(kind: str = "auto") -> Any:
     return load_detail_model(path)[0]
 
 
-def detail_inference_copy(detail: Any, precision: str = "auto") -> Any:
-    """An eval-mode copy of a detail stage for fast CPU inference: channels-last convolutions (1.7x faster
-    here), their weights in bf16 where the project's precision policy runs bf16 (``rmbvideo.recon.precision``:
-    2.8x faster than channels-last fp32 on this project's CPU). ``detail`` itself is left unchanged."""
+def detail_inference_copy(detail: Any, precision: str = "auto", device: Any = "cpu") -> Any:
+    """An eval-mode copy of a detail stage for fast inference on ``device``: channels-last convolutions (1.7x faster
+    on this project's CPU), their weights in bf16 where the project's precision policy runs bf16
+    (``rmbvideo.recon.precision``: 2.8x faster than channels-last fp32 on this project's CPU). ``detail`` itself is
+    left unchanged."""
     import copy
 
     import torch
 
     from rmbvideo.recon.precision import uses_bf16
 
-    fast = copy.deepcopy(detail).eval().to(memory_format=torch.channels_last)
-    if uses_bf16(precision, torch.device("cpu")):
+    device = torch.device(device)
+    fast = copy.deepcopy(detail).eval().to(device, memory_format=torch.channels_last)
+    if uses_bf16(precision, device):
         for layer in fast.body:
             if isinstance(layer, torch.nn.Conv2d):
                 layer.to(torch.bfloat16)
     return fast
+
+
+def detail_batch(device: Any, full_size: tuple[int, int]) -> int:
+    """Frames the detail stage makes per call: 1 on a CPU (batching gains nothing there), on a GPU as many as keep a
+    call at ``DETAIL_BATCH_PIXELS`` full-resolution pixels (``full_size`` (H, W)): one call instead of a few dozen
+    small kernels a frame."""
+    if getattr(device, "type", "cpu") != "cuda":
+        return 1
+    return max(1, DETAIL_BATCH_PIXELS // max(1, full_size[0] * full_size[1]))
 
 
 def block_mean(image: np.ndarray) -> np.ndarray:
@@ -130,7 +143,9 @@ class FullResolution:
         self.binned = binned
         self.readout = readout
         self.settings = settings
-        self.detail = None if detail is None else detail_inference_copy(detail, precision)
+        # the binned method's device (a GPU for RMB-Net there), so frames do not wait for the CPU
+        self.device = getattr(binned, "device", None)
+        self.detail = None if detail is None else detail_inference_copy(detail, precision, self.device or "cpu")
         # resolved once, as the RMB-Net engine does: the policy, not the load of each frame's moment
         self.threads = threads if threads is not None else default_threads()
         self._binner = StreamBinner()
@@ -168,25 +183,33 @@ class FullResolution:
         store.update((frame.index, frame) for frame in frames)
 
     def _combine(self) -> list[Frame]:
-        out = []
-        for index in sorted(set(self._coarse).intersection(*self._fine)):
-            coarse = self._coarse.pop(index)
-            h, w = coarse.image.shape
-            rates = [store.pop(index).image[: 2 * h, : 2 * w] for store in self._fine]
-            if self.detail is None:
-                detail = relative_detail(rates[0], self.settings.window, self.settings)
-                image = to_block_levels(upsample(coarse.image) * detail, coarse.image)
-            else:
-                image = self._learned(coarse.image, rates)
-            out.append(Frame(index=index, time_s=coarse.time_s, image=image))
+        ready = sorted(set(self._coarse).intersection(*self._fine))
+        coarse = [self._coarse.pop(index) for index in ready]
+        rates = [[store.pop(index).image[: 2 * c.image.shape[0], : 2 * c.image.shape[1]] for store in self._fine]
+                 for index, c in zip(ready, coarse)]
+        if self.detail is not None:
+            images = self._learned([c.image for c in coarse], rates)
+        else:
+            images = [to_block_levels(upsample(c.image) * relative_detail(r[0], self.settings.window, self.settings),
+                                      c.image) for c, r in zip(coarse, rates)]
         # Frames one side made and the other never will (edges of the clip) are dropped at flush.
-        return out
+        return [Frame(index=index, time_s=c.time_s, image=image) for index, c, image in zip(ready, coarse, images)]
 
-    def _learned(self, coarse: np.ndarray, rates: list[np.ndarray]) -> np.ndarray:
+    def _learned(self, coarse: list[np.ndarray], rates: list[list[np.ndarray]]) -> list[np.ndarray]:
+        """The detail stage on the frames, ``detail_batch`` of them per call."""
         import torch
 
+        if not coarse:
+            return []
+        device = next(self.detail.parameters()).device
         bf16 = self.detail.body[0].weight.dtype == torch.bfloat16  # as detail_inference_copy chose
-        with compute_threads(self.threads), torch.inference_mode(), torch.autocast("cpu", torch.bfloat16, enabled=bf16):
-            full = self.detail(torch.from_numpy(np.ascontiguousarray(coarse, np.float32))[None, None],
-                               torch.from_numpy(np.stack(rates).astype(np.float32))[None])
-        return full[0, 0].float().numpy()
+        batch = detail_batch(device, rates[0][0].shape)
+        out: list[np.ndarray] = []
+        with compute_threads(self.threads), torch.inference_mode(), \
+                torch.autocast(device.type, torch.bfloat16, enabled=bf16):
+            for a in range(0, len(coarse), batch):
+                binned = torch.from_numpy(np.stack(coarse[a : a + batch]).astype(np.float32))[:, None]
+                raw = torch.from_numpy(np.stack([np.stack(r) for r in rates[a : a + batch]]).astype(np.float32))
+                full = self.detail(binned.to(device), raw.to(device))
+                out += list(full[:, 0].float().cpu().numpy())
+        return out
