@@ -169,3 +169,24 @@ def test_select_centre_picks_channels_and_names_what_is_missing():
         select_centre(None, 10, (4,))
     with pytest.raises(ValueError, match="carry \\[\\]"):
         select_centre(np.zeros((0, 2, 2), np.float32), 5, (2,))
+
+
+@pytest.mark.parametrize("size", [1, 4, 64])
+def test_measured_and_upsampled_readouts_in_one_frame_sum_exactly(size):
+    """An RMB stream mixes readouts whose rows were all measured (summed through one float32 running sum, exact for
+    whole counts) with upsampled ones (float64 sums): every frame's sums are the float64 sums of its dense values."""
+    data = _random_pure_m(t=80, h=12, w=5, seed=4)
+    rmb = RmbReadout("rmb", band=4, shift=2).apply(data)
+    rows = rmb.multi_rows.copy()
+    rows[20:40] = True  # two frames measured throughout, the rest in the band
+    mixed = _chunk(data.single, np.where(rows[:, :, None], data.multi, 0).astype(np.uint8), rows)
+    dense, _, _ = _upsample(TemporalInterpolation(), _split(mixed, size))
+    prelim = PreliminaryFrames(n=10)
+    frames = [f for c in _split(mixed, size) for f in prelim.push(c)] + prelim.flush()
+    assert [f.index for f in frames] == list(range(8))
+    for frame in frames:
+        block = dense[10 * frame.index : 10 * frame.index + 10].astype(np.float64)
+        assert np.array_equal(frame.i_m, block.sum(axis=0).astype(np.float32))
+        for c, k in enumerate(centre_windows(10)):
+            lo = (10 - k) // 2
+            assert np.array_equal(frame.i_c[c], block[lo : lo + k].sum(axis=0).astype(np.float32))
