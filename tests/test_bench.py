@@ -170,7 +170,7 @@ def test_bench_sizes_times_each_size_and_precision_with_the_network_inside_the_r
     for row in rows:
         assert row["frames"] == 10 and row["cli_fps"] is None
         assert 0 < row["fps"] <= row["network_fps"]  # the network is part of the end-to-end run
-        assert set(row["stage_ms"]) >= {"read", "preliminary frames", "network"}
+        assert set(row["stage_ms"]) >= {"read", "preliminary frames", "network", "detail"}
     batched = runner.invoke(main, ["bench", "sizes", "--size", "64x48", "--frames", "10", "--no-cli", "--json",
                                    "--precision", "fp32", "--frame-batch", "1", "--frame-batch", "4", "--threads", "1"])
     assert batched.exit_code == 0, batched.output

@@ -102,7 +102,7 @@ def bench_sizes(device: str, sizes: tuple[tuple[int, int], ...] = DEFAULT_SIZES,
 
 def sizes_table(results: list[SizeResult]) -> str:
     """Markdown table of ``results``."""
-    stages = ("read", "readout", "preliminary frames", "network", "aligned mean")
+    stages = ("read", "readout", "preliminary frames", "network", "aligned mean", "detail")
     lines = ["| binned (raw) | device | precision | frame batch | threads | CUDA graphs | frames/s end to end | frames/s network "
              "| frames/s `reconstruct` | " + " | ".join(f"{s} ms/frame" for s in stages) + " |",
              "|---|---|---|---:|---:|---|---:|---:|---:|" + "---:|" * len(stages)]

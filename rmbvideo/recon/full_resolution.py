@@ -21,6 +21,7 @@ instead, from TFP over each of the stage's windows (and TFI when the stage reads
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -187,11 +188,13 @@ class FullResolution:
         coarse = [self._coarse.pop(index) for index in ready]
         rates = [[store.pop(index).image[: 2 * c.image.shape[0], : 2 * c.image.shape[1]] for store in self._fine]
                  for index, c in zip(ready, coarse)]
+        began = time.perf_counter()
         if self.detail is not None:
             images = self._learned([c.image for c in coarse], rates)
         else:
             images = [to_block_levels(upsample(c.image) * relative_detail(r[0], self.settings.window, self.settings),
                                       c.image) for c, r in zip(coarse, rates)]
+        self.stage_seconds["detail"] = self.stage_seconds.get("detail", 0.0) + time.perf_counter() - began
         # Frames one side made and the other never will (edges of the clip) are dropped at flush.
         return [Frame(index=index, time_s=c.time_s, image=image) for index, c, image in zip(ready, coarse, images)]
 
