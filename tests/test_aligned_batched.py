@@ -70,8 +70,10 @@ def test_black_and_saturated_frames_stay_finite():
     for k, frame in enumerate(frames):
         worker.add(k, frame)
     means = [worker.mean(i, range(3)).result() for i in range(3)]
+    alone = worker.mean(1, [1]).result()  # a window of one frame (a clip of one): the frame itself
     worker.close()
     assert all(np.isfinite(m).all() and (m >= 0).all() and (m <= 1).all() for m in means)
+    assert np.array_equal(alone, np.ones((16, 24), np.float32))
 
 
 def test_the_engine_with_batched_means_gives_the_frames_of_the_opencv_means(monkeypatch):
@@ -91,3 +93,13 @@ def test_the_engine_with_batched_means_gives_the_frames_of_the_opencv_means(monk
     assert np.isfinite(images).all()
     relative = np.abs(images - reference) / np.maximum(reference, 1e-3)  # random frames: the flows are noise, and
     assert relative.mean() < 1e-3 and np.quantile(relative, 0.99) < 5e-3  # a rounded position moves a mean most
+    short = split(data, 45)[0]
+    short = type(short)(short.single[:25], short.multi[:25], short.multi_rows[:25], 0, short.rate_hz)
+    monkeypatch.undo()
+    two, _ = stream(model, [short], threads=1)  # a clip of two frames, shorter than any window
+    monkeypatch.setattr(engine_module, "aligned_worker_for",
+                        lambda device, config, workers: BatchedAlignedWorker(config, device, 2))
+    batched_two, _ = stream(model, [short], threads=1, frame_batch=8)
+    assert [f.index for f in batched_two] == [f.index for f in two] == [0, 1]
+    np.testing.assert_allclose(np.stack([f.image for f in batched_two]), np.stack([f.image for f in two]),
+                               rtol=5e-3, atol=1e-4)

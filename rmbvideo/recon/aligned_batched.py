@@ -188,7 +188,7 @@ class BatchedAlignedWorker:
         requests, self._queued = self._queued, []
         waited = time.perf_counter()
         for i, neighbours in requests:  # the flows a request reads, made on the pool
-            for k in range(min(i, *neighbours) + 1, max(i, *neighbours) + 1):
+            for k in range(min((i, *neighbours)) + 1, max((i, *neighbours)) + 1):
                 if k in self._flows:
                     self._flows[k].result()
         began = time.perf_counter()
