@@ -381,3 +381,26 @@ def test_a_failing_cuda_graph_falls_back_to_the_eager_pass_with_a_warning(monkey
         frames = engine.push(data) + engine.flush()
     assert not engine._graphed and sum("CUDA graphs failed" in r.message for r in caplog.records) == 1
     np.testing.assert_array_equal(np.stack([f.image for f in frames]), np.stack([f.image for f in plain]))
+
+
+def test_a_batched_engine_makes_whole_runs_whatever_the_chunks(monkeypatch):
+    """With ``frame_batch`` K the frames wait until K are ready, so every batched pass but the clip's last is K frames
+    long however small the pushed chunks (a GPU's passes stay full and its CUDA graph keeps one shape); the frames
+    are those of the frame-by-frame run."""
+    model = tiny()
+    data = rmb_stream(255)
+    plain, _ = stream(model, [data])
+    lengths = []
+    original = RmbNet.step_run
+
+    def counted(self, frames, *args, **kw):
+        lengths.append(len(frames) - 2 * self.config.w)
+        return original(self, frames, *args, **kw)
+
+    monkeypatch.setattr(RmbNet, "step_run", counted)
+    batched, engine = stream(model, split(data, 13), frame_batch=8)
+    assert lengths and all(k == 8 for k in lengths[:-1]) and 1 < lengths[-1] <= 8, lengths
+    assert not engine._encoded.keys() - set(range(25 - 2, 25))  # bounded: the last window's frames only
+    assert [f.index for f in batched] == [f.index for f in plain]
+    np.testing.assert_allclose(np.stack([f.image for f in batched]), np.stack([f.image for f in plain]),
+                               rtol=1e-5, atol=1e-6)

@@ -152,7 +152,8 @@ class RmbNetReconstructor:
     (``rmbvideo.recon.aligned_worker``; the frames are the same bit for bit).
     ``frame_batch``: output frames made per batched pass (``RmbNet.step_run``: everything but the ConvLSTM
     recurrences on the whole run of frames at once; the same frames to float rounding); None: up to 128 on a GPU
-    (``default_frame_batch``; a pass is also bounded by the frames one pushed chunk completes), 1 on a CPU, where
+    (``default_frame_batch``; frames wait until a whole run is ready, so passes are that long whatever the chunks,
+    and a CUDA graph is captured once), 1 on a CPU, where
     batching loses. With the network on a GPU, the aligned means are made there in batches, their optical flows on ``threads``
     CPU threads (default: every core but one; ``aligned_worker_for``).
     ``prime``: frames the first frame's state is primed over, backwards in time (default w; 0: a fresh state).
@@ -310,13 +311,18 @@ class RmbNetReconstructor:
             while self._primed and self._next_out + len(ready) < self._received and (
                     final or self._ready(self._next_out + len(ready))):
                 ready.append(self._next_out + len(ready))
+            runs = self._runs(ready, count)
+            batched = self.align == "none" and self.frame_batch > 1
+            if batched and not final and runs and runs[-1][0] >= self._w and len(runs[-1]) < self.frame_batch:
+                runs.pop()  # a short batched run waits for the next chunk, so passes are whole whatever the chunks
+            ready = [i for run in runs for i in run]
             # a concurrent worker makes the next frames' aligned means while the network makes this one; a pool
             # of workers, all of the frames ready now
             ahead = (len(ready) if self._aligned_box is not None and self._aligned_box.pooled
                      else ALIGNED_AHEAD if self.aligned_beside else 0)
             means: dict[int, AlignedMean | None] = {}
             out: list[Frame] = []
-            for run in self._runs(ready, count):
+            for run in runs:
                 for j in range(run[0], min(run[-1] + ahead + 1, ready[-1] + 1)):  # ready is consecutive
                     if j not in means:
                         means[j] = self._kept_means.pop(j, None) or self._aligned(j, count)
