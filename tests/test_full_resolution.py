@@ -234,13 +234,15 @@ def test_learned_detail_stage_starts_as_bilinear_stays_finite_and_streams(tmp_pa
     runs = []
     import rmbvideo.recon.full_resolution as full_module
 
-    for chunk, batch in ((50, 1), (1000, 1), (1000, 3)):  # a GPU's batches of frames (forced here) change nothing
+    # a GPU's batches of frames and raw rates made beside the binned method (forced here) change nothing
+    for chunk, batch, beside in ((50, 1, False), (1000, 1, False), (1000, 3, False), (50, 3, True)):
         monkeypatch.setattr(full_module, "detail_batch", lambda device, size, batch=batch: batch)
-        recon = FullResolution(Tfw(window=10, step=10), RmbReadout("pure-m"), step=20, detail=loaded)
+        recon = FullResolution(Tfw(window=10, step=10), RmbReadout("pure-m"), step=20, detail=loaded,
+                               rates_beside=beside)
         sink = FrameCollector()
         reconstruct_stream(DatReader(dat, DatGeometry(64, 48)), recon, sink, chunk_planes=chunk)
         runs.append(sink.frames)
-    assert sorted(runs[0]) == sorted(runs[1]) == sorted(runs[2]) and len(runs[0]) >= 10
+    assert all(sorted(run) == sorted(runs[0]) for run in runs) and len(runs[0]) >= 10
     for index, frame in runs[0].items():
         assert frame.image.shape == (48, 64) and np.isfinite(frame.image).all() and (frame.image >= 0).all()
         for other in runs[1:]:
@@ -291,3 +293,5 @@ def test_the_detail_stage_batches_frames_on_a_gpu_only() -> None:
     assert detail_batch(torch.device("cpu"), (250, 400)) == 1
     assert detail_batch(torch.device("cuda"), (250, 400)) == DETAIL_BATCH_PIXELS // (250 * 400) > 1
     assert detail_batch(torch.device("cuda"), (8000, 8000)) == 1
+    # the raw rates go beside the binned method only when it leaves the CPU idle (on a GPU)
+    assert FullResolution(Tfw(window=10, step=10), RmbReadout("pure-m"), step=20)._beside is None

@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any, ClassVar
 
 import numpy as np
@@ -138,7 +140,7 @@ class FullResolution:
 
     def __init__(self, binned: Any, readout: RmbReadout | None, step: int = 20,
                  settings: DetailSettings = DetailSettings(), detail: Any = None, threads: int | None = None,
-                 precision: str = "auto") -> None:
+                 precision: str = "auto", rates_beside: bool | None = None) -> None:
         if binned.input_kind != "rmb":
             raise ValueError(f"full resolution wraps a method on the binned stream, not {type(binned).__name__}")
         self.binned = binned
@@ -157,27 +159,46 @@ class FullResolution:
         self._coarse: dict[int, Frame] = {}
         self._fine: list[dict[int, Frame]] = [{} for _ in self._rates]
         self.stage_seconds = getattr(binned, "stage_seconds", {})
+        # the raw stream's rates (TFP, TFI: a few ms a frame of one core at 400x250) in a thread of their own while
+        # the binned method works on the same chunk, by default when that method runs on a GPU and leaves the CPU
+        # idle; on a CPU its cores are the network's and the aligned means'
+        if rates_beside is None:
+            rates_beside = getattr(self.device, "type", "cpu") == "cuda"
+        self._beside = ThreadPoolExecutor(max_workers=1, thread_name_prefix="raw-rates") if rates_beside else None
 
     def push(self, chunk: SpikeChunk | PackedChunk) -> list[Frame]:
         spikes = chunk.unpack() if isinstance(chunk, PackedChunk) else chunk
+        rates = self._start(lambda rate: rate.push(chunk if getattr(rate, "accepts_packed", False) else spikes))
         binned = self._binner.push(spikes)
         if binned is not None:
             if self.readout is not None:
                 binned = self.readout.apply(binned)
             self._keep(self._coarse, self.binned.push(binned))
-        for rate, store in zip(self._rates, self._fine):
-            self._keep(store, rate.push(chunk if getattr(rate, "accepts_packed", False) else spikes))
+        for store, frames in zip(self._fine, rates.result()):
+            self._keep(store, frames)
         return self._combine()
 
     def flush(self) -> list[Frame]:
+        rates = self._start(lambda rate: rate.flush())
         self._keep(self._coarse, self.binned.flush())
-        for tfp, store in zip(self._rates, self._fine):
-            self._keep(store, tfp.flush())
+        for store, frames in zip(self._fine, rates.result()):
+            self._keep(store, frames)
+        if self._beside is not None:
+            self._beside.shutdown(wait=False)
         frames = self._combine()
         self._coarse.clear()
         for store in self._fine:
             store.clear()
         return frames
+
+    def _start(self, step: Callable[[Any], list[Frame]]) -> Future:
+        """``step`` over the raw-rate methods in order: in their thread when they have one (their state is theirs
+        alone, and each chunk's task ends before the next is queued: the frames are the same), else now."""
+        if self._beside is None:
+            done: Future = Future()
+            done.set_result([step(rate) for rate in self._rates])
+            return done
+        return self._beside.submit(lambda: [step(rate) for rate in self._rates])
 
     @staticmethod
     def _keep(store: dict[int, Frame], frames: list[Frame]) -> None:
