@@ -288,7 +288,9 @@ def test_detail_sample_reads_tfi_at_the_frame_centre() -> None:
 def test_the_detail_stage_batches_frames_on_a_gpu_only() -> None:
     import torch
 
-    from rmbvideo.recon.full_resolution import DETAIL_BATCH_PIXELS, detail_batch
+    from rmbvideo.recon.classical import Tfw
+    from rmbvideo.recon.full_resolution import DETAIL_BATCH_PIXELS, FullResolution, detail_batch
+    from rmbvideo.sensor.readout import RmbReadout
 
     assert detail_batch(torch.device("cpu"), (250, 400)) == 1
     assert detail_batch(torch.device("cuda"), (250, 400)) == DETAIL_BATCH_PIXELS // (250 * 400) > 1
