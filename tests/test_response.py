@@ -1,0 +1,19 @@
+"""The mean response of the binned stream to a steady light (``sensor.response``): what the network's box
+candidates invert. Below half a threshold per plane a reset-to-zero pixel's rate is q / (1 + q/2) to about 1 %;
+between 0.6 and 0.8 it fires every second plane whatever its charge; the binned count saturates at 7 of 8."""
+
+from __future__ import annotations
+
+import pytest
+
+from rmbvideo.sensor.response import mean_binned_rate
+
+
+def test_the_reset_to_zero_response_its_plateau_and_saturation():
+    rate = {level: mean_binned_rate(level, size=24, readouts=60) for level in (0.1, 0.3, 0.4, 0.62, 0.78, 2.0)}
+    for level in (0.1, 0.3):  # the half-plane loss at each reset
+        assert rate[level] == pytest.approx(level / (1 + level / 2), rel=0.02)
+    assert rate[0.4] - rate[0.3] > 0.05  # below the plateau the rate follows the light
+    assert abs(rate[0.78] - rate[0.62]) < 0.02 and rate[0.62] == pytest.approx(0.5, abs=0.02)  # every second plane
+    assert rate[2.0] == pytest.approx(7 / 8, abs=1e-3)  # a bin fires at most 7 times in 8 raw pixel-planes
+    assert mean_binned_rate(0.3, size=24, readouts=60, seed=1) != rate[0.3]  # another seed, other noise
