@@ -3,6 +3,8 @@ links from the reference frame's F_ms(i) and one ConvLSTM layer per scale (three
 
 from __future__ import annotations
 
+from typing import Callable
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -52,7 +54,7 @@ class Decoder(nn.Module):
         layer but the ConvLSTMs' recurrences runs on all K at once (``ConvLSTMCell.run``, ``graphed`` as there); the
         state is the last step's."""
         s3, s2, s1 = state if state is not None else (None, None, None)
-        def recurrent(cell: ConvLSTMCell):
+        def recurrent(cell: ConvLSTMCell) -> Callable[[torch.Tensor, LstmState | None], tuple[torch.Tensor, LstmState]]:
             return (lambda x, s: cell.run(x, s, graphed)) if run else cell
 
         lstm3, lstm2, lstm1 = (recurrent(cell) for cell in (self.lstm3, self.lstm2, self.lstm1))

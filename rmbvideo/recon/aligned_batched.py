@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
+from typing import Any
 
 import cv2
 import numpy as np
@@ -128,7 +129,7 @@ class BatchedAlignedWorker:
             need.result()
         return self._box._step_flow(index - 1, index)
 
-    def _timed(self, func, *args):
+    def _timed(self, func: Callable[..., Any], *args: Any) -> Any:
         began = time.perf_counter()
         try:
             return func(*args)
