@@ -20,7 +20,8 @@ DEFAULT_RUNS = ((200, 125, 128), (500, 500, 16))
 
 @dataclass
 class NetworkResult:
-    """Milliseconds per frame of the encoders and of the batched pass (best of ``repeats``), and the frames/s of both."""
+    """Milliseconds per frame of the encoders and of the batched pass (best of ``repeats``), and the frames/s of
+    both."""
 
     binned: str
     device: str
@@ -94,6 +95,7 @@ def network_table(results: list[NetworkResult]) -> str:
     lines = ["| binned | device | precision | frames per pass | CUDA graphs | encode ms/frame | batched pass ms/frame "
              "| frames/s |", "|---|---|---|---:|---|---:|---:|---:|"]
     for r in results:
-        lines.append(f"| {r.binned} | {r.device} | {r.precision} | {r.frame_batch} | {'yes' if r.cuda_graphs else 'no'} "
+        graphs = "yes" if r.cuda_graphs else "no"
+        lines.append(f"| {r.binned} | {r.device} | {r.precision} | {r.frame_batch} | {graphs} "
                      f"| {r.encode_ms:.3f} | {r.step_run_ms:.3f} | {r.fps:.0f} |")
     return "\n".join(lines) + "\n"

@@ -154,8 +154,8 @@ class RmbNetReconstructor:
     recurrences on the whole run of frames at once; the same frames to float rounding); None: up to 128 on a GPU
     (``default_frame_batch``; frames wait until a whole run is ready, so passes are that long whatever the chunks,
     and a CUDA graph is captured once), 1 on a CPU, where
-    batching loses. With the network on a GPU, the aligned means are made there in batches, their optical flows on ``threads``
-    CPU threads (default: every core but one; ``aligned_worker_for``).
+    batching loses. With the network on a GPU, the aligned means are made there in batches, their optical flows
+    on ``threads`` CPU threads (default: every core but one; ``aligned_worker_for``).
     ``prime``: frames the first frame's state is primed over, backwards in time (default w; 0: a fresh state).
     ``cuda_graphs``: on a GPU, batched passes replay their ConvLSTM recurrences as CUDA graphs (the same frames).
     ``n`` is the readouts per preliminary frame when RmbChunks are pushed (default: the model's N)
