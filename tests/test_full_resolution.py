@@ -107,6 +107,29 @@ def test_full_resolution_frames_are_full_size_finite_and_chunk_invariant(tmp_pat
     assert abs(right[:, 0::2].mean() / right[:, 1::2].mean() - 1) < 0.15
 
 
+def test_the_gpu_configuration_forced_onto_the_cpu_gives_the_default_frames(tmp_path: Path, monkeypatch) -> None:
+    """Everything a GPU run changes, forced here: batched passes of whole runs, aligned means batched in torch, the
+    detail stage in batches and the raw rates in a thread of their own. The full-resolution frames are the CPU
+    default's, to the batched means' precision."""
+    import rmbvideo.recon.full_resolution as full_module
+    import rmbvideo.recon.rmbnet as engine_module
+    from rmbvideo.recon.aligned_batched import BatchedAlignedWorker
+
+    dat = _capture(tmp_path / "c.dat", planes=600)
+    options = dict(width=64, height=48, chunk_planes=128, resolution="full", threads=1, precision="fp32")
+    default = list(reconstruct_frames(dat, "rmbnet", **options))
+    monkeypatch.setattr(engine_module, "aligned_worker_for",
+                        lambda device, config, workers: BatchedAlignedWorker(config, device, 2))
+    monkeypatch.setattr(full_module, "detail_batch", lambda device, size: 4)
+    monkeypatch.setattr(full_module, "rates_beside_by_default", lambda device: True)
+    forced = list(reconstruct_frames(dat, "rmbnet", frame_batch=8, **options))
+    assert [f.index for f in forced] == [f.index for f in default] and len(default) >= 25
+    images, reference = np.stack([f.image for f in forced]), np.stack([f.image for f in default])
+    assert np.isfinite(images).all() and (images >= 0).all()
+    relative = np.abs(images - reference) / np.maximum(reference, 1e-3)
+    assert relative.mean() < 1e-3 and np.quantile(relative, 0.99) < 1e-2
+
+
 def test_the_readout_follows_the_model_and_native_captures_keep_their_size(tmp_path: Path) -> None:
     from rmbvideo.net.weights import MODELS_DIR
 

@@ -94,6 +94,12 @@ def detail_batch(device: Any, full_size: tuple[int, int]) -> int:
     return max(1, DETAIL_BATCH_PIXELS // max(1, full_size[0] * full_size[1]))
 
 
+def rates_beside_by_default(device: Any) -> bool:
+    """Whether the raw stream's rates get a thread of their own beside the binned method: when that method runs on
+    a GPU and leaves the CPU idle (on a CPU its cores are the network's and the aligned means')."""
+    return getattr(device, "type", "cpu") == "cuda"
+
+
 def block_mean(image: np.ndarray) -> np.ndarray:
     """2x2 block means of ``image`` (even sides), spread back to every pixel of the block."""
     h, w = image.shape
@@ -160,10 +166,9 @@ class FullResolution:
         self._fine: list[dict[int, Frame]] = [{} for _ in self._rates]
         self.stage_seconds = getattr(binned, "stage_seconds", {})
         # the raw stream's rates (TFP, TFI: a few ms a frame of one core at 400x250) in a thread of their own while
-        # the binned method works on the same chunk, by default when that method runs on a GPU and leaves the CPU
-        # idle; on a CPU its cores are the network's and the aligned means'
+        # the binned method works on the same chunk
         if rates_beside is None:
-            rates_beside = getattr(self.device, "type", "cpu") == "cuda"
+            rates_beside = rates_beside_by_default(self.device)
         self._beside = ThreadPoolExecutor(max_workers=1, thread_name_prefix="raw-rates") if rates_beside else None
 
     def push(self, chunk: SpikeChunk | PackedChunk) -> list[Frame]:
