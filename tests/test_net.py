@@ -460,3 +460,33 @@ def test_step_run_is_the_steps_one_by_one(kw):
     torch.testing.assert_close(after, steps[9], rtol=1e-5, atol=1e-6)
     with pytest.raises(ValueError, match="at least 5 frames"):
         net.step_run(encoded[:4], None)
+
+
+def test_cell_decay_scales_the_carried_cell_state_and_round_trips():
+    """``cell_decay`` a: each step starts from a * c (the textbook cell at a = 1, the default, which old cards keep
+    by omitting it); the batched run and the graphed recurrence apply it as the step does."""
+    torch.manual_seed(2)
+    cell = ConvLSTMCell(3, 4, 3, decay=0.9)
+    x, h0, c0 = torch.randn(1, 3, 6, 5), torch.randn(1, 4, 6, 5), torch.randn(1, 4, 6, 5) * 3
+    with torch.inference_mode():
+        plain = ConvLSTMCell(3, 4, 3)
+        plain.load_state_dict(cell.state_dict())
+        _, (_, c_decayed) = cell(x, (h0, c0))
+        _, (_, c_scaled) = plain(x, (h0, 0.9 * c0))
+        torch.testing.assert_close(c_decayed, c_scaled)
+        xs = torch.randn(5, 3, 6, 5)
+        steps, state = [], None
+        for k in range(5):
+            out, state = cell(xs[k : k + 1], state)
+            steps.append(out)
+        run, _ = cell.run(xs, None)
+        torch.testing.assert_close(run, torch.cat(steps), rtol=1e-5, atol=1e-6)
+        gates_x = torch.nn.functional.conv2d(xs, cell.gates.weight[:, :3], cell.gates.bias, padding=1)
+        zeros = torch.zeros(1, 4, 6, 5)
+        torch.testing.assert_close(cell._recurrence(gates_x, zeros, zeros)[0], run, rtol=1e-5, atol=1e-6)
+    config = RmbNetConfig(w=1, width=0.25, cell_decay=0.95)
+    assert RmbNetConfig.from_dict(config.to_dict()) == config and RmbNet(config).decoder.lstm1.decay == 0.95
+    assert "cell_decay" not in RmbNetConfig(w=1).to_dict()
+    for bad in (0.0, 1.5):
+        with pytest.raises(ValueError, match="cell_decay"):
+            RmbNetConfig(cell_decay=bad)

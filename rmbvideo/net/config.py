@@ -45,6 +45,8 @@ class RmbNetConfig:
     motion blurs a whole frame), moved by the same flows: one more head input and blend candidate.
     ``output_mu``/``output_max``: the decoder predicts the mu-law domain T(G) (the training loss
     domain, mu = 5000) through a softplus, capped at ``output_max`` so the inverse cannot overflow.
+    ``cell_decay``: each ConvLSTM's cell state is scaled by it before each step (``ConvLSTMCell``): 1 keeps the
+    state as trained; below 1 it forgets old evidence it would otherwise carry through a long still capture.
     """
 
     w: int = 3
@@ -71,6 +73,7 @@ class RmbNetConfig:
     aligned_radius: int | None = None
     aligned_shift: bool = False
     aligned_centre: int = 0
+    cell_decay: float = 1.0
 
     def __post_init__(self) -> None:
         if not 0 <= self.w <= 3:
@@ -104,6 +107,8 @@ class RmbNetConfig:
             raise ValueError(f"aligned_centre must be a length in 1..{self.n - 1} of the parity of n, got {self.aligned_centre}")
         if self.aligned_radius is not None and not 0 <= self.aligned_radius <= MAX_ALIGNED_RADIUS:
             raise ValueError(f"aligned_radius must be in 0..{MAX_ALIGNED_RADIUS}, got {self.aligned_radius}")
+        if not 0.0 < self.cell_decay <= 1.0:
+            raise ValueError(f"cell_decay must be in (0, 1], got {self.cell_decay}")
         if self.blend and (self.input_mode != "binned" or self.readout != "pure-m"):
             raise ValueError("blend needs every bin count: input_mode \"binned\" and readout \"pure-m\"")
 
@@ -150,6 +155,8 @@ class RmbNetConfig:
                 del out[name]
         if self.aligned_radius is None:
             del out["aligned_radius"]
+        if self.cell_decay == 1.0:
+            del out["cell_decay"]
         return out
 
     @classmethod

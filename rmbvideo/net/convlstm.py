@@ -22,12 +22,14 @@ def _tanh(x: torch.Tensor) -> torch.Tensor:
 class ConvLSTMCell(nn.Module):
     """One ConvLSTM layer; the state is (h, c), zeros when ``None``.
 
-    The forget-gate bias starts at 1 so the state neither explodes nor is forgotten at once.
+    The forget-gate bias starts at 1 so the state neither explodes nor is forgotten at once. ``decay`` scales the
+    cell state before each step (``RmbNetConfig.cell_decay``; 1: none).
     """
 
-    def __init__(self, in_channels: int, hidden: int, kernel: int) -> None:
+    def __init__(self, in_channels: int, hidden: int, kernel: int, decay: float = 1.0) -> None:
         super().__init__()
         self.hidden = hidden
+        self.decay = decay
         self.gates = nn.Conv2d(in_channels + hidden, 4 * hidden, kernel, padding=kernel // 2)
         with torch.no_grad():
             self.gates.bias.zero_()
@@ -87,6 +89,8 @@ class ConvLSTMCell(nn.Module):
         # elements): the gate arithmetic runs 3-5x faster on a contiguous copy, and only h goes back.
         channels_last = not gates.is_contiguous() and gates.is_contiguous(memory_format=torch.channels_last)
         i, f, o, g = gates.contiguous().chunk(4, dim=1)
+        if self.decay != 1.0:
+            c = c * self.decay
         c = torch.sigmoid(f) * c + torch.sigmoid(i) * _tanh(g)
         h = torch.sigmoid(o) * _tanh(c)
         if channels_last:

@@ -28,16 +28,16 @@ class Decoder(nn.Module):
     """
 
     def __init__(self, channels: tuple[int, int, int], lstm_kernel: int, input_channels: int = 2,
-                 outputs: int = 1) -> None:
+                 outputs: int = 1, cell_decay: float = 1.0) -> None:
         super().__init__()
         c1, c2, c3 = channels
-        self.lstm3 = ConvLSTMCell(2 * c3, c3, lstm_kernel)
+        self.lstm3 = ConvLSTMCell(2 * c3, c3, lstm_kernel, cell_decay)
         self.up3 = _conv_relu(c3, c2)
         self.fuse2 = _conv_relu(2 * c2, c2)
-        self.lstm2 = ConvLSTMCell(c2, c2, lstm_kernel)
+        self.lstm2 = ConvLSTMCell(c2, c2, lstm_kernel, cell_decay)
         self.up2 = _conv_relu(c2, c1)
         self.fuse1 = _conv_relu(2 * c1, c1)
-        self.lstm1 = ConvLSTMCell(c1, c1, lstm_kernel)
+        self.lstm1 = ConvLSTMCell(c1, c1, lstm_kernel, cell_decay)
         self.up1 = _conv_relu(c1, c1)
         self.head = nn.Sequential(_conv_relu(c1 + input_channels, c1), nn.Conv2d(c1, outputs, 3, padding=1))
 

@@ -169,7 +169,8 @@ class RmbNet(nn.Module):
                    if config.blend else 1)
         head_inputs = (2 + 2 * len(config.pooled_windows) + int(config.convention_input) + len(config.centre_windows)
                        + config.aligned_channels)
-        self.decoder = Decoder(channels, config.lstm_kernel, input_channels=head_inputs, outputs=outputs)
+        self.decoder = Decoder(channels, config.lstm_kernel, input_channels=head_inputs, outputs=outputs,
+                               cell_decay=config.cell_decay)
         if config.blend:  # start from the network's own estimate (weight ~0.98), whatever the input
             last = self.decoder.head[-1]
             with torch.no_grad():
