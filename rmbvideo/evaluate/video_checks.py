@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rmbvideo.chunks import RmbChunk, SpikeChunk
+from rmbvideo.chunks import RmbChunk
 from rmbvideo.evaluate.harness import sequence_convention
 from rmbvideo.evaluate.heldout import FRAME_STEP, RAW_RATE_HZ, VIDEO_KINDS, Sequence
 from rmbvideo.evaluate.metrics import mu_law_psnr
@@ -39,11 +39,8 @@ from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
 from rmbvideo.recon.run import trained_readout
 from rmbvideo.scenes.render import bin_image
 from rmbvideo.scenes.video import VideoScene
-from rmbvideo.sensor.binning import StreamBinner
-from rmbvideo.sensor.effects import REALISTIC_EFFECTS
-from rmbvideo.sensor.emission import SpikeEmitter
-from rmbvideo.sensor.params import SensorParams
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
+from rmbvideo.sensor.response import flat_field_chunks
 
 DARK_LEVELS = (1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.3, 0.6, 0.8, 1.0)
 #: levels inside the reset-to-zero pixel's plateau, where its mean rate hardly changes (``rmbvideo.sensor.response``)
@@ -214,23 +211,6 @@ def state_age_report(method: str, options: dict, seq: Sequence) -> StateAgeRepor
     images = run_rmb(method, options, seq)
     psnr = [mu_law_psnr(images[i], np.minimum(seq.gt[i], 1.0)) for i in range(len(seq.gt))]
     return StateAgeReport(seq.name, psnr, float(np.mean(psnr[3:9])), float(np.mean(psnr[len(psnr) // 2:])))
-
-
-def flat_field_chunks(level: float, width: int, height: int, readouts: int, seed: int = 0) -> list[RmbChunk]:
-    """Binned chunks of a static flat field at ``level`` through the physical emission model with a
-    real camera's noise (raw size 2x, raw planes 2 x ``readouts``), starting mid-stream (``settle``)."""
-    params = SensorParams()
-    emitter = SpikeEmitter(2 * height, 2 * width, params, REALISTIC_EFFECTS, seed)
-    emitter.settle(seed)
-    photo = np.full((2 * height, 2 * width), level * params.q_r)
-    binner, chunks = StreamBinner(), []
-    for start in range(0, 2 * readouts, 64):
-        count = min(64, 2 * readouts - start)
-        planes = np.stack([emitter.emit_one(photo, 1) for _ in range(count)])
-        binned = binner.push(SpikeChunk(planes=planes, start=start, rate_hz=RAW_RATE_HZ))
-        if binned is not None:
-            chunks.append(binned)
-    return chunks
 
 
 def dark_bias(method: str = "rmbnet", options: dict | None = None, levels: Seq[float] = DARK_LEVELS,

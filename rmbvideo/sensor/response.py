@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rmbvideo.chunks import SpikeChunk
+from rmbvideo.chunks import RmbChunk, SpikeChunk
 from rmbvideo.sensor.binning import StreamBinner
 from rmbvideo.sensor.effects import REALISTIC_EFFECTS
 from rmbvideo.sensor.emission import SpikeEmitter
@@ -21,23 +21,36 @@ from rmbvideo.sensor.params import SensorParams
 BIN_TRIALS = 8
 
 
+#: raw planes a second of the emission model's streams (a 20 kHz camera)
+RAW_RATE_HZ = 20_000.0
+
+
+def flat_field_chunks(level: float, width: int, height: int, readouts: int, seed: int = 0,
+                      params: SensorParams | None = None) -> list[RmbChunk]:
+    """Binned chunks of a static flat field at ``level`` (charge per raw plane / firing threshold) through the
+    physical emission model with a real camera's noise (``REALISTIC_EFFECTS``; raw size 2x, raw planes
+    2 x ``readouts``), starting mid-stream (``settle``)."""
+    params = params or SensorParams()
+    emitter = SpikeEmitter(2 * height, 2 * width, params, REALISTIC_EFFECTS, seed)
+    emitter.settle(seed)
+    photo = np.full((2 * height, 2 * width), level * params.q_r)
+    binner, chunks = StreamBinner(), []
+    for start in range(0, 2 * readouts, 64):
+        count = min(64, 2 * readouts - start)
+        planes = np.stack([emitter.emit_one(photo, 1) for _ in range(count)])
+        binned = binner.push(SpikeChunk(planes=planes, start=start, rate_hz=RAW_RATE_HZ))
+        if binned is not None:
+            chunks.append(binned)
+    return chunks
+
+
 def mean_binned_rate(level: float, size: int = 64, readouts: int = 200, seed: int = 0,
                      params: SensorParams | None = None) -> float:
-    """Mean binned rate per raw pixel-plane (count / 8) of a flat field at ``level`` (charge per raw plane / firing
-    threshold) through the emission model with a real camera's noise (``REALISTIC_EFFECTS``), from a settled
-    sensor: ``size`` x ``size`` binned pixels over ``readouts`` binned readouts."""
-    params = params or SensorParams()
-    emitter = SpikeEmitter(2 * size, 2 * size, params, REALISTIC_EFFECTS, seed)
-    emitter.settle(seed)
-    photo = np.full((2 * size, 2 * size), level * params.q_r)
-    binner, total, count = StreamBinner(), 0.0, 0
-    for start in range(0, 2 * readouts, 64):
-        planes = np.stack([emitter.emit_one(photo, 1) for _ in range(min(64, 2 * readouts - start))])
-        binned = binner.push(SpikeChunk(planes=planes, start=start, rate_hz=20_000.0))
-        if binned is not None:
-            total += float(binned.multi.astype(np.float64).sum())
-            count += binned.multi.size
-    return total / max(count, 1) / BIN_TRIALS
+    """Mean binned rate per raw pixel-plane (count / 8) of ``flat_field_chunks`` at ``level``: ``size`` x ``size``
+    binned pixels over ``readouts`` binned readouts."""
+    chunks = flat_field_chunks(level, size, size, readouts, seed, params)
+    total = sum(float(c.multi.astype(np.float64).sum()) for c in chunks)
+    return total / max(sum(c.multi.size for c in chunks), 1) / BIN_TRIALS
 
 
 def response_table(levels: np.ndarray, **kwargs) -> np.ndarray:
