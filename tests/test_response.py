@@ -17,3 +17,12 @@ def test_the_reset_to_zero_response_its_plateau_and_saturation():
     assert abs(rate[0.78] - rate[0.62]) < 0.02 and rate[0.62] == pytest.approx(0.5, abs=0.02)  # every second plane
     assert rate[2.0] == pytest.approx(7 / 8, abs=1e-3)  # a bin fires at most 7 times in 8 raw pixel-planes
     assert mean_binned_rate(0.3, size=24, readouts=60, seed=1) != rate[0.3]  # another seed, other noise
+
+
+def test_the_network_and_the_sensor_count_the_same_trials_per_bin():
+    """The network package may import only torch and its siblings, so it keeps its own copy of the binning's
+    trials per count; the two must agree."""
+    from rmbvideo.net.blend import BIN_TRIALS as network_trials
+    from rmbvideo.sensor.binning import BIN_TRIALS
+
+    assert network_trials == BIN_TRIALS == 8

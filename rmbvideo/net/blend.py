@@ -24,7 +24,7 @@ from collections.abc import Sequence
 import torch
 
 #: Raw pixel-planes behind one binned multi-bit count (2 x 2 pixels x 2 planes).
-BIN_TRIALS = 8
+BIN_TRIALS = 8  # = rmbvideo.sensor.binning.BIN_TRIALS (net/ imports torch and its siblings only; tested)
 #: Initial logit of the network's own estimate (the box filters start at 0): a new blend head starts
 #: close to the plain network's function.
 OWN_LOGIT_INIT = 5.0

@@ -207,8 +207,8 @@ class BatchedAlignedWorker:
                 if flow is None:
                     flow = steps
                 else:
-                    keep = [k for k, r in enumerate(previous) if r in set(rows)]
-                    flow = flow[keep]
+                    still = set(rows)  # the requests reaching this far: a subset of the previous step's
+                    flow = flow[[k for k, r in enumerate(previous) if r in still]]
                     flow = flow + warp(steps, flow)
                 previous = rows
                 reached = [k for k, r in enumerate(rows) if requests[r][0] + d * s in requests[r][1]]

@@ -22,6 +22,8 @@ import numpy as np
 from rmbvideo.chunks import RmbChunk, SpikeChunk
 
 MULTI_LEVEL = 7
+#: raw pixel-planes behind one binned count (2 x 2 pixels x 2 planes): its Bernoulli trials
+BIN_TRIALS = 8
 # Planes decoded per block by the fused path: keeps the intermediates in cache and memory bounded.
 _FUSED_BLOCK_PLANES = 64
 

@@ -12,13 +12,11 @@ from __future__ import annotations
 import numpy as np
 
 from rmbvideo.chunks import RmbChunk, SpikeChunk
-from rmbvideo.sensor.binning import StreamBinner
+from rmbvideo.sensor.binning import BIN_TRIALS, StreamBinner
 from rmbvideo.sensor.effects import REALISTIC_EFFECTS
 from rmbvideo.sensor.emission import SpikeEmitter
 from rmbvideo.sensor.params import SensorParams
 
-#: raw pixel-planes behind one binned count (2 x 2 pixels x 2 planes)
-BIN_TRIALS = 8
 
 
 #: raw planes a second of the emission model's streams (a 20 kHz camera)
