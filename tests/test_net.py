@@ -295,9 +295,9 @@ def test_blend_config_needs_every_bin_count_and_round_trips():
 
 def test_blend_starts_near_the_own_estimate_and_can_pass_a_box_filter_through_exactly():
     """A new blend head weighs its own estimate ~0.98; with the logits forced to one box candidate the
-    output is that box filter's intensity: the mean rate itself under the rate convention, and
-    r / (1 - r/2) for a camera's reset-to-zero pixel."""
-    from rmbvideo.net.blend import BIN_TRIALS, OWN_LOGIT_INIT
+    output is that box filter's intensity: the mean rate itself under the rate convention, and the inverse of
+    the measured response for a camera's reset-to-zero pixel."""
+    from rmbvideo.net.blend import BIN_TRIALS, OWN_LOGIT_INIT, reset_to_zero_intensity
 
     model = blend_model()
     plain = small(w=3, pooled_windows=(3, 7), convention_input=True, readout="pure-m")
@@ -324,7 +324,7 @@ def test_blend_starts_near_the_own_estimate_and_can_pass_a_box_filter_through_ex
         spikezoo = model.forward_sequence(i_s, i_m, convention=1.0)[0]
         camera = model.forward_sequence(i_s, i_m, convention=0.0)[0]
     torch.testing.assert_close(spikezoo, boxes, rtol=2e-5, atol=1e-6)
-    torch.testing.assert_close(camera, boxes / (1 - boxes / 2), rtol=2e-5, atol=1e-6)
+    torch.testing.assert_close(camera, reset_to_zero_intensity(boxes), rtol=2e-5, atol=1e-6)
     assert plain_head.out_channels == 1 and head.out_channels == 5
 
 
@@ -354,7 +354,7 @@ def test_centre_windows_config_is_checked_and_round_trips():
 def test_centre_candidate_passes_the_frame_centre_through_exactly():
     """With the logits forced onto the central-4 candidate, the output is the box intensity of the
     reference frame's central 4 readouts, not of its 10; without the central sums the model refuses."""
-    from rmbvideo.net.blend import BIN_TRIALS
+    from rmbvideo.net.blend import BIN_TRIALS, reset_to_zero_intensity
 
     model = blend_model(centre_windows=(2, 4))
     head = model.decoder.head[-1]
@@ -373,7 +373,7 @@ def test_centre_candidate_passes_the_frame_centre_through_exactly():
             model.forward_sequence(i_s, i_m, convention=1.0)
     rate = (i_c[:, :, 1] / (7 * 4)).clamp(0, 1) * (7 / BIN_TRIALS)
     torch.testing.assert_close(spikezoo, rate, rtol=2e-5, atol=1e-6)
-    torch.testing.assert_close(camera, rate / (1 - rate / 2), rtol=2e-5, atol=1e-6)
+    torch.testing.assert_close(camera, reset_to_zero_intensity(rate), rtol=2e-5, atol=1e-6)
 
 
 def test_canonical_batch_keeps_a_sliced_channels_last_frame_channels_last_through_cat():

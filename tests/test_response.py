@@ -26,3 +26,25 @@ def test_the_network_and_the_sensor_count_the_same_trials_per_bin():
     from rmbvideo.sensor.binning import BIN_TRIALS
 
     assert network_trials == BIN_TRIALS == 8
+
+
+def test_the_networks_table_is_the_measured_response_and_inverts_it():
+    """``RESET_TO_ZERO_RATES`` (the network's copy, measured on a larger sample by ``tabulated_response``) agrees with
+    a fresh measurement, and its inverse reads the light back wherever the rate follows it (not in the plateau)."""
+    import numpy as np
+    import torch
+
+    from rmbvideo.net.blend import RESET_TO_ZERO_RATES, RESET_TO_ZERO_STEP, reset_to_zero_intensity
+
+    table = np.array(RESET_TO_ZERO_RATES)
+    assert (np.diff(table) > 0).all() and table[0] == 0.0
+    for level in (0.2, 0.5, 0.9, 1.0, 1.1):
+        measured = mean_binned_rate(level, size=24, readouts=60, seed=3)
+        assert measured == pytest.approx(np.interp(level, RESET_TO_ZERO_STEP * np.arange(len(table)), table), abs=4e-3)
+        if level != 0.5:  # 0.5 is at the plateau's foot: the inverse's slope is steep there
+            read = float(reset_to_zero_intensity(torch.tensor([measured])))
+            assert read == pytest.approx(level, rel=0.03)
+    levels = reset_to_zero_intensity(torch.tensor(table, dtype=torch.float32)).numpy()
+    np.testing.assert_allclose(levels, RESET_TO_ZERO_STEP * np.arange(len(table)), atol=1e-5)
+    ends = reset_to_zero_intensity(torch.tensor([-0.1, 0.0, 0.95]))  # past the ends: the ends' levels
+    assert ends.tolist() == pytest.approx([0.0, 0.0, RESET_TO_ZERO_STEP * (len(table) - 1)])

@@ -11,10 +11,12 @@ right (bright, or fast motion: the reference alone) and use its own where the co
 
 Box-filter intensity from the mean multi-bit rate r per raw pixel-plane (bin count over its 8 trials):
 - spikezoo's rate convention (accumulate and subtract): the intensity is r itself;
-- a camera's reset-to-zero pixel: r = q / (1 + q/2) to within 1 % up to q = 0.5 (the charge wasted at
-  each reset is half a plane's on average), so q = r / (1 - r/2); above that the response has
-  plateaus (a pixel fires every 2nd plane over a range of charges) and the network's own estimate
-  must do.
+- a camera's reset-to-zero pixel: the inverse of its measured response (``RESET_TO_ZERO_RATES``, tabulated on
+  the emission model with a real camera's noise by ``rmbvideo.sensor.response``), piecewise linear. Below half
+  a threshold per plane that is q / (1 + q/2) to about 1 % (the charge wasted at each reset is half a plane's on
+  average); above it the response has a plateau (every 2nd plane from about 0.6 to 0.8), then rises to the
+  bin's ceiling of 7 of 8 near 1.3. The closed form r / (1 - r/2) read 0.9 as 0.77 and 0.95 as 0.87: bright
+  candidates 8-15 % dark, which the network could not fully undo.
 """
 
 from __future__ import annotations
@@ -30,8 +32,18 @@ BIN_TRIALS = 8  # = rmbvideo.sensor.binning.BIN_TRIALS (net/ imports torch and i
 OWN_LOGIT_INIT = 5.0
 #: Initial logit of a central sub-window candidate: noisy, so a new one starts nearly unused.
 CENTRE_LOGIT_INIT = -2.0
-#: Rates above this are treated as this in the reset-to-zero inverse (it has a pole at r = 2).
-_MAX_PHYSICAL_RATE = 0.98
+#: Charge per raw plane (in firing thresholds) of the tabulated response: 0, 0.025, ..., 1.3.
+RESET_TO_ZERO_STEP = 0.025
+#: Mean binned rate per raw pixel-plane of a camera's reset-to-zero pixel at each level k * RESET_TO_ZERO_STEP,
+#: measured on the emission model with a real camera's noise (``rmbvideo.sensor.response.tabulated_response``;
+#: level 0 is dark); strictly increasing, so it inverts. Above 1.3 the bin fires 7 times in 8 whatever the light.
+RESET_TO_ZERO_RATES = (
+    0.0, 0.02476, 0.04890, 0.07247, 0.09546, 0.11791, 0.13984, 0.16127, 0.18224, 0.20253, 0.22295, 0.24248,
+    0.25977, 0.27986, 0.30242, 0.32073, 0.33234, 0.34190, 0.35562, 0.37668, 0.40426, 0.43391, 0.46011, 0.47912,
+    0.49055, 0.49630, 0.49880, 0.49980, 0.50032, 0.50092, 0.50202, 0.50403, 0.50754, 0.51335, 0.52229, 0.53537,
+    0.55345, 0.57712, 0.60672, 0.64164, 0.68061, 0.72110, 0.76042, 0.79542, 0.82368, 0.84452, 0.85833, 0.86663,
+    0.87115, 0.87336, 0.87435, 0.87476, 0.87492,
+)
 
 
 def candidate_count(pooled_windows: Sequence[int], centre_windows: Sequence[int] = (), aligned: int = 0) -> int:
@@ -40,14 +52,23 @@ def candidate_count(pooled_windows: Sequence[int], centre_windows: Sequence[int]
     return 1 + len(pooled_windows) + len(centre_windows) + int(aligned)
 
 
+def reset_to_zero_intensity(rate: torch.Tensor) -> torch.Tensor:
+    """Charge per raw plane (in thresholds) of a reset-to-zero pixel with mean binned rate ``rate``: the tabulated
+    response inverted piecewise linearly, float32; rates past the table's ends read its end levels (0 and 1.3)."""
+    table = torch.tensor(RESET_TO_ZERO_RATES, dtype=torch.float32, device=rate.device)
+    r = rate.float().clamp(0.0, RESET_TO_ZERO_RATES[-1])
+    upper = torch.searchsorted(table, r.contiguous()).clamp(1, len(RESET_TO_ZERO_RATES) - 1)
+    low, high = table[upper - 1], table[upper]
+    return ((upper - 1).float() + (r - low) / (high - low)) * RESET_TO_ZERO_STEP
+
+
 def box_intensity(rate: torch.Tensor, convention: torch.Tensor | float) -> torch.Tensor:
     """Intensity (charge per raw plane / threshold) of mean rate ``rate`` under the sensor convention
     (0 = a camera's reset-to-zero pixel, 1 = spikezoo's rate convention; scalar or one per batch item)."""
     if isinstance(convention, (int, float)) and convention in (0, 1):  # one convention: no per-item mix
-        return rate if convention == 1 else rate / (1.0 - 0.5 * rate.clamp(max=_MAX_PHYSICAL_RATE))
+        return rate if convention == 1 else reset_to_zero_intensity(rate).to(rate.dtype)
     code = torch.as_tensor(convention, dtype=rate.dtype, device=rate.device).reshape(-1, 1, 1, 1)
-    physical = rate / (1.0 - 0.5 * rate.clamp(max=_MAX_PHYSICAL_RATE))
-    return code * rate + (1.0 - code) * physical
+    return code * rate + (1.0 - code) * reset_to_zero_intensity(rate).to(rate.dtype)
 
 
 def box_candidates(pooled: Sequence[torch.Tensor], level: int, convention: torch.Tensor | float,

@@ -4,7 +4,8 @@ charge ``q`` per raw plane (in units of its firing threshold) fires at, measured
 A reset-to-zero pixel wastes the charge above its threshold at each spike, so its rate is not ``q``: about
 ``q / (1 + q/2)`` up to ``q = 0.5``, then plateaus where it fires every second plane over a range of charges
 (smoothed by noise), until the binned count saturates at 7 of 8. The network's box-filter candidates invert it
-(``rmbvideo.net.blend``); this measures it, so that inverse can be checked and tabulated.
+(``rmbvideo.net.blend.RESET_TO_ZERO_RATES``: the table ``tabulated_response`` makes, kept in the network's package,
+which imports only torch).
 """
 
 from __future__ import annotations
@@ -54,3 +55,10 @@ def mean_binned_rate(level: float, size: int = 64, readouts: int = 200, seed: in
 def response_table(levels: np.ndarray, **kwargs) -> np.ndarray:
     """``mean_binned_rate`` at each of ``levels``."""
     return np.array([mean_binned_rate(float(level), **kwargs) for level in levels])
+
+
+def tabulated_response(step: float = 0.025, top: float = 1.3, size: int = 96, readouts: int = 400) -> np.ndarray:
+    """The rates of ``rmbvideo.net.blend.RESET_TO_ZERO_RATES``: ``mean_binned_rate`` at levels ``step``, ``2 step``,
+    ..., ``top`` (about 2 minutes with the defaults), after 0 at level 0 (a dark pixel)."""
+    levels = step * np.arange(1, int(round(top / step)) + 1)
+    return np.concatenate([[0.0], response_table(levels, size=size, readouts=readouts)])
