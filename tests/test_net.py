@@ -295,8 +295,9 @@ def test_blend_config_needs_every_bin_count_and_round_trips():
 
 def test_blend_starts_near_the_own_estimate_and_can_pass_a_box_filter_through_exactly():
     """A new blend head weighs its own estimate ~0.98; with the logits forced to one box candidate the
-    output is that box filter's intensity: the mean rate itself under the rate convention, and the inverse of
-    the measured response for a camera's reset-to-zero pixel."""
+    output is that box filter's intensity: the mean rate itself under the rate convention, and
+    r / (1 - r/2) for a camera's reset-to-zero pixel (the inverse of the emission model's tabulated response
+    when the network is told the stream is that model's)."""
     from rmbvideo.net.blend import BIN_TRIALS, OWN_LOGIT_INIT, reset_to_zero_intensity
 
     model = blend_model()
@@ -324,7 +325,15 @@ def test_blend_starts_near_the_own_estimate_and_can_pass_a_box_filter_through_ex
         spikezoo = model.forward_sequence(i_s, i_m, convention=1.0)[0]
         camera = model.forward_sequence(i_s, i_m, convention=0.0)[0]
     torch.testing.assert_close(spikezoo, boxes, rtol=2e-5, atol=1e-6)
-    torch.testing.assert_close(camera, reset_to_zero_intensity(boxes), rtol=2e-5, atol=1e-6)
+    torch.testing.assert_close(camera, boxes / (1 - boxes / 2), rtol=2e-5, atol=1e-6)
+    model.tabulated_response = True
+    with torch.inference_mode():
+        simulated = model.forward_sequence(i_s, i_m, convention=0.0)[0]
+        mixed_codes = model.forward_sequence(torch.cat([i_s, i_s]), torch.cat([i_m, i_m]),
+                                             convention=torch.tensor([0.0, 1.0]))[0]
+    torch.testing.assert_close(simulated, reset_to_zero_intensity(boxes), rtol=2e-5, atol=1e-6)
+    torch.testing.assert_close(mixed_codes, torch.cat([simulated, spikezoo]), rtol=2e-5, atol=1e-6)
+    assert (simulated - camera).abs().max() > 0.01  # the two inverses differ above half a threshold per plane
     assert plain_head.out_channels == 1 and head.out_channels == 5
 
 
@@ -354,7 +363,7 @@ def test_centre_windows_config_is_checked_and_round_trips():
 def test_centre_candidate_passes_the_frame_centre_through_exactly():
     """With the logits forced onto the central-4 candidate, the output is the box intensity of the
     reference frame's central 4 readouts, not of its 10; without the central sums the model refuses."""
-    from rmbvideo.net.blend import BIN_TRIALS, reset_to_zero_intensity
+    from rmbvideo.net.blend import BIN_TRIALS
 
     model = blend_model(centre_windows=(2, 4))
     head = model.decoder.head[-1]
@@ -373,7 +382,7 @@ def test_centre_candidate_passes_the_frame_centre_through_exactly():
             model.forward_sequence(i_s, i_m, convention=1.0)
     rate = (i_c[:, :, 1] / (7 * 4)).clamp(0, 1) * (7 / BIN_TRIALS)
     torch.testing.assert_close(spikezoo, rate, rtol=2e-5, atol=1e-6)
-    torch.testing.assert_close(camera, reset_to_zero_intensity(rate), rtol=2e-5, atol=1e-6)
+    torch.testing.assert_close(camera, rate / (1 - rate / 2), rtol=2e-5, atol=1e-6)
 
 
 def test_canonical_batch_keeps_a_sliced_channels_last_frame_channels_last_through_cat():

@@ -14,7 +14,7 @@ from rmbvideo.io.tonemap import TONE_METHODS
 from rmbvideo.recon.full_resolution import DETAIL_KINDS
 from rmbvideo.recon.methods import DEFAULT_METHOD, METHODS
 from rmbvideo.recon.run import DEFAULT_RESOLUTION, RESOLUTIONS, run_reconstruction
-from rmbvideo.sensor.conventions import CONVENTIONS
+from rmbvideo.sensor.conventions import CONVENTIONS, RESPONSES
 from rmbvideo.sensor.readout import ReadoutMode
 
 log = logging.getLogger(__name__)
@@ -43,6 +43,11 @@ def rmbnet_options(func):
         click.option("--convention", type=click.Choice(list(CONVENTIONS)), default="physical", show_default=True,
                      help="What made the spikes: physical (a camera: pixels reset at a spike) or spikezoo (streams "
                           "simulated in the accumulate-and-subtract rate convention, e.g. spikezoo's REDS)."),
+        click.option("--response", type=click.Choice(list(RESPONSES)), default="closed-form", show_default=True,
+                     help="How a camera's rates are read back as light where RMB-Net passes them through: "
+                          "closed-form (any camera: smooth, reads above half a threshold per plane dark) or "
+                          "emission-model (the tabulated response of rmbvideo's simulated camera: exact for streams "
+                          "`rmbvideo simulate` made, contours on a camera whose response differs)."),
         click.option("--frame-batch", type=click.IntRange(min=1), default=None,
                      help="Output frames RMB-Net makes per batched pass (its ConvLSTM still steps through them in "
                           "order; the same frames) [default: up to 128 on a GPU, fewer for large frames; 1 on a CPU, "
@@ -115,13 +120,13 @@ def reconstruct(input_path: Path, outdir: Path, method: str, window, step, fmt: 
                 width, height, flip,
                 header_cols, rate_hz,
                 start_s: float, duration_s, chunk_planes: int, model, align: str, device: str,
-                upsampling: str, precision: str, threads, convention: str, frame_batch, prime, cuda_graphs: bool,
-                overwrite: bool,
+                upsampling: str, precision: str, threads, convention: str, response: str, frame_batch, prime,
+                cuda_graphs: bool, overwrite: bool,
                 nits_per_unit,
                 quiet: bool) -> None:
     """Reconstruct a .dat capture INPUT into frames in OUTDIR."""
     extra = dict(model=model, align=align, device=device, upsampling=upsampling, precision=precision,
-                 threads=threads, convention=convention, frame_batch=frame_batch, prime=prime,
+                 threads=threads, convention=convention, response=response, frame_batch=frame_batch, prime=prime,
                  cuda_graphs=cuda_graphs)
     summary = run_reconstruction(
         input_path, outdir, method=method, window=window, step=step, fmt=fmt, fps=fps,

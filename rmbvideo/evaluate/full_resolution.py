@@ -23,7 +23,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from rmbvideo.evaluate.harness import SATURATION, downsample_2x, sequence_convention
+from rmbvideo.evaluate.harness import SATURATION, SIMULATED_RESPONSE, downsample_2x, sequence_convention
 from rmbvideo.evaluate.heldout import RAW_RATE_HZ, VIDEO_KINDS, Sequence
 from rmbvideo.evaluate.metrics import mu_law_psnr, mu_law_ssim, ssim
 from rmbvideo.evaluate.real_video import (
@@ -77,7 +77,8 @@ def run_row(row: FullRow, source: Any, keep: list[int] | None = None,
     """Frames (index -> image) of ``row`` on ``source`` (a stream made in ``convention``), seconds, frames
     emitted: full resolution, except a "binned-up" row's binned frames (``at_full_resolution`` upsamples
     them). RMB-Net reads the binned stream through the readout its model was trained on."""
-    options = {**row.options, "convention": convention} if row.method == "rmbnet" else row.options
+    options = ({**row.options, "convention": convention, "response": SIMULATED_RESPONSE} if row.method == "rmbnet"
+               else row.options)
     recon = make_reconstructor(row.method, **options)
     readout = RmbReadout(mode=ReadoutMode(trained_readout(recon)))
     if row.kind in ("full", "full-learned"):

@@ -110,6 +110,12 @@ class SinglePlaneSource:
             yield SpikeChunk(planes=self.readout.apply(chunk).single, start=chunk.start, rate_hz=chunk.rate_hz)
 
 
+#: How RMB-Net reads a camera's rates back as light on the evaluation's synthetic streams: rmbvideo's emission model
+#: made every one, so the camera's response is known (``rmbvideo.sensor.conventions.RESPONSES``; a reconstruction of
+#: a real capture uses the closed form, and streams in spikezoo's convention do not read it).
+SIMULATED_RESPONSE = "emission-model"
+
+
 def sequence_convention(seq: Sequence) -> str:
     """The sensor convention that made ``seq`` (its description says; panorama pans are physical)."""
     try:
@@ -126,6 +132,7 @@ def run_frames(spec: MethodSpec, seq: Sequence) -> tuple[list[Frame], float, flo
     options = dict(spec.options)
     if spec.method == "rmbnet":
         options.setdefault("convention", sequence_convention(seq))
+        options.setdefault("response", SIMULATED_RESPONSE)
     recon = make_reconstructor(spec.method, **options)
     readout = RmbReadout(mode=spec.readout)
     sink = FrameCollector()

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from rmbvideo.chunks import RmbChunk
-from rmbvideo.evaluate.harness import sequence_convention
+from rmbvideo.evaluate.harness import SIMULATED_RESPONSE, sequence_convention
 from rmbvideo.evaluate.heldout import FRAME_STEP, RAW_RATE_HZ, VIDEO_KINDS, Sequence
 from rmbvideo.evaluate.metrics import mu_law_psnr
 from rmbvideo.recon.methods import make_reconstructor
@@ -78,9 +78,12 @@ class BinnedChunks:
 
 def run_rmb(method: str, options: dict, source: Sequence | BinnedChunks) -> dict[int, np.ndarray]:
     """Frames (index -> image) of a method on the binned stream of ``source``, through the readout its
-    model was trained on (RMB for methods without a model); a held-out sequence's own convention."""
-    if method == "rmbnet" and isinstance(source, Sequence):
-        options = {**options, "convention": sequence_convention(source)}
+    model was trained on (RMB for methods without a model); a held-out sequence's own convention, and the emission
+    model's response (it made both kinds of source)."""
+    if method == "rmbnet":
+        options = {"response": SIMULATED_RESPONSE, **options}
+        if isinstance(source, Sequence):
+            options["convention"] = sequence_convention(source)
     recon = make_reconstructor(method, **options)
     sink = FrameCollector()
     reconstruct_stream(source, recon, sink, readout=RmbReadout(mode=ReadoutMode(trained_readout(recon))))

@@ -11,12 +11,15 @@ right (bright, or fast motion: the reference alone) and use its own where the co
 
 Box-filter intensity from the mean multi-bit rate r per raw pixel-plane (bin count over its 8 trials):
 - spikezoo's rate convention (accumulate and subtract): the intensity is r itself;
-- a camera's reset-to-zero pixel: the inverse of its measured response (``RESET_TO_ZERO_RATES``, tabulated on
-  the emission model with a real camera's noise by ``rmbvideo.sensor.response``), piecewise linear. Below half
-  a threshold per plane that is q / (1 + q/2) to about 1 % (the charge wasted at each reset is half a plane's on
-  average); above it the response has a plateau (every 2nd plane from about 0.6 to 0.8), then rises to the
-  bin's ceiling of 7 of 8 near 1.3. The closed form r / (1 - r/2) read 0.9 as 0.77 and 0.95 as 0.87: bright
-  candidates 8-15 % dark, which the network could not fully undo.
+- a camera's reset-to-zero pixel of unknown response: q = r / (1 - r/2), the inverse of r = q / (1 + q/2) (the
+  charge wasted at each reset is half a plane's on average), exact to about 1 % below half a threshold per
+  plane; above that the response has a plateau and the network's own estimate must do. Smooth, whatever the
+  camera: the default;
+- the camera of rmbvideo's emission model (``tabulated=True``; ``rmbvideo.sensor.response``): the inverse of
+  its measured response (``RESET_TO_ZERO_RATES``), piecewise linear. It has a plateau (every 2nd plane from
+  about 0.6 to 0.8 of a threshold per plane) and then rises to the bin's ceiling of 7 of 8 near 1.3, where the
+  closed form reads 0.9 as 0.77 and 0.95 as 0.87. Only for streams that model made: on a real camera whose
+  response differs it draws contours across smooth bright surfaces (the inverse is steep in the plateau).
 """
 
 from __future__ import annotations
@@ -32,6 +35,8 @@ BIN_TRIALS = 8  # = rmbvideo.sensor.binning.BIN_TRIALS (net/ imports torch and i
 OWN_LOGIT_INIT = 5.0
 #: Initial logit of a central sub-window candidate: noisy, so a new one starts nearly unused.
 CENTRE_LOGIT_INIT = -2.0
+#: Rates above this are treated as this in the closed-form reset-to-zero inverse (it has a pole at r = 2).
+_MAX_PHYSICAL_RATE = 0.98
 #: Charge per raw plane (in firing thresholds) of the tabulated response: 0, 0.025, ..., 1.3.
 RESET_TO_ZERO_STEP = 0.025
 #: Mean binned rate per raw pixel-plane of a camera's reset-to-zero pixel at each level k * RESET_TO_ZERO_STEP,
@@ -62,30 +67,36 @@ def reset_to_zero_intensity(rate: torch.Tensor) -> torch.Tensor:
     return ((upper - 1).float() + (r - low) / (high - low)) * RESET_TO_ZERO_STEP
 
 
-def box_intensity(rate: torch.Tensor, convention: torch.Tensor | float) -> torch.Tensor:
+def box_intensity(rate: torch.Tensor, convention: torch.Tensor | float, tabulated: bool = False) -> torch.Tensor:
     """Intensity (charge per raw plane / threshold) of mean rate ``rate`` under the sensor convention
-    (0 = a camera's reset-to-zero pixel, 1 = spikezoo's rate convention; scalar or one per batch item)."""
-    if isinstance(convention, (int, float)) and convention in (0, 1):  # one convention: no per-item mix
-        return rate if convention == 1 else reset_to_zero_intensity(rate).to(rate.dtype)
+    (0 = a camera's reset-to-zero pixel, 1 = spikezoo's rate convention; scalar or one per batch item); a camera's
+    by the closed form, or by the emission model's tabulated response when ``tabulated``."""
+    if isinstance(convention, (int, float)) and convention == 1:
+        return rate
+    physical = (reset_to_zero_intensity(rate).to(rate.dtype) if tabulated
+                else rate / (1.0 - 0.5 * rate.clamp(max=_MAX_PHYSICAL_RATE)))
+    if isinstance(convention, (int, float)) and convention == 0:  # one convention: no per-item mix
+        return physical
     code = torch.as_tensor(convention, dtype=rate.dtype, device=rate.device).reshape(-1, 1, 1, 1)
-    return code * rate + (1.0 - code) * reset_to_zero_intensity(rate).to(rate.dtype)
+    return code * rate + (1.0 - code) * physical
 
 
 def box_candidates(pooled: Sequence[torch.Tensor], level: int, convention: torch.Tensor | float,
-                   centre: torch.Tensor | None = None, aligned: torch.Tensor | None = None) -> list[torch.Tensor]:
+                   centre: torch.Tensor | None = None, aligned: torch.Tensor | None = None,
+                   tabulated: bool = False) -> list[torch.Tensor]:
     """Box-filter intensities of the reference frame, of each pooled window, of each central
     sub-window and of the motion-compensated window mean, (B,1,Hp,Wp) each.
 
     ``pooled``: the reference frame's normalised multi-bit rate I_m/(level N), then its means over each
     pooled window (valid frames only), (B,1,Hp,Wp) each; ``centre``: the reference frame's central
     multi-bit rates I_c/(level k), (B,C,Hp,Wp), or None; ``aligned``: the aligned mean rates
-    I_a/(level N), (B,A,Hp,Wp) (one candidate per channel), or None.
+    I_a/(level N), (B,A,Hp,Wp) (one candidate per channel), or None. ``tabulated``: see ``box_intensity``.
     """
-    out = [box_intensity(rate.float() * (level / BIN_TRIALS), convention) for rate in pooled]
+    out = [box_intensity(rate.float() * (level / BIN_TRIALS), convention, tabulated) for rate in pooled]
     if centre is not None:
-        out += [box_intensity(c * (level / BIN_TRIALS), convention) for c in centre.float().split(1, dim=1)]
+        out += [box_intensity(c * (level / BIN_TRIALS), convention, tabulated) for c in centre.float().split(1, dim=1)]
     if aligned is not None:
-        out.append(box_intensity(aligned.float() * (level / BIN_TRIALS), convention))
+        out.append(box_intensity(aligned.float() * (level / BIN_TRIALS), convention, tabulated))
     return out
 
 

@@ -149,6 +149,10 @@ class RmbNet(nn.Module):
     def __init__(self, config: RmbNetConfig) -> None:
         super().__init__()
         self.config = config
+        # how the blend's box candidates read a camera's rates: by the closed form (any camera), or by the tabulated
+        # response of rmbvideo's emission model (streams it made; ``rmbvideo.net.blend``). Not a weight: a reader's
+        # knowledge of the camera, set by whoever runs the network.
+        self.tabulated_response = False
         channels = config.channels
         self.encoder_s = Encoder(1, channels, config.encoder_kernel)
         self.encoder_m = Encoder(1, channels, config.encoder_kernel)
@@ -437,7 +441,7 @@ class RmbNet(nn.Module):
         if self.config.blend:
             cfg = self.config
             candidates = box_candidates([mean[:, 1:2] for mean in prepared.pooled], cfg.level, convention,
-                                        ref.centre, prepared.aligned_rate)
+                                        ref.centre, prepared.aligned_rate, self.tabulated_response)
             mixed = blend(self.to_linear(t), candidates, z[:, 1:])
             t = mu_law(mixed, cfg.output_mu).clamp(max=cfg.output_max)
         h, w = ref.size

@@ -49,7 +49,7 @@ from rmbvideo.recon.aligned_batched import BatchedAlignedMean, BatchedAlignedWor
 from rmbvideo.recon.aligned_worker import AlignedMean, AlignedWorker, Ready
 from rmbvideo.recon.precision import PRECISIONS, uses_bf16
 from rmbvideo.recon.prelim import MultiUpsampler, PreliminaryFrames, select_centre
-from rmbvideo.sensor.conventions import CONVENTIONS
+from rmbvideo.sensor.conventions import CONVENTIONS, RESPONSES
 from rmbvideo.threads import available_cores, compute_threads, default_threads, work_beside
 
 log = logging.getLogger(__name__)
@@ -158,7 +158,8 @@ class RmbNetReconstructor:
     on ``threads`` CPU threads (default: every core but one; ``aligned_worker_for``).
     ``prime``: frames the first frame's state is primed over, backwards in time (default w; 0: a fresh state).
     ``cuda_graphs``: on a GPU, batched passes replay their ConvLSTM recurrences as CUDA graphs (the same frames).
-    ``n`` is the readouts per preliminary frame when RmbChunks are pushed (default: the model's N)
+    ``response``: how a camera's rates are read back as light (``RESPONSES``; "emission-model" only for streams
+    rmbvideo simulated in the physical convention). ``n`` is the readouts per preliminary frame when RmbChunks are pushed (default: the model's N)
     and ``upsampler`` the band upsampler they go through (default: flow-free interpolation; see
     ``rmbvideo.recon.flow.FlowUpsampler``).
     """
@@ -178,6 +179,7 @@ class RmbNetReconstructor:
         frame_batch: int | None = None,
         prime: int | None = None,
         cuda_graphs: bool = True,
+        response: str = "closed-form",
     ) -> None:
         if threads is not None and threads < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
@@ -187,6 +189,8 @@ class RmbNetReconstructor:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
         if convention not in CONVENTIONS:
             raise ValueError(f"convention must be one of {CONVENTIONS}, got {convention!r}")
+        if response not in RESPONSES:
+            raise ValueError(f"response must be one of {RESPONSES}, got {response!r}")
         if frame_batch is not None and frame_batch < 1:
             raise ValueError(f"frame_batch must be >= 1, got {frame_batch}")
         if prime is not None and prime < 0:
@@ -196,6 +200,7 @@ class RmbNetReconstructor:
         self.model = model.to(self.device).eval()
         self._autocast = uses_bf16(precision, self.device)
         self._net = inference_copy(self.model, bf16=self._autocast)
+        self._net.tabulated_response = response == "emission-model"
         self._threads = threads if threads is not None else default_threads()
         self._frame_batch = frame_batch
         self._graphed = cuda_graphs and self.device.type == "cuda"
@@ -514,6 +519,7 @@ def make_rmbnet(
     frame_batch: int | None = None,
     prime: int | None = None,
     cuda_graphs: bool = True,
+    response: str = "closed-form",
 ) -> RmbNetReconstructor:
     """Pipeline factory for method "rmbnet": ``model`` is a .safetensors path; ``upsampling`` is
     "interp" (flow-free band interpolation) or a flow method ("dis", "farneback", "tvl1").
@@ -523,7 +529,7 @@ def make_rmbnet(
     camera, "spikezoo" for streams simulated in the rate convention); models without the
     convention input ignore it. ``readout``: without ``model``, the shipped model trained on that
     readout design (the default model's when None). ``frame_batch``: output frames per batched pass, ``prime``
-    the frames the first state is primed over and ``cuda_graphs`` (``RmbNetReconstructor``)."""
+    the frames the first state is primed over, ``cuda_graphs`` and ``response`` (``RmbNetReconstructor``)."""
     from rmbvideo.errors import ModelError
     from rmbvideo.net.weights import default_model_path, shipped_model_with_window
     from rmbvideo.recon.flow import FlowUpsampler
@@ -535,6 +541,7 @@ def make_rmbnet(
     recon = RmbNetReconstructor.from_file(
         model, device=device, input_mode=input_mode, align=align, precision=precision, upsampler=upsampler,
         threads=threads, convention=convention, frame_batch=frame_batch, prime=prime, cuda_graphs=cuda_graphs,
+        response=response,
     )
     if w is not None and recon.network.config.w != w:
         raise ModelError(f"{model}: the model's window half-width is w = {recon.network.config.w}, not {w}")
