@@ -15,6 +15,7 @@ from rmbvideo.chunks import Frame
 from rmbvideo.evaluate.harness import (
     MethodSpec,
     BEST_RAW,
+    CLOSED_FORM_ROW,
     evaluate_rows,
     run_method,
     score_frames,
@@ -83,12 +84,12 @@ def test_heldout_sequence_is_cached_and_consistent(sequence, cache):
 def test_table2_rows_scores_and_not_trained(rows):
     names = [r.name for r in rows]
     raw = ["TFP-20 (raw)", "TFP-41 (raw)", "TFP-80 (raw)", "TFP-140 (raw)", "TFI (raw)", BEST_RAW]
-    assert names == ["TFW-S", "TFW-L", "TFI", "GC20", "MG20", "RMB-Net", *raw,
+    assert names == ["TFW-S", "TFW-L", "TFI", "GC20", "MG20", "RMB-Net", CLOSED_FORM_ROW, *raw,
                      "RMB-Net (ablation budget)", "w = 0", "Pure-S", "Pure-M", "Full-M", "w/o XBA", "w/o XTA"]
     status = {r.name: r.status for r in rows}
     assert all(status[n] == "not trained" for n in ("RMB-Net (ablation budget)", "w = 0", "Pure-S", "Pure-M", "Full-M", "w/o XTA"))
     ok = [r for r in rows if r.status == "ok"]
-    assert [r.name for r in ok] == ["TFW-S", "TFW-L", "TFI", "GC20", "MG20", "RMB-Net", *raw, "w/o XBA"]
+    assert [r.name for r in ok] == ["TFW-S", "TFW-L", "TFI", "GC20", "MG20", "RMB-Net", CLOSED_FORM_ROW, *raw, "w/o XBA"]
     for row in ok:
         assert row.per_sequence.keys() == row.middle_frames.keys() == {"random-1000000"}
         if row.name == BEST_RAW:  # per sequence the best raw row, with that row's frames

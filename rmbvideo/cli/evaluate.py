@@ -101,7 +101,9 @@ def _notes(sequences: list, quick: bool, device: str, figure: tuple[str, int]) -
         "ablations through their own design (RMB band 4 / shift 2, Pure-S, Pure-M, Full-M); TFI gets the 1-bit "
         "plane of that stream; the '(raw)' rows are TFP and TFI on the raw full-resolution capture, 2x2 "
         "area-averaged to the ground-truth size. 'best classical on the raw capture' takes, per sequence, the "
-        "best of those raw rows. RMB-Net is told each sequence's sensor convention (spikezoo-fast: spikezoo's).",
+        "best of those raw rows. RMB-Net is told each sequence's sensor convention (spikezoo-fast: spikezoo's) and, "
+        "rmbvideo's emission model having made them all, that camera's response (`reconstruct --response "
+        "emission-model`; a real capture is read by the closed form).",
         "- Metrics: PSNR and SSIM of mu-law tone-mapped frames (mu = 5000) after dividing by the ground truth's "
         "99.9th percentile; PU21 PSNR replaces HDR-VDP-3/HDR-VQM (MATLAB only). Per-sequence means, then the "
         "mean over sequences.",

@@ -308,6 +308,8 @@ RAW_SPECS = (
 )
 BEST_RAW = "best classical on the raw capture"
 RMB_ROW = "RMB-Net, RMB readout"
+#: The default model reading the cameras by the closed form, as it reads a real capture (``SIMULATED_RESPONSE``)
+CLOSED_FORM_ROW = "RMB-Net, closed-form response"
 
 
 def with_best_raw(rows: list[RowResult]) -> list[RowResult]:
@@ -332,15 +334,18 @@ def table2_specs(models_dir: Path, device: str = "auto") -> list[MethodSpec]:
     """The rows of the paper's Table 2 (without Spk2ImgNet): the baselines on the default model's input
     (the binned stream through the readout it was trained on), RMB-Net (``rmbnet-binned`` in
     ``models_dir``), RMB-Net on the RMB readout (``rmbnet-binned-rmb``, when the default reads another),
-    the classical methods on the raw capture, and the ablations (``ablation_model_path``)."""
+    the classical methods on the raw capture, and the ablations (``ablation_model_path``). RMB-Net also reads the
+    cameras as it would a real one (``CLOSED_FORM_ROW``)."""
     models_dir = Path(models_dir)
 
-    def rmbnet(name: str, path: Path, readout: str) -> MethodSpec:
-        return MethodSpec(name, "rmbnet", {"model": str(path), "device": device, "input_mode": "binned"}, readout)
+    def rmbnet(name: str, path: Path, readout: str, **options: str) -> MethodSpec:
+        return MethodSpec(name, "rmbnet", {"model": str(path), "device": device, "input_mode": "binned", **options},
+                          readout)
 
     default = models_dir / "rmbnet-binned.safetensors"
     readout = model_readout(default)
-    specs = [*baseline_specs(readout), rmbnet("RMB-Net", default, readout)]
+    specs = [*baseline_specs(readout), rmbnet("RMB-Net", default, readout),
+             rmbnet(CLOSED_FORM_ROW, default, readout, response="closed-form")]
     rmb_model = models_dir / "rmbnet-binned-rmb.safetensors"
     if readout != "rmb" and rmb_model.is_file():
         specs.append(rmbnet(RMB_ROW, rmb_model, "rmb"))
