@@ -247,3 +247,19 @@ def test_candidate_needs_development(models_dir, tmp_path):
     result = CliRunner().invoke(main, ["evaluate", "--development", "--candidate", str(junk), "-o", str(tmp_path / "out")])
     assert result.exit_code == 2 and "junk" in result.output and "Traceback" not in result.output
     assert not (tmp_path / "out" / "development.md").exists()
+
+
+def test_rate_methods_are_scored_as_light_on_a_camera_stream_only():
+    """TFP/TFI/TFW frames are spike rates: on a physical-convention stream the harness reads them through the same
+    response RMB-Net is given (a rate of 0.5 is about 0.7 of a threshold per plane); spikezoo's rates are the light
+    itself, and GC20/MG20 already estimate light."""
+    import torch
+
+    from rmbvideo.evaluate.harness import rate_as_light
+    from rmbvideo.net.blend import reset_to_zero_intensity
+
+    rate = np.array([[0.0, 0.1], [0.5, 0.87]], np.float32)
+    light = rate_as_light("tfi", rate, "physical")
+    np.testing.assert_allclose(light, reset_to_zero_intensity(torch.from_numpy(rate)).numpy())
+    assert light[0, 0] == 0 and 0.1 < light[0, 1] < 0.11 and 0.6 < light[1, 0] < 0.8 and light[1, 1] > 1.0
+    assert rate_as_light("tfi", rate, "spikezoo") is rate and rate_as_light("mg20", rate, "physical") is rate

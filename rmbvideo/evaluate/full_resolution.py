@@ -23,7 +23,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from rmbvideo.evaluate.harness import SATURATION, SIMULATED_RESPONSE, downsample_2x, sequence_convention
+from rmbvideo.evaluate.harness import SATURATION, SIMULATED_RESPONSE, downsample_2x, rate_as_light, sequence_convention
 from rmbvideo.evaluate.heldout import RAW_RATE_HZ, VIDEO_KINDS, Sequence
 from rmbvideo.evaluate.metrics import mu_law_psnr, mu_law_ssim, ssim
 from rmbvideo.evaluate.real_video import (
@@ -91,7 +91,7 @@ def run_row(row: FullRow, source: Any, keep: list[int] | None = None,
     began = time.perf_counter()
     summary = reconstruct_stream(source, recon, sink, chunk_planes=128, readout=readout)
     seconds = time.perf_counter() - began
-    return {i: f.image for i, f in sink.frames.items()}, seconds, summary.frames
+    return {i: rate_as_light(row.method, f.image, convention) for i, f in sink.frames.items()}, seconds, summary.frames
 
 
 def at_full_resolution(row: FullRow, image: np.ndarray) -> np.ndarray:

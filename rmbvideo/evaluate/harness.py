@@ -116,6 +116,24 @@ class SinglePlaneSource:
 SIMULATED_RESPONSE = "emission-model"
 
 
+#: Methods whose frames are spike rates per raw pixel-plane, not light: on a camera's stream (the physical
+#: convention) the evaluation reads them through the same response RMB-Net is given (``rate_as_light``), so every
+#: row is scored in the ground truth's units; in spikezoo's convention a rate is the light itself.
+RATE_METHODS = ("tfp", "tfi", "tfw")
+
+
+def rate_as_light(method: str, image: np.ndarray, convention: str) -> np.ndarray:
+    """``image`` of ``method`` in the ground truth's units: a rate method's frame of a camera's stream read through
+    the emission model's response (``SIMULATED_RESPONSE``; per pixel, before any 2x2 average), else as it is."""
+    if method not in RATE_METHODS or convention != "physical":
+        return image
+    import torch
+
+    from rmbvideo.net.blend import reset_to_zero_intensity
+
+    return reset_to_zero_intensity(torch.from_numpy(np.ascontiguousarray(image, np.float32))).numpy()
+
+
 def sequence_convention(seq: Sequence) -> str:
     """The sensor convention that made ``seq`` (its description says; panorama pans are physical)."""
     try:
@@ -141,7 +159,8 @@ def run_frames(spec: MethodSpec, seq: Sequence) -> tuple[list[Frame], float, flo
                                      readout=None if spec.raw else readout)
     else:
         summary = reconstruct_stream(SinglePlaneSource(seq, readout), recon, sink, chunk_planes=CHUNK_READOUTS)
-    frames = list(sink.frames.values())
+    convention = sequence_convention(seq)
+    frames = [Frame(f.index, f.time_s, rate_as_light(spec.method, f.image, convention)) for f in sink.frames.values()]
     if spec.raw:
         frames = [Frame(f.index, f.time_s, downsample_2x(f.image, seq.shape)) for f in frames]
     seconds = summary.seconds - summary.stages["read"]
