@@ -24,7 +24,6 @@ Box-filter intensity from the mean multi-bit rate r per raw pixel-plane (bin cou
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Sequence
 
 import torch
@@ -75,13 +74,17 @@ def reset_to_zero_intensity(rate: torch.Tensor) -> torch.Tensor:
     return (j.float() + (r - low) / (high - low)) * RESET_TO_ZERO_STEP
 
 
-@functools.cache
 def _inverse_lookup(device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
-    """The table on ``device`` and, per lookup cell of the rates, the segment its left edge lies in."""
-    table = torch.tensor(RESET_TO_ZERO_RATES, dtype=torch.float64)
-    edges = torch.arange(_LOOKUP_CELLS, dtype=torch.float64) * (RESET_TO_ZERO_RATES[-1] / _LOOKUP_CELLS)
-    segment = (torch.searchsorted(table, edges, right=True) - 1).clamp(0, len(RESET_TO_ZERO_RATES) - 2)
-    return table.float().to(device), segment.to(device)
+    """The table on ``device`` and, per lookup cell of the rates, the segment its left edge lies in (made once)."""
+    if device not in _LOOKUPS:
+        table = torch.tensor(RESET_TO_ZERO_RATES, dtype=torch.float64)
+        edges = torch.arange(_LOOKUP_CELLS, dtype=torch.float64) * (RESET_TO_ZERO_RATES[-1] / _LOOKUP_CELLS)
+        segment = (torch.searchsorted(table, edges, right=True) - 1).clamp(0, len(RESET_TO_ZERO_RATES) - 2)
+        _LOOKUPS[device] = (table.float().to(device), segment.to(device))
+    return _LOOKUPS[device]
+
+
+_LOOKUPS: dict[torch.device, tuple[torch.Tensor, torch.Tensor]] = {}
 
 
 def box_intensity(rate: torch.Tensor, convention: torch.Tensor | float, tabulated: bool = False) -> torch.Tensor:
