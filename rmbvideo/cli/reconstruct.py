@@ -47,7 +47,8 @@ def rmbnet_options(func):
                      help="How a camera's rates are read back as light where RMB-Net passes them through: "
                           "closed-form (any camera: smooth, reads above half a threshold per plane dark) or "
                           "emission-model (the tabulated response of rmbvideo's simulated camera: exact for streams "
-                          "`rmbvideo simulate` made, contours on a camera whose response differs)."),
+                          "`rmbvideo simulate` made with shot noise and threshold mismatch, as every bundled scene "
+                          "has; contours on a camera whose response differs)."),
         click.option("--frame-batch", type=click.IntRange(min=1), default=None,
                      help="Output frames RMB-Net makes per batched pass (its ConvLSTM still steps through them in "
                           "order; the same frames) [default: up to 128 on a GPU, fewer for large frames; 1 on a CPU, "
