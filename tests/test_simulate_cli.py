@@ -63,7 +63,8 @@ def test_one_bit_capture_reads_back_with_default_reader_and_sidecar(tmp_path: Pa
     assert result.exit_code == 0, result.output
     sidecar = json.loads((tmp_path / "cap.capture.json").read_text())
     assert sidecar == {"width": 64, "height": 48, "rate_hz": 20000.0, "flip": True, "header_cols": 0,
-                       "readout": "1bit", "scene": "1bit"}
+                       "readout": "1bit", "scene": "1bit",
+                       "effects": ["shot_noise", "threshold_mismatch", "readout_rounding"]}
     from rmbvideo.io.capture import open_capture
 
     planes = open_capture(out, None, None, None, None, None).read()  # defaults + sidecar
@@ -125,3 +126,28 @@ def test_bad_scene_is_a_one_line_error(tmp_path: Path) -> None:
     assert result.exit_code == 2
     assert "bad.toml" in result.output and "'width'" in result.output and "Traceback" not in result.output
     assert not (tmp_path / "x.dat").exists()
+
+
+def test_a_simulated_capture_is_read_by_its_cameras_response_and_a_real_one_by_the_closed_form(tmp_path: Path) -> None:
+    """``reconstruct --response auto`` (the default): the sidecar ``rmbvideo simulate`` writes names the effects that
+    shape the emission model's response, so RMB-Net's box candidates read that capture by its table; a capture
+    without them (a real camera's, or a scene without noise) by the closed form; an explicit choice wins."""
+    from rmbvideo.io.sidecar import simulated_effects
+    from rmbvideo.recon.run import prepare_run
+
+    scene_path = write_scene(tmp_path, "1bit")
+    out = tmp_path / "cap.dat"
+    assert run([str(scene_path), "-o", str(out), "-q"]).exit_code == 0
+    assert simulated_effects(out) == ("shot_noise", "threshold_mismatch", "readout_rounding")
+
+    def tabulated(path: Path, **options) -> bool:
+        recon = prepare_run(path, resolution="binned", extra_options={"threads": 1, **options}).method
+        return recon.network is not None and recon._net.tabulated_response
+
+    assert tabulated(out) and tabulated(out, response="auto") and not tabulated(out, response="closed-form")
+    sidecar = tmp_path / "cap.capture.json"
+    data = json.loads(sidecar.read_text())
+    sidecar.write_text(json.dumps({**data, "effects": []}))  # a deterministic scene: the bare staircase
+    assert not tabulated(out) and tabulated(out, response="emission-model")
+    sidecar.write_text(json.dumps({k: v for k, v in data.items() if k != "effects"}))  # a camera's sidecar
+    assert simulated_effects(out) is None and not tabulated(out)

@@ -43,12 +43,13 @@ def rmbnet_options(func):
         click.option("--convention", type=click.Choice(list(CONVENTIONS)), default="physical", show_default=True,
                      help="What made the spikes: physical (a camera: pixels reset at a spike) or spikezoo (streams "
                           "simulated in the accumulate-and-subtract rate convention, e.g. spikezoo's REDS)."),
-        click.option("--response", type=click.Choice(list(RESPONSES)), default="closed-form", show_default=True,
+        click.option("--response", type=click.Choice(["auto", *RESPONSES]), default="auto", show_default=True,
                      help="How a camera's rates are read back as light where RMB-Net passes them through: "
                           "closed-form (any camera: smooth, reads above half a threshold per plane dark) or "
                           "emission-model (the tabulated response of rmbvideo's simulated camera: exact for streams "
                           "`rmbvideo simulate` made with shot noise and threshold mismatch, as every bundled scene "
-                          "has; contours on a camera whose response differs)."),
+                          "has; contours on a camera whose response differs). auto: emission-model where the "
+                          "capture's sidecar says `rmbvideo simulate` made it with those effects, else closed-form."),
         click.option("--frame-batch", type=click.IntRange(min=1), default=None,
                      help="Output frames RMB-Net makes per batched pass (its ConvLSTM still steps through them in "
                           "order; the same frames) [default: up to 128 on a GPU, fewer for large frames; 1 on a CPU, "

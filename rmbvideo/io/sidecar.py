@@ -2,7 +2,8 @@
 
 Looked up in order: ``<stem>.capture.json`` next to the file (one capture), then ``capture.json``
 in the same folder (all captures of that folder). Keys: ``width``, ``height``, ``rate_hz``,
-``flip``, ``header_cols`` (all optional). Command-line options override the sidecar.
+``flip``, ``header_cols`` (all optional). Command-line options override the sidecar. ``rmbvideo simulate`` also
+records the scene and its sensor ``effects`` (``simulated_effects``), so a reader knows the camera that made it.
 """
 
 from __future__ import annotations
@@ -86,3 +87,20 @@ def write_sidecar(dat_path: Path, info: CaptureInfo, **extra: Any) -> Path:
     data.update(extra)
     atomic_write_text(path, json.dumps(data, indent=2) + "\n")
     return path
+
+
+def simulated_effects(dat_path: Path) -> tuple[str, ...] | None:
+    """The sensor effects ``rmbvideo simulate`` recorded in the sidecar of ``dat_path``, or None when the sidecar
+    does not say (a real camera's capture, or one simulated before effects were recorded)."""
+    path = sidecar_path(Path(dat_path))
+    if path is None:
+        return None
+    try:
+        effects = json.loads(path.read_text()).get("effects")
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError, AttributeError) as exc:
+        raise InputError(f"{path}: not a valid capture sidecar ({str(exc).splitlines()[0][:200]})") from None
+    if effects is None:
+        return None
+    if not isinstance(effects, list) or not all(isinstance(e, str) for e in effects):
+        raise InputError(f"{path}: 'effects' must be a list of effect names")
+    return tuple(effects)

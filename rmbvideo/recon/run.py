@@ -15,11 +15,13 @@ from rmbvideo.io.atomic import staged_folder
 from rmbvideo.io.capture import open_capture
 from rmbvideo.io.dat import DatReader
 from rmbvideo.io.rmbfile import RmbFileReader
+from rmbvideo.io.sidecar import simulated_effects
 from rmbvideo.io.sinks import make_sink
 from rmbvideo.io.tonemap import ToneMapConfig
 from rmbvideo.recon.full_resolution import FullResolution, detail_stage
 from rmbvideo.recon.methods import DEFAULT_METHOD, get_method
 from rmbvideo.recon.pipeline import RunSummary, iter_frames, reconstruct_stream
+from rmbvideo.sensor.conventions import response_for
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
 
 
@@ -66,6 +68,9 @@ def prepare_run(input_path: Path, *, method: str = DEFAULT_METHOD, window: int |
     spec = get_method(method)
     options = spec.options(window, step, raw_per_readout=1 if native else 2)
     options.update(spec.select_extra(extra_options or {}))
+    if "response" in spec.extra_options and options.get("response", "auto") == "auto":
+        # a capture rmbvideo simulated is read by its camera's response; any other by the closed form
+        options["response"] = response_for(simulated_effects(Path(input_path)))
     if "input_mode" in spec.extra_options:  # a model trained for the other kind of stream is refused
         options.setdefault("input_mode", "native" if native else "binned")
     if "readout" in spec.extra_options and readout is not None and not native:
