@@ -19,7 +19,7 @@ from rmbvideo.batch import REPORT_NAME, plan_jobs, run_batch, summary_table
 from rmbvideo.cli import progress_enabled, quiet_option, verbose_option
 from rmbvideo.cli.reconstruct import reconstruct
 from rmbvideo.recon.methods import get_method
-from rmbvideo.recon.run import run_reconstruction
+from rmbvideo.recon.run import PER_CAPTURE_OPTIONS, run_reconstruction
 
 CAPTURE_KEYS = ("width", "height", "flip", "header_cols", "rate_hz")
 # parameters of reconstruct that batch replaces with its own
@@ -44,7 +44,8 @@ def check_method(options: dict[str, Any]) -> None:
     method = get_method(options["method"])
     keywords = method.options(options.get("window"), options.get("step") or 20)
     keywords.update(method.select_extra(options.get("extra_options") or {}))
-    method.build(**keywords)
+    # "auto" choices are made per capture, from its sidecar and spikes (``prepare_run``)
+    method.build(**{k: v for k, v in keywords.items() if not (k in PER_CAPTURE_OPTIONS and v == "auto")})
 
 
 @click.command()

@@ -40,9 +40,12 @@ def rmbnet_options(func):
                   "else the idle cores, at most 8; RMB-Net's aligned window means in a thread of their own "
                   "when a second core is idle; with the network on a GPU, every core but one for them]. With 2 or "
                   "more, the aligned means take one of them; on a GPU they take them all."),
-        click.option("--convention", type=click.Choice(list(CONVENTIONS)), default="physical", show_default=True,
-                     help="What made the spikes: physical (a camera: pixels reset at a spike) or spikezoo (streams "
-                          "simulated in the accumulate-and-subtract rate convention, e.g. spikezoo's REDS)."),
+        click.option("--convention", type=click.Choice(["auto", *CONVENTIONS]), default="auto", show_default=True,
+                     help="What made the spikes: physical (pixels reset to zero at a spike: rmbvideo's emission "
+                          "model) or spikezoo (the charge past the threshold kept: spikezoo's REDS streams, and real "
+                          "cameras such as car.dat's). auto: physical for a capture `rmbvideo simulate` made, else "
+                          "what its first 200 planes show (a pile-up of spike counts at half the planes means reset "
+                          "to zero), physical when they cannot tell."),
         click.option("--response", type=click.Choice(["auto", *RESPONSES]), default="auto", show_default=True,
                      help="How a camera's rates are read back as light where RMB-Net passes them through: "
                           "closed-form (any camera: smooth, reads above half a threshold per plane dark) or "

@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,8 +22,14 @@ from rmbvideo.io.tonemap import ToneMapConfig
 from rmbvideo.recon.full_resolution import FullResolution, detail_stage
 from rmbvideo.recon.methods import DEFAULT_METHOD, get_method
 from rmbvideo.recon.pipeline import RunSummary, iter_frames, reconstruct_stream
-from rmbvideo.sensor.conventions import response_for
+from rmbvideo.sensor.conventions import PILE_UP_WINDOW, convention_from_spikes, response_for
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
+
+log = logging.getLogger(__name__)
+#: Method options whose "auto" is decided per capture, from its sidecar and its first spikes (``prepare_run``).
+PER_CAPTURE_OPTIONS = ("convention", "response")
+#: Windows of ``PILE_UP_WINDOW`` planes ``--convention auto`` reads from the start of a capture (200 planes).
+PILE_UP_WINDOWS = 5
 
 
 RESOLUTIONS = ("binned", "full")
@@ -68,9 +75,12 @@ def prepare_run(input_path: Path, *, method: str = DEFAULT_METHOD, window: int |
     spec = get_method(method)
     options = spec.options(window, step, raw_per_readout=1 if native else 2)
     options.update(spec.select_extra(extra_options or {}))
+    effects = simulated_effects(Path(input_path))
+    if "convention" in spec.extra_options and options.get("convention", "auto") == "auto":
+        options["convention"] = capture_convention(reader, start, stop, native, effects, Path(input_path))
     if "response" in spec.extra_options and options.get("response", "auto") == "auto":
         # a capture rmbvideo simulated is read by its camera's response; any other by the closed form
-        options["response"] = response_for(simulated_effects(Path(input_path)))
+        options["response"] = response_for(effects)
     if "input_mode" in spec.extra_options:  # a model trained for the other kind of stream is refused
         options.setdefault("input_mode", "native" if native else "binned")
     if "readout" in spec.extra_options and readout is not None and not native:
@@ -91,6 +101,23 @@ def prepare_run(input_path: Path, *, method: str = DEFAULT_METHOD, window: int |
                                             threads=options.get("threads"),
                                             precision=options.get("precision", "auto")), None
     return PreparedRun(reader, recon, start, stop, step, rmb_readout)
+
+
+def capture_convention(reader: DatReader | RmbFileReader, start: int, stop: int, native: bool,
+                       effects: tuple[str, ...] | None, path: Path) -> str:
+    """The sensor convention to read a capture in (``--convention auto``): rmbvideo's emission model for a capture
+    it simulated (its sidecar lists the effects) or a native multi-bit one; else what the capture's first spikes
+    show (``convention_from_spikes``: a pile-up at half the planes means a pixel reset to zero), "physical" when
+    they cannot tell. Reads at most ``PILE_UP_WINDOWS`` windows of planes, one at a time."""
+    if effects is not None or native:
+        return "physical"
+    last = min(stop, start + PILE_UP_WINDOWS * PILE_UP_WINDOW) - PILE_UP_WINDOW
+    windows = (reader.read(a, a + PILE_UP_WINDOW) for a in range(start, last + 1, PILE_UP_WINDOW))
+    found = convention_from_spikes(windows)
+    if found == "spikezoo":
+        log.info("%s: its spike counts do not pile up at half the planes, as a pixel reset to zero makes them: read "
+                 "in the rate convention (--convention physical to override)", path)
+    return found or "physical"
 
 
 def trained_readout(recon: Any) -> str:

@@ -1,0 +1,68 @@
+"""Which convention a capture's spikes show (``sensor.conventions.convention_from_spikes``) and ``--convention auto``:
+a pixel reset to zero fires every second plane over a range of light, so its 40-plane counts pile up at 20."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rmbvideo.io.dat import DatGeometry, write_dat
+from rmbvideo.sensor.conventions import PILE_UP_WINDOW, convention_from_spikes
+from rmbvideo.sensor.effects import REALISTIC_EFFECTS
+from rmbvideo.sensor.emission import RateIntegrateFire, SpikeEmitter
+from rmbvideo.sensor.params import SensorParams
+
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
+RAMP = np.tile(np.linspace(0.0, 1.1, 100), (64, 1))  # light from dark to past one threshold a plane
+
+
+def _reset_to_zero(planes: int = 200) -> np.ndarray:
+    params = SensorParams()
+    emitter = SpikeEmitter(*RAMP.shape, params, REALISTIC_EFFECTS, 1)
+    emitter.settle(1)
+    return np.stack([emitter.emit_one(RAMP * params.q_r, 1) for _ in range(planes)])
+
+
+def _rate_convention(planes: int = 200) -> np.ndarray:
+    pixels = RateIntegrateFire(RAMP.shape, 1)
+    return np.stack([pixels.emit_one(np.minimum(RAMP, 0.999)) for _ in range(planes)])
+
+
+def _windows(planes: np.ndarray) -> list[np.ndarray]:
+    return [planes[a : a + PILE_UP_WINDOW] for a in range(0, len(planes) - PILE_UP_WINDOW + 1, PILE_UP_WINDOW)]
+
+
+def test_the_pile_up_at_half_the_planes_tells_the_conventions_apart():
+    assert convention_from_spikes(_windows(_reset_to_zero())) == "physical"
+    assert convention_from_spikes(_windows(_rate_convention())) == "spikezoo"
+    dark = (np.random.default_rng(0).random((200, 64, 100)) < 0.01).astype(np.uint8)
+    assert convention_from_spikes(_windows(dark)) is None  # no pixel near half the planes: cannot tell
+    with pytest.raises(ValueError, match="40 planes"):
+        convention_from_spikes([dark[:39]])
+
+
+def test_auto_reads_a_capture_in_the_convention_its_spikes_show(tmp_path: Path):
+    from rmbvideo.recon.run import prepare_run
+
+    def convention(path: Path, **options) -> float:
+        recon = prepare_run(path, resolution="binned", extra_options={"threads": 1, **options},
+                            capture={"width": 100, "height": 64}).method
+        return recon._convention  # the code the network is given: 0 physical, 1 spikezoo
+
+    reset, rate = tmp_path / "reset.dat", tmp_path / "rate.dat"
+    write_dat(reset, _reset_to_zero(), DatGeometry(100, 64))
+    write_dat(rate, _rate_convention(), DatGeometry(100, 64))
+    assert convention(reset) == 0.0 and convention(rate) == 1.0 and convention(rate, convention="auto") == 1.0
+    assert convention(rate, convention="physical") == 0.0  # an explicit choice wins
+    (tmp_path / "rate.capture.json").write_text('{"effects": ["shot_noise"]}')  # rmbvideo simulated it: physical
+    assert convention(rate) == 0.0
+
+
+@pytest.mark.skipif(not (SHARED / "real" / "car.dat").is_file(), reason="../shared/data is not present (development data only)")
+def test_the_real_camera_behind_car_dat_shows_the_rate_convention():
+    from rmbvideo.io.capture import open_capture
+
+    reader = open_capture(SHARED / "real" / "car.dat")
+    assert convention_from_spikes(_windows(reader.read(0, 200))) == "spikezoo"
