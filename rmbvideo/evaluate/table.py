@@ -202,7 +202,8 @@ def real_capture_comparison(path: Path, out_png: Path, model: Path | None = None
                             frame: int | None = None) -> Path:
     """Side-by-side of a real capture: RMB-Net (shipped binned model, or ``model``) vs TFP vs TFI.
 
-    The capture's geometry comes from its sidecar, else the 400x250 defaults. RMB-Net runs on the
+    The capture's geometry comes from its sidecar, else the 400x250 defaults; RMB-Net reads it in the convention
+    and response ``reconstruct`` would (``--convention auto``, ``--response auto``). RMB-Net runs on the
     2x2x2-binned stream through the readout its model was trained on; TFP (41 planes) and TFI run on the raw planes, and their
     frames are 2x2 area-averaged to RMB-Net's size. ``frame`` defaults to the middle frame all three
     produce. Regions are picked on the TFP frame; each column is tone-mapped to its own robust maximum
@@ -211,11 +212,16 @@ def real_capture_comparison(path: Path, out_png: Path, model: Path | None = None
     from rmbvideo.io.capture import open_capture
     from rmbvideo.recon.methods import make_reconstructor
     from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
-    from rmbvideo.recon.run import trained_readout
+    from rmbvideo.io.sidecar import simulated_effects
+    from rmbvideo.recon.run import capture_convention, trained_readout
+    from rmbvideo.sensor.conventions import response_for
     from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
 
     reader = open_capture(Path(path), width=None, height=None, flip=None, header_cols=None, rate_hz=None)
-    rmbnet = make_reconstructor("rmbnet", model=model, device=device, input_mode="binned")
+    effects = simulated_effects(Path(path))  # read as `reconstruct` reads it: its convention and response
+    convention = capture_convention(reader, 0, reader.n_planes, False, effects, Path(path))
+    rmbnet = make_reconstructor("rmbnet", model=model, device=device, input_mode="binned", convention=convention,
+                                response=response_for(effects))
     runs = {
         "RMB-Net": (rmbnet, RmbReadout(mode=ReadoutMode(trained_readout(rmbnet)))),
         "TFP": (make_reconstructor("tfp", window=41, step=20), None),
