@@ -66,3 +66,9 @@ def test_the_real_camera_behind_car_dat_shows_the_rate_convention():
 
     reader = open_capture(SHARED / "real" / "car.dat")
     assert convention_from_spikes(_windows(reader.read(0, 200))) == "spikezoo"
+    from click.testing import CliRunner
+
+    from rmbvideo.cli import main
+
+    result = CliRunner().invoke(main, ["info", str(SHARED / "real" / "car.dat")])
+    assert result.exit_code == 0 and "keeps the charge past its threshold" in result.output

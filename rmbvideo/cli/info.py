@@ -9,7 +9,16 @@ import click
 
 from rmbvideo.cli import verbose_option
 from rmbvideo.cli.options import capture_options
-from rmbvideo.io.capture import open_capture
+from rmbvideo.io.capture import open_capture, plane_windows
+from rmbvideo.sensor.conventions import PILE_UP_WINDOW, PILE_UP_WINDOWS, convention_from_spikes
+
+
+#: What the pile-up test (``convention_from_spikes``) says of a capture's pixel, in words.
+PIXEL_WORDS = {
+    "physical": "reset to zero at a spike (its spike counts pile up at half the planes): --convention physical",
+    "spikezoo": "keeps the charge past its threshold (no pile-up at half the planes): --convention spikezoo",
+    None: "cannot tell from the first planes (too few pixels near half the planes)",
+}
 
 
 @click.command()
@@ -39,6 +48,8 @@ def info(input_path: Path, width, height, flip, header_cols, rate_hz, as_json: b
         "flip": geometry.flip,
         "mean_firing_rate": reader.mean_firing_rate(),
         "trailing_bytes": reader.trailing_bytes,
+        # what `reconstruct --convention auto` would find in the spikes (it reads a simulated capture as physical)
+        "pixel": convention_from_spikes(plane_windows(reader, PILE_UP_WINDOW, PILE_UP_WINDOWS)),
     }
     if as_json:
         click.echo(json.dumps(record))
@@ -51,6 +62,7 @@ def info(input_path: Path, width, height, flip, header_cols, rate_hz, as_json: b
                f" {'flipped' if record['flip'] else 'not flipped'})")
     click.echo(f"mean firing     {record['mean_firing_rate']:.4f} spikes/pixel/plane")
     click.echo(f"trailing bytes  {record['trailing_bytes']}")
+    click.echo(f"pixel           {PIXEL_WORDS[record['pixel']]}")
 
 
 def show_geometry_guesses(input_path: Path, as_json: bool) -> None:

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
+
+import numpy as np
 
 from rmbvideo.errors import InputError
 from rmbvideo.io.dat import DatGeometry, DatReader
@@ -34,3 +37,11 @@ def open_capture(path: Path, width: int | None = None, height: int | None = None
     except InputError as exc:
         raise InputError(f"{path}: {exc}") from None
     return DatReader(Path(path), geometry, rate_hz=info.rate_hz or DEFAULT_RATE_HZ)
+
+
+def plane_windows(reader: DatReader, size: int, count: int, start: int = 0,
+                  stop: int | None = None) -> Iterator[np.ndarray]:
+    """Up to ``count`` consecutive windows of ``size`` raw planes (T, H, W) from ``start``, one read at a time."""
+    stop = reader.n_planes if stop is None else min(stop, reader.n_planes)
+    for first in range(start, min(stop, start + count * size) - size + 1, size):
+        yield reader.read(first, first + size)

@@ -13,7 +13,7 @@ from typing import Any
 from rmbvideo.chunks import Frame
 from rmbvideo.errors import InputError, OptionError
 from rmbvideo.io.atomic import staged_folder
-from rmbvideo.io.capture import open_capture
+from rmbvideo.io.capture import open_capture, plane_windows
 from rmbvideo.io.dat import DatReader
 from rmbvideo.io.rmbfile import RmbFileReader
 from rmbvideo.io.sidecar import simulated_effects
@@ -22,14 +22,12 @@ from rmbvideo.io.tonemap import ToneMapConfig
 from rmbvideo.recon.full_resolution import FullResolution, detail_stage
 from rmbvideo.recon.methods import DEFAULT_METHOD, get_method
 from rmbvideo.recon.pipeline import RunSummary, iter_frames, reconstruct_stream
-from rmbvideo.sensor.conventions import PILE_UP_WINDOW, convention_from_spikes, response_for
+from rmbvideo.sensor.conventions import PILE_UP_WINDOW, PILE_UP_WINDOWS, convention_from_spikes, response_for
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
 
 log = logging.getLogger(__name__)
 #: Method options whose "auto" is decided per capture, from its sidecar and its first spikes (``prepare_run``).
 PER_CAPTURE_OPTIONS = ("convention", "response")
-#: Windows of ``PILE_UP_WINDOW`` planes ``--convention auto`` reads from the start of a capture (200 planes).
-PILE_UP_WINDOWS = 5
 
 
 RESOLUTIONS = ("binned", "full")
@@ -111,9 +109,7 @@ def capture_convention(reader: DatReader | RmbFileReader, start: int, stop: int,
     they cannot tell. Reads at most ``PILE_UP_WINDOWS`` windows of planes, one at a time."""
     if effects is not None or native:
         return "physical"
-    last = min(stop, start + PILE_UP_WINDOWS * PILE_UP_WINDOW) - PILE_UP_WINDOW
-    windows = (reader.read(a, a + PILE_UP_WINDOW) for a in range(start, last + 1, PILE_UP_WINDOW))
-    found = convention_from_spikes(windows)
+    found = convention_from_spikes(plane_windows(reader, PILE_UP_WINDOW, PILE_UP_WINDOWS, start, stop))
     if found == "spikezoo":
         log.info("%s: its spike counts do not pile up at half the planes, as a pixel reset to zero makes them: read "
                  "in the rate convention (--convention physical to override)", path)

@@ -16,8 +16,10 @@ from collections.abc import Iterable
 import numpy as np
 
 CONVENTIONS = ("physical", "spikezoo")
-#: Planes per window of the pile-up test, and the pixel-windows near half of them it needs to decide.
+#: Planes per window of the pile-up test, the windows read from a capture's start (200 planes), and the
+#: pixel-windows near half of them it needs to decide.
 PILE_UP_WINDOW = 40
+PILE_UP_WINDOWS = 5
 PILE_UP_EVIDENCE = 1000
 #: Pixel-windows at exactly half the planes over the mean of their two neighbours (19 and 21 of 40): the
 #: emission model's pixel reads about 6 on a ramp of light, the rate convention about 1 (``car.dat`` 0.99).
