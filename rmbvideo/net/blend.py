@@ -62,7 +62,7 @@ def candidate_count(pooled_windows: Sequence[int], centre_windows: Sequence[int]
 def reset_to_zero_intensity(rate: torch.Tensor) -> torch.Tensor:
     """Charge per raw plane (in thresholds) of a reset-to-zero pixel with mean binned rate ``rate``: the tabulated
     response inverted piecewise linearly, float32; rates past the table's ends read its end levels (0 and 1.3).
-    The segment comes from a uniform lookup over the rates (a 60th of ``torch.searchsorted``'s time on a CPU)."""
+    The segment comes from a uniform lookup over the rates (2.4x faster than ``torch.searchsorted`` on a CPU)."""
     table, segment = _inverse_lookup(rate.device)
     last = len(RESET_TO_ZERO_RATES) - 2
     r = rate.float().clamp(0.0, RESET_TO_ZERO_RATES[-1])
