@@ -72,3 +72,45 @@ def test_the_real_camera_behind_car_dat_shows_the_rate_convention():
 
     result = CliRunner().invoke(main, ["info", str(SHARED / "real" / "car.dat")])
     assert result.exit_code == 0 and "keeps the charge past its threshold" in result.output
+
+
+@pytest.mark.parametrize("effects", [REALISTIC_EFFECTS, ("shot_noise", "threshold_mismatch")])
+def test_a_pixel_reset_by_subtraction_fires_at_its_light_and_shows_no_pile_up(effects):
+    """``SensorParams(reset="subtract")`` keeps the charge past the threshold (per readout, and by photon arrival for
+    the effects arrivals reproduce): its rate is its light up to one spike a plane, where the paper's pixel reset to
+    zero fires at about q / (1 + q/2) and every second plane from 0.6 to 0.8."""
+    from rmbvideo.sensor.emission import ArrivalSpikeEmitter, arrivals_apply
+
+    params = SensorParams(reset="subtract")
+    kind = ArrivalSpikeEmitter if arrivals_apply(effects, 1) else SpikeEmitter
+    emitter = kind(*RAMP.shape, params, effects, 2)
+    emitter.settle(2)
+    planes = np.stack([emitter.emit_one(RAMP * params.q_r, 1) for _ in range(200)])
+    rate = planes.mean(axis=(0, 1))
+    for q in (0.3, 0.7, 0.9):
+        column = int(np.argmin(np.abs(RAMP[0] - q)))
+        assert rate[column] == pytest.approx(RAMP[0, column], rel=0.06), q
+    assert rate[RAMP[0] > 1.05].min() > 0.97  # past one threshold a plane: a spike every plane, no runaway
+    assert convention_from_spikes(_windows(planes)) == "spikezoo"
+    with pytest.raises(ValueError, match="reset"):
+        SensorParams(reset="sideways")
+
+
+def test_a_simulated_camera_that_resets_by_subtraction_is_read_in_the_rate_convention(tmp_path: Path):
+    from click.testing import CliRunner
+
+    from rmbvideo.cli import main
+    from rmbvideo.io.sidecar import simulated_reset
+    from rmbvideo.recon.run import prepare_run
+
+    scene = tmp_path / "s.toml"
+    scene.write_text('width = 64\nheight = 48\nduration_s = 0.004\neffects = ["shot_noise", "threshold_mismatch"]\n'
+                     '[sensor]\nreset = "subtract"\n[background]\npanorama = "studio"\n')
+    result = CliRunner().invoke(main, ["simulate", str(scene), "-o", str(tmp_path / "c.dat"), "-q"])
+    assert result.exit_code == 0, result.output
+    assert simulated_reset(tmp_path / "c.dat") == "subtract"
+    recon = prepare_run(tmp_path / "c.dat", resolution="binned", extra_options={"threads": 1}).method
+    assert recon._convention == 1.0  # spikezoo's code: the charge past the threshold kept
+    scene.write_text(scene.read_text().replace('reset = "subtract"', 'reset = "sideways"'))
+    result = CliRunner().invoke(main, ["simulate", str(scene), "-o", str(tmp_path / "d.dat"), "-q"])
+    assert result.exit_code != 0 and "sensor.reset" in result.output

@@ -64,7 +64,7 @@ def test_one_bit_capture_reads_back_with_default_reader_and_sidecar(tmp_path: Pa
     sidecar = json.loads((tmp_path / "cap.capture.json").read_text())
     assert sidecar == {"width": 64, "height": 48, "rate_hz": 20000.0, "flip": True, "header_cols": 0,
                        "readout": "1bit", "scene": "1bit",
-                       "effects": ["shot_noise", "threshold_mismatch", "readout_rounding"]}
+                       "effects": ["shot_noise", "threshold_mismatch", "readout_rounding"], "reset": "zero"}
     from rmbvideo.io.capture import open_capture
 
     planes = open_capture(out, None, None, None, None, None).read()  # defaults + sidecar

@@ -16,7 +16,7 @@ from rmbvideo.io.atomic import staged_folder
 from rmbvideo.io.capture import open_capture, plane_windows
 from rmbvideo.io.dat import DatReader
 from rmbvideo.io.rmbfile import RmbFileReader
-from rmbvideo.io.sidecar import simulated_effects
+from rmbvideo.io.sidecar import simulated_effects, simulated_reset
 from rmbvideo.io.sinks import make_sink
 from rmbvideo.io.tonemap import ToneMapConfig
 from rmbvideo.recon.full_resolution import FullResolution, detail_stage
@@ -103,11 +103,13 @@ def prepare_run(input_path: Path, *, method: str = DEFAULT_METHOD, window: int |
 
 def capture_convention(reader: DatReader | RmbFileReader, start: int, stop: int, native: bool,
                        effects: tuple[str, ...] | None, path: Path) -> str:
-    """The sensor convention to read a capture in (``--convention auto``): rmbvideo's emission model for a capture
-    it simulated (its sidecar lists the effects) or a native multi-bit one; else what the capture's first spikes
-    show (``convention_from_spikes``: a pile-up at half the planes means a pixel reset to zero), "physical" when
-    they cannot tell. Reads at most ``PILE_UP_WINDOWS`` windows of planes, one at a time."""
-    if effects is not None or native:
+    """The sensor convention to read a capture in (``--convention auto``): for a capture rmbvideo simulated (its
+    sidecar lists the effects), its pixel's (physical, or the rate convention for a pixel reset by subtraction); a
+    native multi-bit one physical; else what the capture's first spikes show (``convention_from_spikes``: a pile-up
+    at half the planes means a pixel reset to zero), "physical" when they cannot tell. Reads at most ``PILE_UP_WINDOWS`` windows of planes, one at a time."""
+    if effects is not None:  # rmbvideo simulated it: its pixel is known
+        return "spikezoo" if simulated_reset(path) == "subtract" else "physical"
+    if native:
         return "physical"
     found = convention_from_spikes(plane_windows(reader, PILE_UP_WINDOW, PILE_UP_WINDOWS, start, stop))
     if found == "spikezoo":

@@ -7,7 +7,8 @@ readout interval at unit radiance), ``seed``, ``effects`` (list of names from
 tables:
 
 - ``[readout]``: ``type`` (1bit, Lbit, rmb, binned), ``level``, ``band``, ``shift``.
-- ``[sensor]``: overrides of ``SensorParams`` fields, plus ``dark_correlation_px``.
+- ``[sensor]``: overrides of ``SensorParams`` fields (``reset = "subtract"`` for a pixel that keeps the charge past
+  its threshold, as real spiking cameras do), plus ``dark_correlation_px``.
 - ``[background]``: ``panorama`` (bundled name or path to an EXR), ``gain``, ``center`` (panorama
   px at t=0), ``velocity`` (panorama px/s), ``zoom`` (image px per panorama px), ``zoom_rate``
   (zoom(t) = zoom * exp(zoom_rate * t)).
@@ -36,7 +37,7 @@ from rmbvideo.errors import InputError
 from rmbvideo.io.dat import MAX_RATE_HZ, MIN_RATE_HZ
 from rmbvideo.sensor.effects import EFFECTS
 from rmbvideo.sensor.emission import READOUT_KINDS, ReadoutSpec
-from rmbvideo.sensor.params import SensorParams
+from rmbvideo.sensor.params import RESETS, SensorParams
 
 BUNDLED_PACKAGE = "rmbvideo.scenes"
 # Limits that keep a typo from hanging the simulator or exhausting memory; each is far beyond any real use.
@@ -295,11 +296,15 @@ class _SceneParser:
                            shift=self.integer(table, "shift", "readout.", 2, 1))
 
     def sensor(self, table: dict, readout: ReadoutSpec) -> tuple[SensorParams, float]:
-        names = {f.name for f in fields(SensorParams)} - {"level"}
-        self.check_keys(table, names | {"dark_correlation_px"}, "sensor.")
+        names = {f.name for f in fields(SensorParams)} - {"level", "reset"}
+        self.check_keys(table, names | {"dark_correlation_px", "reset"}, "sensor.")
         defaults = SensorParams()
-        values = {name: self.number(table, name, "sensor.", getattr(defaults, name), minimum=0.0)
-                  for name in names if name in table}
+        values: dict = {name: self.number(table, name, "sensor.", getattr(defaults, name), minimum=0.0)
+                        for name in names if name in table}
+        if "reset" in table:
+            if table["reset"] not in RESETS:
+                raise self.fail("sensor.reset", f"must be one of {', '.join(RESETS)}, not {table['reset']!r}")
+            values["reset"] = table["reset"]
         for name in ("capacitance", "voltage"):
             if name in values and values[name] <= 0:
                 raise self.fail(f"sensor.{name}", "must be > 0")

@@ -3,7 +3,9 @@
 Per pixel and readout interval the charge is ``Q_c = Q_a + Q_p + Q_d`` (carried, photo and dark
 electrons). A pixel read with level ``L`` (1 for single-bit) gives ``S = L`` when
 ``Q_c >= Q_th`` and ``floor(Q_c * L / Q_th)`` otherwise, and is reset to zero when ``S > 0``
-(the paper's rule); otherwise its charge is carried to the next interval. The threshold is
+(the paper's rule; ``SensorParams.reset = "subtract"``: the counted charge ``S * Q_th / L`` is taken off and the
+rest kept, at most ``Q_th``, as a pixel reset at its crossing keeps it); otherwise its charge is carried to the
+next interval. The threshold is
 ``Q_th = (C + C^S)(V + V^S + V^T0)``. Which noise terms exist is decided by the effects of
 ``rmbvideo.sensor.effects``; without any, ``Q_p`` is the expected charge and ``Q_th = C*V``.
 
@@ -138,7 +140,11 @@ class SpikeEmitter:
         threshold = self._threshold()
         values = np.minimum(np.floor(charge * row_level / threshold), row_level)
         fired = values > 0
-        charge[fired] = 0.0
+        if self.params.reset == "subtract":  # the charge the reading counted is taken off, at most a threshold kept
+            kept = np.minimum(charge - values * threshold / row_level, threshold)
+            charge = np.where(fired, np.maximum(kept, 0.0), charge)
+        else:
+            charge[fired] = 0.0
         self.charge = charge
         for effect in self._hooks["after_readout"]:
             effect.after_readout(fired)
@@ -170,7 +176,8 @@ class ArrivalSpikeEmitter:
 
     Photons arrive as a Poisson process, so a pixel whose threshold needs m electrons (ceil of the
     threshold) fires at the first readout where its expected charge since the last reset reaches the
-    m-th arrival, a Gamma(m, 1) draw; the reset then discards the charge, as in ``SpikeEmitter``. One
+    m-th arrival, a Gamma(m, 1) draw; the reset then discards the charge, as in ``SpikeEmitter`` (or, resetting by
+    subtraction, keeps what arrived after the crossing photon, short of the next spike). One
     Gamma draw per spike instead of one Poisson draw per pixel per readout: the same statistics for the
     effects in ``ARRIVAL_EFFECTS`` (threshold offsets and rounding set m; reset noise redraws it at each
     reset), a different random stream.
@@ -208,10 +215,13 @@ class ArrivalSpikeEmitter:
         self._expected += photo_expected
         fired = self._expected >= self._target
         if fired.any():
-            self._expected[fired] = 0.0
+            past = self._expected[fired] - self._target[fired]  # charge since the crossing photon
             for effect in self._pixels._hooks["after_readout"]:
                 effect.after_readout(fired)
             self._target[fired] = self._arrival(fired)
+            # reset to zero discards it; reset at the crossing keeps it, short of the next spike (one a plane)
+            subtract = self._pixels.params.reset == "subtract"
+            self._expected[fired] = np.minimum(past, self._target[fired]) if subtract else 0.0
         return fired.astype(np.uint8)
 
 

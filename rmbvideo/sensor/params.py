@@ -10,6 +10,14 @@ import math
 from dataclasses import dataclass
 
 
+#: What a spike does to the pixel's charge: "zero" (the paper's rule: the charge is discarded, so the part past the
+#: threshold is lost and the pixel fires every second plane for any light from about 0.6 to 0.8 of a threshold) or
+#: "subtract" (the threshold's charge is taken off and the rest kept, at most one threshold: a pixel reset at its
+#: crossing, as real spiking cameras such as the one behind ``car.dat`` behave: its rate is its light up to one
+#: spike a plane; ``rmbvideo.sensor.conventions``).
+RESETS = ("zero", "subtract")
+
+
 @dataclass(frozen=True)
 class SensorParams:
     """Integrate-and-fire pixel with L-level quantisation and the noise sources of supplement Sec. 7.
@@ -30,6 +38,11 @@ class SensorParams:
     temp_v_std: float = math.sqrt(0.005)   # sigma of V^T0, drawn per readout
     dark_mean: float = 0.05            # mu_d, mean dark electrons per interval
     dark_std: float = math.sqrt(0.005)  # sigma_d of the dark electrons per interval
+    reset: str = "zero"                # what a spike does to the charge: see RESETS
+
+    def __post_init__(self) -> None:
+        if self.reset not in RESETS:
+            raise ValueError(f"reset must be one of {RESETS}, got {self.reset!r}")
 
     @property
     def q_r(self) -> float:

@@ -193,7 +193,7 @@ def simulate_capture(scene: Scene, output: Path, *, duration_s: float | None = N
             for chunk in simulator.chunks(chunk_readouts):
                 writer.write(chunk.planes if not readout.is_multibit else chunk)
                 bar.update(len(chunk.planes) if not readout.is_multibit else len(chunk.single))
-        extra = {"readout": readout.kind, "scene": scene.name, "effects": list(scene.effects)}
+        extra = {"readout": readout.kind, "scene": scene.name, "effects": list(scene.effects), "reset": scene.sensor.reset}
         if readout.is_multibit:
             extra.update(level=readout.level)
         if readout.kind == "rmb":
