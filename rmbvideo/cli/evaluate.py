@@ -73,7 +73,7 @@ def _development(out_dir: Path, models: list[Path], cache_dir: Path | None, real
     return path
 
 
-def _notes(sequences: list, quick: bool, device: str, figure: tuple[str, int]) -> str:
+def _notes(sequences: list, quick: bool, device: str, figure: tuple[str, int], reset: str = "zero") -> str:
     """The Markdown notes under the table: what was measured, on what, how."""
     import torch
 
@@ -92,7 +92,10 @@ def _notes(sequences: list, quick: bool, device: str, figure: tuple[str, int]) -
         "fast-dark and spikezoo-convention video scenes), never used in training. Each: "
         f"{seq.readouts} binned readouts at "
         f"{width}x{height}, {seq.rate_hz:g} Hz, simulated as 1-bit at {2 * width}x{2 * height} and "
-        f"{2 * seq.rate_hz:g} Hz with realistic noise, then 2x2x2-binned.",
+        f"{2 * seq.rate_hz:g} Hz with realistic noise, then 2x2x2-binned."
+        + (" The cameras' pixels reset by subtraction (`--reset subtract`: the charge past the threshold kept, like "
+           "car.dat's camera), so their streams are in the rate convention, with the camera's noise." if reset ==
+           "subtract" else ""),
         f"- Frames: one per {FRAME_STEP} binned readouts; ground truth = linear radiance at the frame's centre. "
         f"Scored: the {scored} frames whose +-{seq.edge_readouts}-readout neighbourhood lies inside their sequence "
         "(same frames for every method).",
@@ -151,13 +154,17 @@ FIGURE_COLUMNS = ("TFW-L", "GC20", "MG20", "RMB-Net", "TFP-41 (raw)", "TFI (raw)
 @click.option("--development", is_flag=True,
               help="Instead of the held-out tables, score the default model and each --candidate on the development "
                    "sets (development sequences and clips, --real-video streams, the dark end): development.md.")
+@click.option("--reset", type=click.Choice(["zero", "subtract"]), default="zero", show_default=True,
+              help="What a spike does to the simulated held-out cameras' pixels: zero (the paper's: the charge "
+                   "discarded) or subtract (the charge past the threshold kept, like car.dat's real camera: "
+                   "streams in the rate convention with the camera's noise; cached apart).")
 @click.option("--candidate", "candidates", multiple=True, type=click.Path(dir_okay=False, exists=True, path_type=Path),
               help="A model file to score beside the default with --development (repeatable).")
 @quiet_option
 @verbose_option
 def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Path | None, device: str,
              as_json: bool, real_path: Path | None, real_video: Path | None, texture_pans: bool,
-             full_resolution: bool, development: bool, candidates: tuple[Path, ...], quiet: bool) -> None:
+             full_resolution: bool, development: bool, reset: str, candidates: tuple[Path, ...], quiet: bool) -> None:
     """Score TFW-S/L, TFI, GC20, MG20, RMB-Net, its ablations and the classical methods on the raw
     capture (2x2-averaged) on the held-out synthetic set, and optionally on real-video streams;
     with --development, candidate models on the development sets instead."""
@@ -194,12 +201,12 @@ def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Pat
                             resolved, progress_enabled(quiet))
         log.info("wrote %s", path)
         return
-    sequences = load_heldout(quick, cache_dir) + load_video_heldout(quick, cache_dir)
+    sequences = load_heldout(quick, cache_dir, reset) + load_video_heldout(quick, cache_dir, reset=reset)
     rows = with_best_raw(evaluate_rows(table2_specs(models_dir, resolved), sequences,
                                        progress=progress_enabled(quiet)))
     figure_seq = sequences[0]
     figure_frame = figure_seq.scored_frames[len(figure_seq.scored_frames) // 2]
-    md, table = write_tables(rows, out_dir, _notes(sequences, quick, resolved, (figure_seq.name, figure_frame)))
+    md, table = write_tables(rows, out_dir, _notes(sequences, quick, resolved, (figure_seq.name, figure_frame), reset))
     # figures show the ground truth as it is scored: clipped at the sensor's saturation
     png = write_comparison_png(rows, np.minimum(figure_seq.gt[figure_frame], SATURATION), figure_frame,
                                out_dir / "evaluation.png")

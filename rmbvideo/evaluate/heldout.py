@@ -38,6 +38,7 @@ from rmbvideo.chunks import RmbChunk, SpikeChunk
 from rmbvideo.errors import InputError, OutputError
 from rmbvideo.io.atomic import atomic_path
 from rmbvideo.scenes.video import VideoSceneRanges
+from rmbvideo.sensor.params import RESETS
 from rmbvideo.sensor.binning import MULTI_LEVEL, bin_2x2x2
 
 log = logging.getLogger(__name__)
@@ -53,7 +54,10 @@ VIDEO_SEED_START = 1_500_000  # held-out video sequences (evaluation range, apar
 @dataclass(frozen=True)
 class HeldoutConfig:
     """Size of the held-out set: ``count`` sequences of ``readouts`` binned readouts at the binned size
-    ``width`` x ``height`` (raw: twice each), seeds ``EVAL_SEED_START + first_seed_offset + k``."""
+    ``width`` x ``height`` (raw: twice each), seeds ``EVAL_SEED_START + first_seed_offset + k``; ``reset``: what a
+    spike does to the simulated cameras' pixels (``SensorParams.reset``: "zero", the paper's, or "subtract", a pixel
+    that keeps the charge past its threshold, like ``car.dat``'s camera; then its streams are in the rate
+    convention, with the camera's noise)."""
 
     count: int = 6
     width: int = 200
@@ -61,6 +65,7 @@ class HeldoutConfig:
     readouts: int = 200
     edge_readouts: int = 35
     first_seed_offset: int = 0
+    reset: str = "zero"
 
     def __post_init__(self) -> None:
         if self.count < 1 or self.width < 8 or self.height < 8:
@@ -69,6 +74,8 @@ class HeldoutConfig:
             raise ValueError(f"readouts must be a positive multiple of {FRAME_STEP}, got {self.readouts}")
         if self.edge_readouts < 0:
             raise ValueError(f"edge_readouts must be >= 0, got {self.edge_readouts}")
+        if self.reset not in RESETS:
+            raise ValueError(f"reset must be one of {RESETS}, got {self.reset!r}")
 
 
 #: The full set: 6 sequences of 200 binned readouts (20 ms, 20 frames, 14 scored) at 200x125.
@@ -168,7 +175,18 @@ def default_cache_dir() -> Path:
 
 
 def _cache_name(config: HeldoutConfig, seed: int) -> str:
-    return f"heldout-v{CACHE_FORMAT}-seed{seed}-{config.width}x{config.height}-{config.readouts}.npz"
+    return f"heldout-v{CACHE_FORMAT}-seed{seed}-{config.width}x{config.height}-{config.readouts}{_reset_tag(config)}.npz"
+
+
+def _reset_tag(config: HeldoutConfig) -> str:
+    """The cache name's mark of a pixel other than the paper's (none for it: its caches keep their names)."""
+    return "" if config.reset == "zero" else f"-reset-{config.reset}"
+
+
+def _convention(config: HeldoutConfig, convention: str) -> str:
+    """The convention a stream simulated in ``convention`` is in: a pixel reset by subtraction makes the rate
+    convention's streams (rate = light), with the camera's noise."""
+    return "spikezoo" if config.reset == "subtract" else convention
 
 
 def simulate_sequence(seed: int, config: HeldoutConfig) -> Sequence:
@@ -182,6 +200,7 @@ def simulate_sequence(seed: int, config: HeldoutConfig) -> Sequence:
     raw_planes = 2 * config.readouts
     scene = random_scene(seed, 2 * config.width, 2 * config.height, duration_s=raw_planes / RAW_RATE_HZ,
                          rate_hz=RAW_RATE_HZ)
+    scene = replace(scene, sensor=replace(scene.sensor, reset=config.reset))
     simulator = CaptureSimulator(scene)
     if simulator.total_readouts != raw_planes:
         raise RuntimeError(f"scene {scene.name}: simulated {simulator.total_readouts} raw planes, "
@@ -197,7 +216,8 @@ def simulate_sequence(seed: int, config: HeldoutConfig) -> Sequence:
     background = scene.background
     description = json.dumps({"scene": scene.name, "panorama": background.panorama,
                               "exposure": scene.exposure, "objects": len(scene.objects),
-                              "dark_regions": len(scene.dark_regions), "effects": list(scene.effects)})
+                              "dark_regions": len(scene.dark_regions), "effects": list(scene.effects),
+                              "convention": _convention(config, "physical"), "reset": config.reset})
     return Sequence(name=scene.name, seed=seed, rate_hz=RAW_RATE_HZ / 2, single=np.concatenate(single),
                     multi=np.concatenate(multi), raw_packed=np.concatenate(packed),
                     gt=gt.astype(np.float32), edge_readouts=config.edge_readouts, description=description)
@@ -244,33 +264,38 @@ def simulate_video_sequence(seed: int, kind: VideoHeldout, config: HeldoutConfig
     raw_planes = 2 * config.readouts
     scene = VideoScene(seed, 2 * config.width, 2 * config.height, raw_planes, kind.ranges, kind.convention)
     single, multi, packed = [], [], []
-    for chunk in capture_planes(scene, raw_planes, RAW_RATE_HZ, _SIMULATE_CHUNK):
+    for chunk in capture_planes(scene, raw_planes, RAW_RATE_HZ, _SIMULATE_CHUNK, reset=config.reset):
         s, m = bin_2x2x2(chunk.planes)
         single.append(s)
         multi.append(m)
         packed.append(np.packbits(chunk.planes, axis=-1, bitorder="little"))
     frames = config.readouts // FRAME_STEP
     gt = np.stack([bin_image(scene.render(20 * i + 10)) for i in range(frames)])
-    description = json.dumps({"scene": f"{kind.name}-{seed}", "kind": kind.name, "convention": kind.convention,
-                              "objects": len(scene.layers) - 1})
+    description = json.dumps({"scene": f"{kind.name}-{seed}", "kind": kind.name,
+                              "convention": _convention(config, kind.convention), "objects": len(scene.layers) - 1,
+                              "reset": config.reset})
     return Sequence(name=f"{kind.name}-{seed - VIDEO_SEED_START}", seed=seed, rate_hz=RAW_RATE_HZ / 2,
                     single=np.concatenate(single), multi=np.concatenate(multi), raw_packed=np.concatenate(packed),
                     gt=gt.astype(np.float32), edge_readouts=config.edge_readouts, description=description)
 
 
-def load_video_heldout(quick: bool, cache: Path | None = None, per_kind: int = 1, first: int = 0) -> list[Sequence]:
+def load_video_heldout(quick: bool, cache: Path | None = None, per_kind: int = 1, first: int = 0,
+                       reset: str = "zero") -> list[Sequence]:
     """``per_kind`` held-out video sequences of every ``VIDEO_KINDS`` entry (``QUICK``/``FULL`` size),
-    seeds from ``first`` on within each kind's range, simulated once and then read from ``cache``."""
-    config = QUICK if quick else FULL
+    seeds from ``first`` on within each kind's range, simulated once and then read from ``cache``; ``reset``: the
+    cameras' pixel (``HeldoutConfig``; spikezoo's kind has none)."""
+    config = replace(QUICK if quick else FULL, reset=reset)
     cache = Path(cache) if cache is not None else default_cache_dir()
     sequences = []
     for k, kind in enumerate(VIDEO_KINDS):
         for j in range(first, first + per_kind):
             seed = VIDEO_SEED_START + 100 * k + j
             digest = hashlib.sha256(repr(kind).encode()).hexdigest()[:8]  # any change of the kind is a new file
+            tag = _reset_tag(config) if kind.convention == "physical" else ""
             path = cache / (f"video-v{CACHE_FORMAT}-{kind.name}-{digest}-seed{seed}-{config.width}x{config.height}"
-                            f"-{config.readouts}.npz")
-            sequences.append(_cached(path, config, lambda: simulate_video_sequence(seed, kind, config)))
+                            f"-{config.readouts}{tag}.npz")
+            kind_config = config if kind.convention == "physical" else replace(config, reset="zero")
+            sequences.append(_cached(path, config, lambda: simulate_video_sequence(seed, kind, kind_config)))
     return sequences
 
 
@@ -332,9 +357,10 @@ def load_heldout_config(config: HeldoutConfig, cache: Path | None = None) -> lis
     return sequences
 
 
-def load_heldout(quick: bool, cache: Path | None = None) -> list[Sequence]:
-    """The held-out set (``QUICK`` when ``quick``, else ``FULL``), cached under ``cache``."""
-    return load_heldout_config(QUICK if quick else FULL, cache)
+def load_heldout(quick: bool, cache: Path | None = None, reset: str = "zero") -> list[Sequence]:
+    """The held-out set (``QUICK`` when ``quick``, else ``FULL``) with the cameras' pixel ``reset``
+    (``HeldoutConfig``), cached under ``cache``."""
+    return load_heldout_config(replace(QUICK if quick else FULL, reset=reset), cache)
 
 
 #: Seeds of the development sequences: random scenes from this offset, video kinds from this index in their range.

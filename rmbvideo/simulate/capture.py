@@ -99,14 +99,16 @@ class CaptureSimulator:
                            rate_hz=self.scene.rate_hz, level=readout.level, raw_per_readout=1)
 
 
-def capture_planes(scene: VideoScene, planes: int, rate_hz: float, chunk: int = 64) -> Iterator[SpikeChunk]:
+def capture_planes(scene: VideoScene, planes: int, rate_hz: float, chunk: int = 64,
+                   reset: str = "zero") -> Iterator[SpikeChunk]:
     """The raw 1-bit capture of ``scene`` (``planes`` planes from time 0) in chunks: the physical
-    emission model with a real camera's noise, or spikezoo's accumulate-and-subtract rate convention
-    (``scene.convention``). Plane k integrates the scene at its midpoint k + 1/2. The capture starts
-    mid-stream, as a running camera's does: every pixel at a random point of its integration cycle."""
+    emission model with a real camera's noise (its pixel reset as ``reset`` says, ``SensorParams.reset``), or
+    spikezoo's accumulate-and-subtract rate convention (``scene.convention``). Plane k integrates the scene at its
+    midpoint k + 1/2. The capture starts mid-stream, as a running camera's does: every pixel at a random point of
+    its integration cycle."""
     height, width = scene.height, scene.width
     if scene.convention == "physical":
-        params = SensorParams()
+        params = SensorParams(reset=reset)
         emitter = SpikeEmitter(height, width, params, REALISTIC_EFFECTS, scene.seed)
         emitter.settle(scene.seed)
         emit = lambda value: emitter.emit_one(value * params.q_r, 1)  # noqa: E731
