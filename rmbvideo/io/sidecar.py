@@ -48,15 +48,9 @@ def sidecar_path(dat_path: Path) -> Path | None:
 
 def read_sidecar(dat_path: Path) -> CaptureInfo:
     """Read the sidecar of ``dat_path`` (empty ``CaptureInfo`` if there is none)."""
-    path = sidecar_path(Path(dat_path))
+    path, data = _sidecar_record(dat_path)
     if path is None:
         return CaptureInfo()
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
-        raise InputError(f"{path}: not a valid capture sidecar ({str(exc).splitlines()[0][:200]})") from None
-    if not isinstance(data, dict):
-        raise InputError(f"{path}: a capture sidecar must be a JSON object")
     values: dict[str, Any] = {}
     for key, kind in SIDECAR_KEYS.items():
         if key in data and data[key] is not None:
@@ -92,7 +86,7 @@ def write_sidecar(dat_path: Path, info: CaptureInfo, **extra: Any) -> Path:
 def simulated_effects(dat_path: Path) -> tuple[str, ...] | None:
     """The sensor effects ``rmbvideo simulate`` recorded in the sidecar of ``dat_path``, or None when the sidecar
     does not say (a real camera's capture, or one simulated before effects were recorded)."""
-    path, data = _simulation_record(dat_path)
+    path, data = _sidecar_record(dat_path)
     effects = data.get("effects")
     if effects is None:
         return None
@@ -104,14 +98,14 @@ def simulated_effects(dat_path: Path) -> tuple[str, ...] | None:
 def simulated_reset(dat_path: Path) -> str:
     """What a spike did to the pixel's charge in the camera ``rmbvideo simulate`` modelled (``SensorParams.reset``), as
     its sidecar records it; "zero" (the paper's pixel) where it does not say."""
-    path, data = _simulation_record(dat_path)
+    path, data = _sidecar_record(dat_path)
     reset = data.get("reset", "zero")
     if not isinstance(reset, str):
         raise InputError(f"{path}: 'reset' must be a string, not {reset!r}")
     return reset
 
 
-def _simulation_record(dat_path: Path) -> tuple[Path | None, dict]:
+def _sidecar_record(dat_path: Path) -> tuple[Path | None, dict]:
     """The sidecar of ``dat_path`` and its JSON object ({} without a sidecar)."""
     path = sidecar_path(Path(dat_path))
     if path is None:
