@@ -11,7 +11,6 @@ rounding (tested), not bit for bit.
 
 from __future__ import annotations
 
-import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -23,6 +22,7 @@ import torch
 import torch.nn.functional as F
 
 from rmbvideo.recon.aligned_box import INVERSION_ITERATIONS, AlignedBox, AlignedBoxConfig
+from rmbvideo.recon.aligned_worker import BusyClock
 
 Request = tuple[int, tuple[int, ...]]
 
@@ -101,14 +101,13 @@ class BatchedAlignedWorker:
         self._executor = ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="aligned-flow")
         self._cv_threads = cv2.getNumThreads()
         cv2.setNumThreads(1)  # the pool's threads are the parallelism (the count is process-wide, until close())
-        self._lock = threading.Lock()
+        self._busy = BusyClock()
         self._images: dict[int, torch.Tensor] = {}  # (C,H,W) on the device: rate, then sharp
         self._added: dict[int, Future] = {}  # frames' flow images, made on the pool
         self._flows: dict[int, Future] = {}  # DIS flow from frame k - 1 to k, by k
         self._steps: dict[tuple[int, int], torch.Tensor] = {}  # one-step flows (2,H,W) on the device
         self._queued: list[Request] = []
         self._done: dict[Request, np.ndarray] = {}
-        self.busy_seconds = 0.0
         self.waited_seconds = 0.0
 
     def add(self, index: int, rate: np.ndarray, sharp: np.ndarray | None = None) -> None:
@@ -129,13 +128,12 @@ class BatchedAlignedWorker:
             need.result()
         return self._box._step_flow(index - 1, index)
 
+    @property
+    def busy_seconds(self) -> float:
+        return self._busy.seconds
+
     def _timed(self, func: Callable[..., Any], *args: Any) -> Any:
-        began = time.perf_counter()
-        try:
-            return func(*args)
-        finally:
-            with self._lock:
-                self.busy_seconds += time.perf_counter() - began
+        return self._busy.timed(func, *args)
 
     def mean(self, i: int, neighbours: Sequence[int]) -> BatchedAlignedMean:
         """Queue frame ``i``'s aligned mean over ``neighbours`` (``AlignedBox.mean``)."""
@@ -221,6 +219,5 @@ class BatchedAlignedWorker:
         for request, mean in zip(requests, means):
             self._done[request] = mean[0] if mean.shape[0] == 1 else mean
         ended = time.perf_counter()
-        with self._lock:  # the batch's own time is the stage's work, and the caller's wait like the flows'
-            self.busy_seconds += ended - began
+        self._busy.add(ended - began)  # the batch's own time is the stage's work, and the caller's wait like the flows'
         self.waited_seconds += ended - waited

@@ -34,6 +34,26 @@ class Ready:
         return self._value
 
 
+class BusyClock:
+    """Seconds of work summed over the threads that did it (a lock per addition: pools add concurrently)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self.seconds = 0.0
+
+    def add(self, seconds: float) -> None:
+        with self._lock:
+            self.seconds += seconds
+
+    def timed(self, func: Callable, *args: Any) -> Any:
+        """``func(*args)``, its wall time added."""
+        began = time.perf_counter()
+        try:
+            return func(*args)
+        finally:
+            self.add(time.perf_counter() - began)
+
+
 class AlignedWorker:
     """An :class:`AlignedBox` driven inline (``workers=0``), in call order by one background thread (1), or by a
     pool of threads (2 or more).
@@ -61,8 +81,7 @@ class AlignedWorker:
         self._added: dict[int, Future] = {}  # a pool's frames and flows to their predecessors, by frame
         self._flowed: dict[int, Future] = {}
         self._means: list[Future] = []  # a pool's queued means
-        self._busy_lock = threading.Lock()
-        self.busy_seconds = 0.0
+        self._busy = BusyClock()
         self.waited_seconds = 0.0
 
     @property
@@ -73,13 +92,12 @@ class AlignedWorker:
     def pooled(self) -> bool:
         return self.workers >= 2
 
+    @property
+    def busy_seconds(self) -> float:
+        return self._busy.seconds
+
     def _timed(self, func: Callable, *args: Any) -> Any:
-        began = time.perf_counter()
-        try:
-            return func(*args)
-        finally:
-            with self._busy_lock:
-                self.busy_seconds += time.perf_counter() - began
+        return self._busy.timed(func, *args)
 
     def _submit(self, func: Callable, *args: Any) -> Future | Ready:
         if self._executor is None:
