@@ -71,7 +71,7 @@ def test_the_real_camera_behind_car_dat_shows_the_rate_convention():
     from rmbvideo.cli import main
 
     result = CliRunner().invoke(main, ["info", str(SHARED / "real" / "car.dat")])
-    assert result.exit_code == 0 and "keeps the charge past its threshold" in result.output
+    assert result.exit_code == 0 and "read in the rate convention" in result.output
 
 
 @pytest.mark.parametrize("effects", [REALISTIC_EFFECTS, ("shot_noise", "threshold_mismatch")])
@@ -100,7 +100,7 @@ def test_a_simulated_camera_that_resets_by_subtraction_is_read_in_the_rate_conve
     from click.testing import CliRunner
 
     from rmbvideo.cli import main
-    from rmbvideo.io.sidecar import simulated_reset
+    from rmbvideo.io.sidecar import simulated_camera
     from rmbvideo.recon.run import prepare_run
 
     scene = tmp_path / "s.toml"
@@ -108,9 +108,11 @@ def test_a_simulated_camera_that_resets_by_subtraction_is_read_in_the_rate_conve
                      '[sensor]\nreset = "subtract"\n[background]\npanorama = "studio"\n')
     result = CliRunner().invoke(main, ["simulate", str(scene), "-o", str(tmp_path / "c.dat"), "-q"])
     assert result.exit_code == 0, result.output
-    assert simulated_reset(tmp_path / "c.dat") == "subtract"
+    assert simulated_camera(tmp_path / "c.dat").reset == "subtract"
     recon = prepare_run(tmp_path / "c.dat", resolution="binned", extra_options={"threads": 1}).method
     assert recon._convention == 1.0  # spikezoo's code: the charge past the threshold kept
+    info = CliRunner().invoke(main, ["info", str(tmp_path / "c.dat"), "--json"])
+    assert info.exit_code == 0 and '"pixel": "spikezoo"' in info.output  # info says what auto reads it as
     scene.write_text(scene.read_text().replace('reset = "subtract"', 'reset = "sideways"'))
     result = CliRunner().invoke(main, ["simulate", str(scene), "-o", str(tmp_path / "d.dat"), "-q"])
     assert result.exit_code != 0 and "sensor.reset" in result.output

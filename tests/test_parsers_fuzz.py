@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from rmbvideo.errors import InputError
 from rmbvideo.io.dat import DatGeometry, write_dat
 from rmbvideo.io.rmbfile import RmbFileReader
-from rmbvideo.io.sidecar import read_sidecar, simulated_effects
+from rmbvideo.io.sidecar import read_sidecar, simulated_camera
 from rmbvideo.scenes.scene import load_scene
 
 SETTINGS = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -24,7 +24,7 @@ json_values = st.recursive(
     | st.text(max_size=8),
     lambda children: st.lists(children, max_size=4) | st.dictionaries(st.text(max_size=8), children, max_size=4),
     max_leaves=12)
-sidecar_keys = st.sampled_from(["width", "height", "rate_hz", "flip", "header_cols", "effects", "other"])
+sidecar_keys = st.sampled_from(["width", "height", "rate_hz", "flip", "header_cols", "effects", "reset", "other"])
 
 
 def _returns_or_input_error(call) -> None:
@@ -39,7 +39,7 @@ def _returns_or_input_error(call) -> None:
 def test_sidecars(tmp_path: Path, data) -> None:
     (tmp_path / "c.capture.json").write_text(json.dumps(data))
     _returns_or_input_error(lambda: read_sidecar(tmp_path / "c.dat"))
-    _returns_or_input_error(lambda: simulated_effects(tmp_path / "c.dat"))
+    _returns_or_input_error(lambda: simulated_camera(tmp_path / "c.dat"))
 
 
 @SETTINGS

@@ -132,13 +132,13 @@ def test_a_simulated_capture_is_read_by_its_cameras_response_and_a_real_one_by_t
     """``reconstruct --response auto`` (the default): the sidecar ``rmbvideo simulate`` writes names the effects that
     shape the emission model's response, so RMB-Net's box candidates read that capture by its table; a capture
     without them (a real camera's, or a scene without noise) by the closed form; an explicit choice wins."""
-    from rmbvideo.io.sidecar import simulated_effects
+    from rmbvideo.io.sidecar import SimulatedCamera, simulated_camera
     from rmbvideo.recon.run import prepare_run
 
     scene_path = write_scene(tmp_path, "1bit")
     out = tmp_path / "cap.dat"
     assert run([str(scene_path), "-o", str(out), "-q"]).exit_code == 0
-    assert simulated_effects(out) == ("shot_noise", "threshold_mismatch", "readout_rounding")
+    assert simulated_camera(out) == SimulatedCamera(("shot_noise", "threshold_mismatch", "readout_rounding"), "zero")
 
     def tabulated(path: Path, **options) -> bool:
         recon = prepare_run(path, resolution="binned", extra_options={"threads": 1, **options}).method
@@ -150,4 +150,4 @@ def test_a_simulated_capture_is_read_by_its_cameras_response_and_a_real_one_by_t
     sidecar.write_text(json.dumps({**data, "effects": []}))  # a deterministic scene: the bare staircase
     assert not tabulated(out) and tabulated(out, response="emission-model")
     sidecar.write_text(json.dumps({k: v for k, v in data.items() if k != "effects"}))  # a camera's sidecar
-    assert simulated_effects(out) is None and not tabulated(out)
+    assert simulated_camera(out) is None and not tabulated(out)

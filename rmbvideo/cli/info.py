@@ -9,15 +9,14 @@ import click
 
 from rmbvideo.cli import verbose_option
 from rmbvideo.cli.options import capture_options
-from rmbvideo.io.capture import open_capture, plane_windows
-from rmbvideo.sensor.conventions import PILE_UP_WINDOW, PILE_UP_WINDOWS, convention_from_spikes
+from rmbvideo.io.capture import capture_convention, open_capture
 
 
-#: What the pile-up test (``convention_from_spikes``) says of a capture's pixel, in words.
+#: What ``capture_convention`` says of a capture's pixel (its sidecar's record, or the pile-up test), in words.
 PIXEL_WORDS = {
-    "physical": "reset to zero at a spike (its spike counts pile up at half the planes): --convention physical",
-    "spikezoo": "keeps the charge past its threshold (no pile-up at half the planes): --convention spikezoo",
-    None: "cannot tell from the first planes (too few pixels near half the planes)",
+    "physical": "reset to zero at a spike: read with --convention physical",
+    "spikezoo": "keeps the charge past its threshold: read in the rate convention (--convention spikezoo)",
+    None: "cannot tell from the first planes (too few pixels near half the planes): read as physical",
 }
 
 
@@ -48,8 +47,7 @@ def info(input_path: Path, width, height, flip, header_cols, rate_hz, as_json: b
         "flip": geometry.flip,
         "mean_firing_rate": reader.mean_firing_rate(),
         "trailing_bytes": reader.trailing_bytes,
-        # what `reconstruct --convention auto` would find in the spikes (it reads a simulated capture as physical)
-        "pixel": convention_from_spikes(plane_windows(reader, PILE_UP_WINDOW, PILE_UP_WINDOWS)),
+        "pixel": capture_convention(reader, input_path),  # what `reconstruct --convention auto` reads it as
     }
     if as_json:
         click.echo(json.dumps(record))

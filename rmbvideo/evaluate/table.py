@@ -212,16 +212,16 @@ def real_capture_comparison(path: Path, out_png: Path, model: Path | None = None
     from rmbvideo.io.capture import open_capture
     from rmbvideo.recon.methods import make_reconstructor
     from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
-    from rmbvideo.io.sidecar import simulated_effects
-    from rmbvideo.recon.run import capture_convention, trained_readout
+    from rmbvideo.io.sidecar import simulated_camera
+    from rmbvideo.recon.run import auto_convention, trained_readout
     from rmbvideo.sensor.conventions import response_for
     from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
 
     reader = open_capture(Path(path), width=None, height=None, flip=None, header_cols=None, rate_hz=None)
-    effects = simulated_effects(Path(path))  # read as `reconstruct` reads it: its convention and response
-    convention = capture_convention(reader, 0, reader.n_planes, False, effects, Path(path))
-    rmbnet = make_reconstructor("rmbnet", model=model, device=device, input_mode="binned", convention=convention,
-                                response=response_for(effects))
+    camera = simulated_camera(Path(path))  # read as `reconstruct` reads it: its convention and response
+    rmbnet = make_reconstructor("rmbnet", model=model, device=device, input_mode="binned",
+                                convention=auto_convention(reader, Path(path)),
+                                response=response_for(None if camera is None else camera.effects))
     runs = {
         "RMB-Net": (rmbnet, RmbReadout(mode=ReadoutMode(trained_readout(rmbnet)))),
         "TFP": (make_reconstructor("tfp", window=41, step=20), None),

@@ -10,7 +10,8 @@ import numpy as np
 from rmbvideo.errors import InputError
 from rmbvideo.io.dat import DatGeometry, DatReader
 from rmbvideo.io.rmbfile import RmbFileReader, mbit_path
-from rmbvideo.io.sidecar import read_sidecar
+from rmbvideo.io.sidecar import read_sidecar, simulated_camera
+from rmbvideo.sensor.conventions import PILE_UP_WINDOW, PILE_UP_WINDOWS, convention_from_spikes
 
 DEFAULT_WIDTH, DEFAULT_HEIGHT, DEFAULT_RATE_HZ = 400, 250, 20000.0
 
@@ -45,3 +46,17 @@ def plane_windows(reader: DatReader, size: int, count: int, start: int = 0,
     stop = reader.n_planes if stop is None else min(stop, reader.n_planes)
     for first in range(start, min(stop, start + count * size) - size + 1, size):
         yield reader.read(first, first + size)
+
+
+def capture_convention(reader: DatReader | RmbFileReader, path: Path, start: int = 0,
+                       stop: int | None = None) -> str | None:
+    """The sensor convention ``--convention auto`` reads a capture in: for one ``rmbvideo simulate`` made, its recorded
+    pixel's (physical, or the rate convention for a pixel reset by subtraction); a native multi-bit one physical;
+    else what its first spikes from ``start`` show (``convention_from_spikes``, ``PILE_UP_WINDOWS`` windows read one
+    at a time), None when they cannot tell."""
+    camera = simulated_camera(path)
+    if camera is not None:
+        return "spikezoo" if camera.reset == "subtract" else "physical"
+    if isinstance(reader, RmbFileReader):
+        return "physical"
+    return convention_from_spikes(plane_windows(reader, PILE_UP_WINDOW, PILE_UP_WINDOWS, start, stop))

@@ -3,7 +3,8 @@
 Looked up in order: ``<stem>.capture.json`` next to the file (one capture), then ``capture.json``
 in the same folder (all captures of that folder). Keys: ``width``, ``height``, ``rate_hz``,
 ``flip``, ``header_cols`` (all optional). Command-line options override the sidecar. ``rmbvideo simulate`` also
-records the scene and its sensor ``effects`` (``simulated_effects``), so a reader knows the camera that made it.
+records the scene, its sensor ``effects`` and the pixel's ``reset`` (``simulated_camera``), so a reader knows the
+camera that made it.
 """
 
 from __future__ import annotations
@@ -83,26 +84,27 @@ def write_sidecar(dat_path: Path, info: CaptureInfo, **extra: Any) -> Path:
     return path
 
 
-def simulated_effects(dat_path: Path) -> tuple[str, ...] | None:
-    """The sensor effects ``rmbvideo simulate`` recorded in the sidecar of ``dat_path``, or None when the sidecar
-    does not say (a real camera's capture, or one simulated before effects were recorded)."""
+@dataclass(frozen=True)
+class SimulatedCamera:
+    """The camera ``rmbvideo simulate`` modelled, as its sidecar records it: the sensor ``effects`` and what a spike
+    did to the pixel's charge (``reset``, ``SensorParams.reset``; "zero", the paper's pixel, where it does not say)."""
+
+    effects: tuple[str, ...]
+    reset: str = "zero"
+
+
+def simulated_camera(dat_path: Path) -> SimulatedCamera | None:
+    """The camera that made ``dat_path`` when ``rmbvideo simulate`` did (its sidecar lists the effects), else None (a
+    real camera's capture, or one simulated before effects were recorded)."""
     path, data = _sidecar_record(dat_path)
-    effects = data.get("effects")
+    effects, reset = data.get("effects"), data.get("reset", "zero")
     if effects is None:
         return None
     if not isinstance(effects, list) or not all(isinstance(e, str) for e in effects):
         raise InputError(f"{path}: 'effects' must be a list of effect names")
-    return tuple(effects)
-
-
-def simulated_reset(dat_path: Path) -> str:
-    """What a spike did to the pixel's charge in the camera ``rmbvideo simulate`` modelled (``SensorParams.reset``), as
-    its sidecar records it; "zero" (the paper's pixel) where it does not say."""
-    path, data = _sidecar_record(dat_path)
-    reset = data.get("reset", "zero")
     if not isinstance(reset, str):
         raise InputError(f"{path}: 'reset' must be a string, not {reset!r}")
-    return reset
+    return SimulatedCamera(tuple(effects), reset)
 
 
 def _sidecar_record(dat_path: Path) -> tuple[Path | None, dict]:

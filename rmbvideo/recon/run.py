@@ -13,16 +13,16 @@ from typing import Any
 from rmbvideo.chunks import Frame
 from rmbvideo.errors import InputError, OptionError
 from rmbvideo.io.atomic import staged_folder
-from rmbvideo.io.capture import open_capture, plane_windows
+from rmbvideo.io.capture import capture_convention, open_capture
 from rmbvideo.io.dat import DatReader
 from rmbvideo.io.rmbfile import RmbFileReader
-from rmbvideo.io.sidecar import simulated_effects, simulated_reset
+from rmbvideo.io.sidecar import simulated_camera
 from rmbvideo.io.sinks import make_sink
 from rmbvideo.io.tonemap import ToneMapConfig
 from rmbvideo.recon.full_resolution import FullResolution, detail_stage
 from rmbvideo.recon.methods import DEFAULT_METHOD, get_method
 from rmbvideo.recon.pipeline import RunSummary, iter_frames, reconstruct_stream
-from rmbvideo.sensor.conventions import PILE_UP_WINDOW, PILE_UP_WINDOWS, convention_from_spikes, response_for
+from rmbvideo.sensor.conventions import response_for
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
 
 log = logging.getLogger(__name__)
@@ -73,12 +73,12 @@ def prepare_run(input_path: Path, *, method: str = DEFAULT_METHOD, window: int |
     spec = get_method(method)
     options = spec.options(window, step, raw_per_readout=1 if native else 2)
     options.update(spec.select_extra(extra_options or {}))
-    effects = simulated_effects(Path(input_path))
     if "convention" in spec.extra_options and options.get("convention", "auto") == "auto":
-        options["convention"] = capture_convention(reader, start, stop, native, effects, Path(input_path))
+        options["convention"] = auto_convention(reader, Path(input_path), start, stop)
     if "response" in spec.extra_options and options.get("response", "auto") == "auto":
         # a capture rmbvideo simulated is read by its camera's response; any other by the closed form
-        options["response"] = response_for(effects)
+        camera = simulated_camera(Path(input_path))
+        options["response"] = response_for(None if camera is None else camera.effects)
     if "input_mode" in spec.extra_options:  # a model trained for the other kind of stream is refused
         options.setdefault("input_mode", "native" if native else "binned")
     if "readout" in spec.extra_options and readout is not None and not native:
@@ -101,18 +101,10 @@ def prepare_run(input_path: Path, *, method: str = DEFAULT_METHOD, window: int |
     return PreparedRun(reader, recon, start, stop, step, rmb_readout)
 
 
-def capture_convention(reader: DatReader | RmbFileReader, start: int, stop: int, native: bool,
-                       effects: tuple[str, ...] | None, path: Path) -> str:
-    """The sensor convention to read a capture in (``--convention auto``): for a capture rmbvideo simulated (its
-    sidecar lists the effects), its pixel's (physical, or the rate convention for a pixel reset by subtraction); a
-    native multi-bit one physical; else what the capture's first spikes show (``convention_from_spikes``: a pile-up
-    at half the planes means a pixel reset to zero), "physical" when they cannot tell. Reads at most ``PILE_UP_WINDOWS`` windows of planes, one at a time."""
-    if effects is not None:  # rmbvideo simulated it: its pixel is known
-        return "spikezoo" if simulated_reset(path) == "subtract" else "physical"
-    if native:
-        return "physical"
-    found = convention_from_spikes(plane_windows(reader, PILE_UP_WINDOW, PILE_UP_WINDOWS, start, stop))
-    if found == "spikezoo":
+def auto_convention(reader: DatReader | RmbFileReader, path: Path, start: int = 0, stop: int | None = None) -> str:
+    """``capture_convention``, physical when it cannot tell; a real capture read in the rate convention is logged."""
+    found = capture_convention(reader, path, start, stop)
+    if found == "spikezoo" and simulated_camera(path) is None:
         log.info("%s: its spike counts do not pile up at half the planes, as a pixel reset to zero makes them: read "
                  "in the rate convention (--convention physical to override)", path)
     return found or "physical"
