@@ -21,6 +21,7 @@ from rmbvideo.evaluate.real_video import (
     score_stream,
 )
 from rmbvideo.io.dat import DatGeometry, write_dat
+from rmbvideo.sensor.conventions import CONVENTIONS
 from rmbvideo.sensor.emission import RateIntegrateFire
 from rmbvideo.train.dataset import SampleSpec, simulate_sample
 from rmbvideo.scenes.video import SPIKEZOO_RATE, VideoScene, VideoSceneRanges
@@ -113,6 +114,25 @@ def test_video_training_sample_is_binned_with_exact_ground_truth():
         SampleSpec(scenes="video", mode="native", readout="rmb")
     with pytest.raises(ValueError):
         SampleSpec(scenes="movies")
+
+
+def test_training_samples_of_a_pixel_reset_by_subtraction_are_in_the_rate_convention():
+    """``subtract_fraction``: the physical scene's spikes from a pixel that keeps the charge past its threshold (a
+    real camera's such as car.dat's), labelled with the rate convention; the same scene and ground truth."""
+    zero = SampleSpec(scenes="video", crop=32, frames=4)
+    subtract = SampleSpec(scenes="video", crop=32, frames=4, subtract_fraction=1.0)
+    assert subtract.key() != zero.key() and SampleSpec(scenes="video", crop=32, frames=4, subtract_fraction=0.0).key() == zero.key()
+    a, b = simulate_sample(zero, 11), simulate_sample(subtract, 11)
+    assert a.convention == CONVENTIONS.index("physical") and b.convention == CONVENTIONS.index("spikezoo")
+    assert np.array_equal(a.gt, b.gt) and not np.array_equal(a.i_m, b.i_m)
+    # rate = light for this pixel (the reset-to-zero pixel reads less): the mean binned rate of the pixels below half
+    # a threshold per plane follows their light
+    light = b.gt.mean(axis=0)
+    below = light < 0.5
+    rate_b, rate_a = (s.i_m.mean(axis=0)[below].mean() / (8 * subtract.n) for s in (b, a))
+    assert below.mean() > 0.3 and abs(rate_b / light[below].mean() - 1) < 0.05 and rate_a < 0.95 * rate_b
+    with pytest.raises(ValueError):
+        SampleSpec(scenes="video", subtract_fraction=1.5)
 
 
 def test_reference_plane_from_the_name_or_the_middle(tmp_path):

@@ -34,7 +34,9 @@ class DataConfig:
     cached scenes) or "video" (dead-leaves video scenes, simulated afresh for every step, a fraction
     ``spikezoo_fraction`` in spikezoo's rate convention, ``flat_fraction`` static, nearly flat fields and
     ``low_contrast_fraction`` backgrounds of compressed contrast (the last two training seeds only; flat
-    levels log-uniform from ``flat_min_rate`` to 1: the dark end a model is checked at must lie inside it), each
+    levels log-uniform from ``flat_min_rate`` to 1: the dark end a model is checked at must lie inside it), of the
+    physical scenes a fraction ``subtract_fraction`` made by a pixel reset by subtraction (a real camera's such as
+    ``car.dat``'s: noisy spikes in the rate convention, the network told so), each
     used by ``reuse`` consecutive steps, simulated by ``workers`` processes;
     ``count`` and ``exposure`` do not apply)."""
 
@@ -52,6 +54,7 @@ class DataConfig:
     flat_fraction: float = 0.0
     low_contrast_fraction: float = 0.0
     flat_min_rate: float = FLAT_MIN_RATE
+    subtract_fraction: float = 0.0
     reuse: int = 1
     workers: int = 1
 
@@ -106,7 +109,8 @@ class TrainConfig:
                           n=d.n, warmup_frames=d.warmup_frames, level=self.model.level,
                           ranges=SceneRanges(exposure=d.exposure), scenes=d.scenes,
                           spikezoo_fraction=d.spikezoo_fraction, flat_fraction=d.flat_fraction,
-                          low_contrast_fraction=d.low_contrast_fraction, flat_min_rate=d.flat_min_rate)
+                          low_contrast_fraction=d.low_contrast_fraction, flat_min_rate=d.flat_min_rate,
+                          subtract_fraction=d.subtract_fraction)
 
     def with_minutes(self, minutes: float) -> "TrainConfig":
         """The same recipe with another wall-time budget."""

@@ -76,6 +76,7 @@ class SampleSpec:
     flat_fraction: float = 0.0
     low_contrast_fraction: float = 0.0
     flat_min_rate: float = FLAT_MIN_RATE
+    subtract_fraction: float = 0.0
 
     def __post_init__(self) -> None:
         if self.scenes not in SCENE_KINDS:
@@ -88,6 +89,8 @@ class SampleSpec:
             raise ValueError(f"flat_fraction must be in [0, 1], got {self.flat_fraction}")
         if not 0.0 <= self.low_contrast_fraction <= 1.0:
             raise ValueError(f"low_contrast_fraction must be in [0, 1], got {self.low_contrast_fraction}")
+        if not 0.0 <= self.subtract_fraction <= 1.0:
+            raise ValueError(f"subtract_fraction must be in [0, 1], got {self.subtract_fraction}")
         if not 0.0 < self.flat_min_rate < 1.0:
             raise ValueError(f"flat_min_rate must be in (0, 1), got {self.flat_min_rate}")
         if self.mode not in DATA_MODES:
@@ -117,7 +120,7 @@ class SampleSpec:
     def key(self) -> str:
         """Short stable hash of the spec (and the sample format version): the cache folder name."""
         fields = asdict(self)
-        for name in ("flat_fraction", "low_contrast_fraction"):  # caches made before these existed keep their names
+        for name in ("flat_fraction", "low_contrast_fraction", "subtract_fraction"):  # older caches keep their names
             if not fields[name]:
                 del fields[name]
         if fields["flat_min_rate"] == SampleSpec.flat_min_rate:
@@ -156,22 +159,24 @@ def _scene_for(spec: SampleSpec, seed: int):
     return random_scene(seed, size, size, duration, RAW_RATE_HZ, readout, spec.ranges)
 
 
-def _video_planes(spec: SampleSpec, seed: int) -> tuple[Iterator[SpikeChunk], VideoScene]:
-    """Raw 1-bit planes of the video scene of ``seed`` at twice the crop, in chunks, and the scene.
-    A fraction ``spikezoo_fraction`` of the seeds uses spikezoo's rate convention, the rest the
-    physical emission model with a real camera's noise. A fraction ``flat_fraction`` of the training
+def _video_planes(spec: SampleSpec, seed: int) -> tuple[Iterator[SpikeChunk], VideoScene, str]:
+    """Raw 1-bit planes of the video scene of ``seed`` at twice the crop, in chunks, the scene, and the convention
+    its spikes are in. A fraction ``spikezoo_fraction`` of the seeds uses spikezoo's rate convention, the rest the
+    physical emission model with a real camera's noise; of those, a fraction ``subtract_fraction`` has a pixel reset
+    by subtraction, like ``car.dat``'s camera, whose noisy spikes are in the rate convention. A fraction ``flat_fraction`` of the training
     seeds (never the validation seeds, which stay one fixed set) is a static, nearly flat field (level
     log-uniform from ``flat_min_rate`` to 1), and a fraction ``low_contrast_fraction`` of them has its
     background's contrast compressed."""
     rng = np.random.default_rng([seed, 0xC0DE])
     convention = "spikezoo" if rng.random() < spec.spikezoo_fraction else "physical"
+    reset = "subtract" if convention == "physical" and rng.random() < spec.subtract_fraction else "zero"
     planes = (spec.frames + spec.warmup_frames) * spec.n * spec.raw_per_readout
     train = seed < EVAL_SEED_START
     ranges = VideoSceneRanges(flat_probability=spec.flat_fraction if train else 0.0,
                               low_contrast_probability=spec.low_contrast_fraction if train else 0.0,
                               flat_rate=(spec.flat_min_rate, 1.0))
     scene = VideoScene(seed, 2 * spec.crop, 2 * spec.crop, planes, ranges, convention=convention)
-    return capture_planes(scene, planes, RAW_RATE_HZ), scene
+    return capture_planes(scene, planes, RAW_RATE_HZ, reset=reset), scene, "spikezoo" if reset == "subtract" else convention
 
 
 def simulate_sample(spec: SampleSpec, seed: int) -> Sample:
@@ -210,7 +215,7 @@ def simulate_sample(spec: SampleSpec, seed: int) -> Sample:
 
 
 def _simulate_video_sample(spec: SampleSpec, seed: int) -> Sample:
-    chunks, scene = _video_planes(spec, seed)
+    chunks, scene, convention = _video_planes(spec, seed)
     prelim = PreliminaryFrames(n=spec.n)
     binner = StreamBinner()
     readout = RmbReadout(ReadoutMode(spec.readout), spec.band, spec.shift)
@@ -231,7 +236,7 @@ def _simulate_video_sample(spec: SampleSpec, seed: int) -> Sample:
         m_valid=np.stack([f.m_valid for f in kept]),
         times_s=np.array([f.time_s for f in kept], dtype=np.float64),
         i_c=np.stack([f.i_c for f in kept]).astype(np.float32),
-        convention=float(CONVENTIONS.index(scene.convention)),
+        convention=float(CONVENTIONS.index(convention)),
     )
 
 

@@ -383,6 +383,9 @@ class Trainer:
                        "(level 1e-3..1, log-uniform; +-30 % gradient)" if cfg.data.flat_fraction else "")
                     + (f"; {cfg.data.low_contrast_fraction:.0%} of the training scenes with the background's "
                        "log-contrast scaled by 0.1-0.5" if cfg.data.low_contrast_fraction else "")
+                    + (f"; {cfg.data.subtract_fraction:.0%} of the physical scenes by a pixel reset by subtraction "
+                       "(a real camera's such as car.dat's: noisy spikes in the rate convention, the network told so)"
+                       if cfg.data.subtract_fraction else "")
                     + f"; new scenes every step, each used in {cfg.data.reuse} steps"
                     + (f"; initialised from {cfg.init}" if cfg.init else "")
                 ) if cfg.data.scenes == "video" else (
