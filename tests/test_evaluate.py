@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -222,16 +223,20 @@ def test_development_scores_candidates_on_the_given_sets(sequence, models_dir, t
     models = [models_dir / "rmbnet-binned.safetensors", other]
     done = []
     still = band_sequence(32, 24, 12, static=True, seed=LONG_SEED, convention="spikezoo")
-    scores = score_candidates(models, [sequence], clips=[], real=[], done=lambda: done.append(1), long=[still])
+    camera = load_heldout_config(replace(TINY, reset="subtract"), tmp_path / "cache")[0]
+    scores = score_candidates(models, [sequence], clips=[], real=[], done=lambda: done.append(1), long=[still],
+                              camera=[camera])
     assert len(done) == 2 and [s.name for s in scores] == [f"{models_dir.name}/rmbnet-binned", "other/rmbnet-binned"]
     for s in scores:
         assert list(s.sequences) == [sequence.name] and math.isfinite(s.sequence_mean)
+        assert list(s.camera) == [f"{camera.name}/subtract"] and math.isfinite(s.camera[f"{camera.name}/subtract"])
+        assert s.camera[f"{camera.name}/subtract"] != s.sequences[sequence.name]  # another pixel, another stream
         assert math.isfinite(s.first_frame_db) and math.isfinite(s.last_frame_db) and math.isfinite(s.dark_bias)
         assert not s.clips and not s.real
         assert list(s.state_age) == [still.name] and math.isfinite(s.state_age[still.name])
     assert scores[0].sequences != scores[1].sequences
     table = markdown(scores, models)
-    assert table.count("| other/rmbnet-binned |") == 2 and "—" in table
+    assert table.count("| other/rmbnet-binned |") == 2 and "—" in table and f"{camera.name}/subtract" in table
 
 
 def test_candidate_needs_development(models_dir, tmp_path):

@@ -63,11 +63,12 @@ def _development(out_dir: Path, models: list[Path], cache_dir: Path | None, real
 
     for model in models:  # a bad file fails here, in one line, before any simulation
         load_model(model)
-    sequences = load_development(cache_dir)
+    sequences, camera = load_development(cache_dir), load_development(cache_dir, reset="subtract")
     clips = find_streams(texture_pan_folder(cache_dir if cache_dir is not None else default_cache_dir()))
     real = find_streams(real_video) if real_video is not None else []
     with tqdm(total=len(models), disable=not progress, unit="model", desc="development") as bar:
-        scores = score_candidates(models, sequences, clips, real, device, done=lambda: bar.update(1), long=long_clips())
+        scores = score_candidates(models, sequences, clips, real, device, done=lambda: bar.update(1), long=long_clips(),
+                                  camera=camera)
     path = out_dir / "development.md"
     atomic_write_text(path, markdown(scores, models))
     return path
@@ -153,7 +154,8 @@ FIGURE_COLUMNS = ("TFW-L", "GC20", "MG20", "RMB-Net", "TFP-41 (raw)", "TFI (raw)
                    "(full_resolution.md/png; the real-video streams too when given).")
 @click.option("--development", is_flag=True,
               help="Instead of the held-out tables, score the default model and each --candidate on the development "
-                   "sets (development sequences and clips, --real-video streams, the dark end): development.md.")
+                   "sets (development sequences and clips, --real-video streams, the development sequences from a real "
+                   "camera's pixel, the dark end): development.md.")
 @click.option("--reset", type=click.Choice(["zero", "subtract"]), default="zero", show_default=True,
               help="What a spike does to the simulated held-out cameras' pixels: zero (the paper's: the charge "
                    "discarded) or subtract (the charge past the threshold kept, like car.dat's real camera: "

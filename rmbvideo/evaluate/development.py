@@ -4,7 +4,8 @@ at the evaluation's held-out tables.
 Per model file: the mean mu-law PSNR of each development sequence's scored frames
 (``heldout.load_development``: the held-out kinds drawn from other evaluation seeds), the first and last
 frames against their clip's median (dB), the development clips (texture pans in spikezoo's convention),
-the real-video streams when given, the dark-end bias at 1e-3 on a flat field of seed 1 (the
+the real-video streams when given, the development sequences again as a real camera's pixel makes them (reset by
+subtraction, like ``car.dat``'s: the rate convention with the camera's noise), the dark-end bias at 1e-3 on a flat field of seed 1 (the
 evaluation's own dark check uses seed 0), and how a long still clip's quality changes as the recurrent
 state ages (late minus early, in both conventions; other seeds than the evaluation's long captures).
 """
@@ -12,7 +13,7 @@ state ages (late minus early, in both conventions; other seeds than the evaluati
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence as Seq
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +32,8 @@ DARK_LEVEL = 1e-3
 LONG_SEED = 1_700_000
 LONG_SIZE = (112, 64)
 LONG_FRAMES = 60
+#: marks a development sequence made by a pixel reset by subtraction in the per-set table
+CAMERA_SUFFIX = "/subtract"
 
 
 @dataclass(frozen=True)
@@ -45,6 +48,7 @@ class DevelopmentScore:
     real: dict[str, float]
     dark_bias: float  # relative bias of the mean output at DARK_LEVEL
     state_age: dict[str, float]  # long still clip -> late minus early mean (dB)
+    camera: dict[str, float] = field(default_factory=dict)  # the sequences from a pixel reset by subtraction
 
     @property
     def sequence_mean(self) -> float:
@@ -89,23 +93,26 @@ def long_clips() -> list[Sequence]:
 
 
 def score_candidate(model: Path, sequences: Seq[Sequence], clips: Seq[RealStream], real: Seq[RealStream],
-                    device: str = "cpu", name: str | None = None, long: Seq[Sequence] = ()) -> DevelopmentScore:
-    """Every development figure of one model file (``long``: still clips for the state's age)."""
+                    device: str = "cpu", name: str | None = None, long: Seq[Sequence] = (),
+                    camera: Seq[Sequence] = ()) -> DevelopmentScore:
+    """Every development figure of one model file (``long``: still clips for the state's age; ``camera``: sequences
+    a pixel reset by subtraction made, scored apart)."""
     seq_scores, first, last = score_sequences(model, sequences, device)
+    camera_scores = {f"{seq}{CAMERA_SUFFIX}": value for seq, value in score_sequences(model, camera, device)[0].items()}
     options = {"model": Path(model), "device": device, "threads": 1}
     bias = dark_bias("rmbnet", options, levels=(DARK_LEVEL,), seed=DARK_SEED)[DARK_LEVEL][0]
     ages = {a.sequence: a.late_db - a.early_db for a in (state_age_report("rmbnet", options, seq) for seq in long)}
     return DevelopmentScore(name or f"{Path(model).parent.name}/{Path(model).stem}", seq_scores, first, last, score_streams(model, clips, device),
-                            score_streams(model, real, device), bias, ages)
+                            score_streams(model, real, device), bias, ages, camera_scores)
 
 
 def score_candidates(models: Seq[Path], sequences: Seq[Sequence], clips: Seq[RealStream], real: Seq[RealStream],
                      device: str = "cpu", done: Callable[[], None] | None = None,
-                     long: Seq[Sequence] = ()) -> list[DevelopmentScore]:
+                     long: Seq[Sequence] = (), camera: Seq[Sequence] = ()) -> list[DevelopmentScore]:
     """``score_candidate`` for each model; ``done`` is called after each (a progress bar)."""
     scores = []
     for model in models:
-        scores.append(score_candidate(model, sequences, clips, real, device, long=long))
+        scores.append(score_candidate(model, sequences, clips, real, device, long=long, camera=camera))
         if done is not None:
             done()
     return scores
@@ -120,19 +127,22 @@ def markdown(scores: Seq[DevelopmentScore], models: Seq[Path]) -> str:
     lines = ["# Development sets: candidate models", "",
              "Never the evaluation's held-out tables: choose a training stage here, then run the full evaluation once.", "",
              "| model | development sequences (mu-PSNR) | first / last frame vs median (dB) | development clips (PSNR) "
-             "| real-video streams (PSNR) | dark end at 1e-3 (seed 1) | long still clips: late - early (dB) |",
-             "|---|---:|---:|---:|---:|---:|---|"]
+             "| real-video streams (PSNR) | a real camera's pixel (mu-PSNR) | dark end at 1e-3 (seed 1) "
+             "| long still clips: late - early (dB) |",
+             "|---|---:|---:|---:|---:|---:|---:|---|"]
     for s in scores:
         ages = " / ".join(f"{value:+.2f}" for value in s.state_age.values()) or "—"
         lines.append(f"| {s.name} | {s.sequence_mean:.2f} | {s.first_frame_db:+.2f} / {s.last_frame_db:+.2f} | "
-                     f"{_mean(s.clips)} | {_mean(s.real)} | {100 * s.dark_bias:+.1f} % | {ages} |")
+                     f"{_mean(s.clips)} | {_mean(s.real)} | {_mean(s.camera)} | {100 * s.dark_bias:+.1f} % | {ages} |")
     lines += ["", "Per set (dB):", ""]
-    columns = [name for s in scores[:1] for name in [*s.sequences, *s.clips, *s.real, *s.state_age]]
+    columns = [name for s in scores[:1] for name in [*s.sequences, *s.clips, *s.real, *s.camera, *s.state_age]]
     lines += ["| model | " + " | ".join(columns) + " |", "|---|" + "---:|" * len(columns)]
     for s in scores:
-        values = {**s.sequences, **s.clips, **s.real, **s.state_age}
+        values = {**s.sequences, **s.clips, **s.real, **s.camera, **s.state_age}
         lines.append(f"| {s.name} | " + " | ".join(f"{values[c]:.2f}" for c in columns) + " |")
-    lines += ["", "Long still clips (the last columns): late (second half) minus early (frames 3-8) mean mu-law PSNR "
+    lines += ["", f"A real camera's pixel (columns `{CAMERA_SUFFIX}`): the development sequences simulated with a pixel reset "
+              "by subtraction, like car.dat's camera (`rmbvideo evaluate --reset subtract`), read in the rate convention.",
+              "", "Long still clips (the last columns): late (second half) minus early (frames 3-8) mean mu-law PSNR "
               "of a still scene, what the recurrent state's age alone does.",
               "", "Models: " + ", ".join(f"`{m}`" for m in models), ""]
     return "\n".join(lines)

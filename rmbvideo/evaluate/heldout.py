@@ -368,8 +368,10 @@ DEVELOPMENT_RANDOM_OFFSET = 50
 DEVELOPMENT_VIDEO_FIRST = 7
 
 
-def load_development(cache: Path | None = None) -> list[Sequence]:
+def load_development(cache: Path | None = None, reset: str = "zero") -> list[Sequence]:
     """Development sequences for choosing between candidate models: the held-out kinds (two random scenes,
-    one video sequence of each kind) drawn from other evaluation seeds, so the validation set stays untuned."""
-    randoms = replace(FULL, count=2, first_seed_offset=DEVELOPMENT_RANDOM_OFFSET)
-    return load_heldout_config(randoms, cache) + load_video_heldout(False, cache, first=DEVELOPMENT_VIDEO_FIRST)
+    one video sequence of each kind) drawn from other evaluation seeds, so the validation set stays untuned;
+    ``reset``: the cameras' pixel (``HeldoutConfig``)."""
+    randoms = replace(FULL, count=2, first_seed_offset=DEVELOPMENT_RANDOM_OFFSET, reset=reset)
+    return (load_heldout_config(randoms, cache)
+            + load_video_heldout(False, cache, first=DEVELOPMENT_VIDEO_FIRST, reset=reset))
