@@ -1,0 +1,206 @@
+"""Why the default trails MG20 on a slow pan of fine texture (held-out random-1000000), measured on development seeds
+only, with the shipped model and no retraining. Run from the repository root (each a few minutes on 2 cores):
+
+    python models/experiments/blend-hedging/probe.py bands 57     # each blend candidate's error by texture band
+    python models/experiments/blend-hedging/probe.py bias         # the aligned mean's logit raised by b at inference
+    python models/experiments/blend-hedging/probe.py gates        # hard gates on the robust merge's support / chi^2
+    python models/experiments/blend-hedging/probe.py window       # the window's neighbours marked missing throughout
+    python models/experiments/blend-hedging/probe.py prime        # first-frame figures with --prime 3 and 8
+
+The blend is hooked at ``rmbvideo.net.model.blend`` (its candidates in linear units and the softmax weights), the
+aligned mean's merge at ``rmbvideo.recon.aligned_box._RobustMerge`` (its weights and the warped neighbours' spread).
+"""
+
+import sys
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import torch
+
+import rmbvideo.net.model as model_module
+import rmbvideo.recon.aligned_box as aligned_module
+import rmbvideo.recon.rmbnet as engine_module
+from rmbvideo.evaluate.harness import SATURATION, MethodSpec, run_frames, score_frames
+from rmbvideo.evaluate.heldout import (DEVELOPMENT_RANDOM_OFFSET, DEVELOPMENT_VIDEO_FIRST, FULL, load_heldout_config,
+                                       load_video_heldout)
+from rmbvideo.evaluate.metrics import robust_scale
+from rmbvideo.evaluate.video_checks import edge_report
+from rmbvideo.mulaw import mu_law
+
+CANDIDATES = ["own", "reference", "pool 3", "pool 7", "centre 2", "centre 4", "centre 6", "aligned"]
+RECORD: list = []  # (candidates (1, K, H, W), weights (1, K, H, W)) of every blend call
+MERGES: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # frame -> (support, chi^2 of the neighbours' spread)
+LOGIT_BIAS = {"aligned": 0.0}
+_blend, _mean = model_module.blend, aligned_module.AlignedBox.mean
+_init, _add, _result = (aligned_module._RobustMerge.__init__, aligned_module._RobustMerge.add,
+                        aligned_module._RobustMerge.result)
+
+
+def blend(own, candidates, logits):
+    logits = logits.clone()
+    logits[:, -1] += LOGIT_BIAS["aligned"]
+    weights = torch.softmax(logits.float(), 1)
+    RECORD.append((torch.cat([own.float(), *(c.float() for c in candidates)], 1).numpy().copy(), weights.numpy().copy()))
+    return _blend(own, candidates, logits)
+
+
+def merge_init(self, reference, trials, config):
+    _init(self, reference, trials, config)
+    self.squares, self.trials = reference.astype(np.float64) ** 2, trials
+
+
+def merge_add(self, warped, inside):
+    before = self._weights.copy()
+    _add(self, warped, inside)
+    self.squares = self.squares + (self._weights - before) * warped.astype(np.float64) ** 2
+
+
+def merge_result(self):
+    mean = self._total / self._weights
+    spread = np.maximum(self.squares / self._weights - mean ** 2, 0)
+    self.chi2 = spread / (np.maximum(mean * (1 - mean), 1.0 / self.trials) / self.trials)
+    return _result(self)
+
+
+def aligned_mean(self, i, neighbours):
+    merges = []
+    original = aligned_module._RobustMerge.result
+
+    def keep(merge):
+        merges.append(merge)
+        return original(merge)
+    aligned_module._RobustMerge.result = keep
+    try:
+        out = _mean(self, i, neighbours)
+    finally:
+        aligned_module._RobustMerge.result = original
+    MERGES[i] = (merges[0]._weights / len(neighbours), merges[0].chi2)
+    return out
+
+
+model_module.blend = blend
+aligned_module._RobustMerge.__init__, aligned_module._RobustMerge.add = merge_init, merge_add
+aligned_module._RobustMerge.result = merge_result
+aligned_module.AlignedBox.mean = aligned_mean
+
+
+def development(names=()) -> list:
+    sequences = load_heldout_config(replace(FULL, count=16, first_seed_offset=DEVELOPMENT_RANDOM_OFFSET))
+    sequences += load_video_heldout(False, first=DEVELOPMENT_VIDEO_FIRST)
+    return [s for s in sequences if not names or s.name in names]
+
+
+def run(seq, **options):
+    """The default's frames of ``seq`` (index -> image) and, per frame, its blend record (priming calls dropped)."""
+    RECORD.clear()
+    MERGES.clear()
+    spec = MethodSpec("default", "rmbnet", {"threads": 1, "input_mode": "binned", "precision": "fp32", **options},
+                      "pure-m")
+    frames, _, _ = run_frames(spec, seq)
+    records = RECORD[len(RECORD) - len(frames):]
+    order = sorted(f.index for f in frames)
+    return {f.index: f.image for f in frames}, dict(zip(order, records))
+
+
+def score(images, seq) -> float:
+    return score_frames({i: images[i] for i in seq.scored_frames}, seq)[0]
+
+
+def table(rows: dict, columns: list[str]) -> None:
+    print("| sequence | " + " | ".join(columns) + " |")
+    print("|---|" + "---:|" * len(columns))
+    for name, values in rows.items():
+        print(f"| {name} | " + " | ".join(f"{v:.2f}" for v in values) + " |")
+    print("| mean | " + " | ".join(f"{v:.2f}" for v in np.mean(list(rows.values()), axis=0)) + " |")
+
+
+def bands(seed: str = "57") -> None:
+    """Mean squared mu-law error of each candidate, the blend and MG20 in four bands of the ground truth's local
+    gradient (below its median, to the 80th percentile, to the 95th, above), and the candidates' mean weights."""
+    seq = development([f"random-{1_000_000 + int(seed)}"])[0]
+    _, records = run(seq)
+    mg20 = {f.index: f.image for f in run_frames(MethodSpec("MG20", "mg20", {}, "pure-m"), seq)[0]}
+    h, w = seq.shape
+    errors, weights = {}, np.zeros((len(CANDIDATES), 4))
+    counts = np.zeros(4)
+    for i in seq.scored_frames:
+        truth = np.minimum(seq.gt[i], SATURATION)
+        scale = robust_scale(truth)
+        tone = mu_law(np.clip(truth / scale, 0, 1)).astype(np.float32)
+        gradient = np.hypot(cv2.Sobel(tone, cv2.CV_32F, 1, 0), cv2.Sobel(tone, cv2.CV_32F, 0, 1))
+        band = np.digitize(gradient, np.quantile(gradient, [0.5, 0.8, 0.95]))
+        candidates, weight = records[i][0][0, :, :h, :w], records[i][1][0, :, :h, :w]
+        images = {**dict(zip(CANDIDATES, candidates)), "blend": (candidates * weight).sum(0), "MG20": mg20[i]}
+        for name, image in images.items():
+            error = (mu_law(np.clip(image / scale, 0, 1)) - tone) ** 2
+            errors.setdefault(name, np.zeros(4))
+            errors[name] += [error[band == b].sum() for b in range(4)]
+        weights += np.stack([[weight[k][band == b].sum() for b in range(4)] for k in range(len(CANDIDATES))])
+        counts += [(band == b).sum() for b in range(4)]
+    print(f"{seq.name}: mean squared mu-law error by gradient band (flat -> edges), and the blend's mean weight")
+    for name, error in errors.items():
+        k = CANDIDATES.index(name) if name in CANDIDATES else None
+        extra = "" if k is None else "   weight " + " ".join(f"{v:.3f}" for v in weights[k] / counts)
+        print(f"{name:10s} " + " ".join(f"{v:.2e}" for v in error / counts) + extra)
+
+
+def bias() -> None:
+    """Mean mu-law PSNR with the aligned mean's logit raised by b."""
+    values = (0.0, 0.5, 1.0, 2.0)
+    rows = {}
+    for seq in development():
+        rows[seq.name] = []
+        for b in values:
+            LOGIT_BIAS["aligned"] = b
+            rows[seq.name].append(score(run(seq)[0], seq))
+    LOGIT_BIAS["aligned"] = 0.0
+    table(rows, [f"b = {b}" for b in values])
+
+
+def gates() -> None:
+    """The blend, and the aligned mean where the merge's support reaches s (else the blend), and where the warped
+    neighbours' spread is within c x (a Bernoulli rate's variance) (smoothed, sigma 1; else the blend)."""
+    supports, spreads = (0.8, 0.95), (0.03, 0.1)
+    rows = {}
+    for seq in development():
+        _, records = run(seq)
+        h, w = seq.shape
+        blended = {i: (r[0][0] * r[1][0]).sum(0)[:h, :w] for i, r in records.items()}
+        aligned = {i: r[0][0, -1, :h, :w] for i, r in records.items()}
+        chi2 = {i: cv2.GaussianBlur(MERGES[i][1].astype(np.float32), (0, 0), 1.0) for i in seq.scored_frames}
+        row = [score(blended, seq)]
+        row += [score({i: np.where(MERGES[i][0] >= s, aligned[i], blended[i]) for i in seq.scored_frames}, seq)
+                for s in supports]
+        row += [score({i: np.where(chi2[i] < c, aligned[i], blended[i]) for i in seq.scored_frames}, seq)
+                for c in spreads]
+        rows[seq.name] = row
+    table(rows, ["blend"] + [f"support >= {s}" for s in supports] + [f"chi2 < {c}" for c in spreads])
+
+
+def window() -> None:
+    """The default, and with its window's neighbours marked missing at every frame (the aligned mean unchanged)."""
+    valid = engine_module.window_valid
+    rows = {}
+    for seq in development():
+        rows[seq.name] = [score(run(seq)[0], seq)]
+        engine_module.window_valid = lambda i, w, count: [j == w for j in range(2 * w + 1)]
+        rows[seq.name].append(score(run(seq)[0], seq))
+        engine_module.window_valid = valid
+    table(rows, ["window", "neighbours missing"])
+
+
+def prime() -> None:
+    """First frame below the clip's median, and its edge cost, on two development video sequences of each kind."""
+    sequences = load_video_heldout(False, first=DEVELOPMENT_VIDEO_FIRST, per_kind=2)
+    rows = {}
+    for seq in sequences:
+        reports = [edge_report(seq, "rmbnet", {"threads": 1, "prime": p}) for p in (3, 8)]
+        rows[seq.name] = [v for r in reports for v in (r.first_drop_db, r.first_edge_cost_db)]
+    table(rows, ["prime 3: first below median", "prime 3: edge cost", "prime 8: first below median",
+                 "prime 8: edge cost"])
+
+
+if __name__ == "__main__":
+    command = sys.argv[1] if len(sys.argv) > 1 else "bands"
+    {"bands": bands, "bias": bias, "gates": gates, "window": window, "prime": prime}[command](*sys.argv[2:])
