@@ -381,6 +381,20 @@ def test_shipped_models_load_and_match_their_cards(mode):
     assert torch.isfinite(out).all()
 
 
+def test_l2_weight_scales_only_the_mu_law_l2():
+    """``loss.l2`` weighs the mu-law L2 (the evaluation's PSNR) against the other terms, and only it."""
+    from rmbvideo.mulaw import mu_law
+    from rmbvideo.train.loss import reconstruction_loss
+
+    rng = np.random.default_rng(1)
+    truth = torch.from_numpy(rng.uniform(0.0, 0.5, (2, 24, 24)).astype(np.float32))
+    guess = mu_law(truth * torch.from_numpy(rng.uniform(0.8, 1.2, (2, 24, 24)).astype(np.float32)), 5000.0)
+    one, parts = reconstruction_loss(guess, truth, LossConfig(linear=1.0, regional=1.0))
+    fifty, again = reconstruction_loss(guess, truth, LossConfig(l2=50.0, linear=1.0, regional=1.0))
+    assert parts == again and parts["l2"] > 0
+    assert float(fifty - one) == pytest.approx(49 * parts["l2"], rel=1e-4)
+
+
 def test_regional_loss_asks_for_the_mean_not_the_median():
     """On a sparse field (a few spikes per pixel: the pixel values' median sits below their mean) the
     regional term is smallest for a prediction at the block means; the pixel-wise linear L1 prefers the

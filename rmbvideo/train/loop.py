@@ -357,7 +357,7 @@ class Trainer:
                 "tbptt": f"{cfg.data.steps} consecutive outputs per sample, back-propagated in segments of "
                          f"{cfg.optim.tbptt}" + (f", from a state aged by {cfg.optim.aged_passes} passes over the "
                                                  "outputs without gradients" if cfg.optim.aged_passes else ""),
-                "loss": f"mu-law (mu={cfg.loss.mu:g}) L2 + {cfg.loss.ssim:g} x (1 - SSIM) + {cfg.loss.edge:g} x "
+                "loss": (f"{cfg.loss.l2:g} x " if cfg.loss.l2 != 1 else "") + f"mu-law (mu={cfg.loss.mu:g}) L2 + {cfg.loss.ssim:g} x (1 - SSIM) + {cfg.loss.edge:g} x "
                         f"gradient L1" + (f" + {cfg.loss.linear:g} x linear L1 relative to the sample's mean"
                                           if cfg.loss.linear > 0 else "")
                         + (f" + {cfg.loss.regional:g} x linear L1 of 8x8 block means relative to their level"

@@ -1,6 +1,6 @@
 """Training loss of RMB-Net (paper Eqn. 13) on mu-law tone-mapped frames.
 
-L = L2(T(P), T(G)) + beta1 (1 - SSIM(T(P), T(G))) + beta_edge L1(grad T(P), grad T(G))
+L = beta_l2 L2(T(P), T(G)) + beta1 (1 - SSIM(T(P), T(G))) + beta_edge L1(grad T(P), grad T(G))
   + (beta_linear + beta_display d) |P - G|_1 / |G|_1 (per sample; d = 1 for display-referred samples)
   + beta_regional |B(P) - B(G)| / (B(G) + eps) (B: 8x8 block
   means), with T(G) = log(1 + mu G) / log(1 + mu), mu = 5000. LPIPS (beta2 in the paper) needs pretrained
@@ -35,12 +35,14 @@ from rmbvideo.mulaw import inverse_mu_law, mu_law
 
 @dataclass(frozen=True)
 class LossConfig:
-    """Weights and constants of the loss: ``ssim`` is beta1, ``edge`` replaces LPIPS (0: off),
+    """Weights and constants of the loss: ``l2`` weighs the mu-law L2 (the evaluation's PSNR; at 1 its gradient is
+    a small share of the whole for errors of a few hundredths), ``ssim`` is beta1, ``edge`` replaces LPIPS (0: off),
     ``linear`` weighs the relative linear-domain L1 (0: off), ``regional`` the relative L1 of 8x8 block
     means in linear units (0: off), ``display_linear`` the extra weight of the linear L1 on display-referred
     samples (0: off)."""
 
     mu: float = 5000.0
+    l2: float = 1.0
     ssim: float = 1.0
     edge: float = 0.5
     saturation: float = 1.0
@@ -74,7 +76,7 @@ def reconstruction_loss(pred_t: torch.Tensor, gt: torch.Tensor, config: LossConf
     pred = pred_t.float()
     l2 = F.mse_loss(pred, target)
     ssim_term = 1.0 - ssim_torch(pred[:, None], target[:, None], data_range=1.0)
-    total = l2 + config.ssim * ssim_term
+    total = config.l2 * l2 + config.ssim * ssim_term
     edge = torch.zeros((), device=pred.device)
     if config.edge > 0:
         gx_p, gy_p = _gradients(pred)
