@@ -109,7 +109,7 @@ def test_full_resolution_frames_are_full_size_finite_and_chunk_invariant(tmp_pat
 
 def test_the_gpu_configuration_forced_onto_the_cpu_gives_the_default_frames(tmp_path: Path, monkeypatch) -> None:
     """Everything a GPU run changes, forced here: batched passes of whole runs, aligned means batched in torch, the
-    detail stage in batches and the raw rates in a thread of their own. The full-resolution frames are the CPU
+    detail stage in batches and the raw rates in a thread of their own, made by torch. The full-resolution frames are the CPU
     default's, to the batched means' precision."""
     import rmbvideo.recon.full_resolution as full_module
     import rmbvideo.recon.rmbnet as engine_module
@@ -122,6 +122,7 @@ def test_the_gpu_configuration_forced_onto_the_cpu_gives_the_default_frames(tmp_
                         lambda device, config, workers: BatchedAlignedWorker(config, device, 2))
     monkeypatch.setattr(full_module, "detail_batch", lambda device, size: 4)
     monkeypatch.setattr(full_module, "rates_beside_by_default", lambda device: True)
+    monkeypatch.setattr(full_module, "rates_on_device_by_default", lambda device: True)
     forced = list(reconstruct_frames(dat, "rmbnet", frame_batch=8, **options))
     assert [f.index for f in forced] == [f.index for f in default] and len(default) >= 25
     images, reference = np.stack([f.image for f in forced]), np.stack([f.image for f in default])
@@ -257,11 +258,13 @@ def test_learned_detail_stage_starts_as_bilinear_stays_finite_and_streams(tmp_pa
     runs = []
     import rmbvideo.recon.full_resolution as full_module
 
-    # a GPU's batches of frames and raw rates made beside the binned method (forced here) change nothing
-    for chunk, batch, beside in ((50, 1, False), (1000, 1, False), (1000, 3, False), (50, 3, True)):
+    # a GPU's batches of frames and raw rates made beside the binned method and on its device (forced here, on the
+    # CPU) change nothing
+    for chunk, batch, beside, device in ((50, 1, False, False), (1000, 1, False, False), (1000, 3, False, False),
+                                         (50, 3, True, False), (50, 3, True, True), (1000, 1, False, True)):
         monkeypatch.setattr(full_module, "detail_batch", lambda device, size, batch=batch: batch)
         recon = FullResolution(Tfw(window=10, step=10), RmbReadout("pure-m"), step=20, detail=loaded,
-                               rates_beside=beside)
+                               rates_beside=beside, rates_on_device=device)
         sink = FrameCollector()
         reconstruct_stream(DatReader(dat, DatGeometry(64, 48)), recon, sink, chunk_planes=chunk)
         runs.append(sink.frames)

@@ -393,7 +393,7 @@ class Tfi:
         if self._first is None:
             self._first = self._pos = chunk.start
             self._next_frame = _first_frame(chunk.start, self.step)
-            self._last_spike = np.full(chunk.planes.shape[1:], -1, dtype=np.int64)
+            self._last_spike = self._full_like(chunk.planes[0], -1)
         elif chunk.start != self._pos:
             raise ValueError(f"chunk starts at plane {chunk.start}, expected {self._pos}")
         self._rate_hz = chunk.rate_hz
@@ -406,12 +406,26 @@ class Tfi:
         """Return the remaining frames, their look-ahead clipped at the end of the data."""
         return [self._frame(i, self._pending.pop(i)) for i in sorted(self._pending)]
 
-    def _process_block(self, planes: np.ndarray, start: int) -> None:
+    # The array operations, numpy's here (``rmbvideo.recon.device_rates.DeviceTfi``: torch's, on a device).
+    _where = staticmethod(np.where)
+
+    @staticmethod
+    def _full_like(like: np.ndarray, value: int) -> np.ndarray:
+        return np.full(like.shape, value, dtype=np.int64)
+
+    @staticmethod
+    def _int64(a: np.ndarray) -> np.ndarray:
+        return a.astype(np.int64)
+
+    @staticmethod
+    def _image(interval: np.ndarray) -> np.ndarray:
+        return (1.0 / interval).astype(np.float32)
+
+    @staticmethod
+    def _scan(planes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per plane of a block, the last spike at or before it as its offset + 1 (0: none) and the first spike at
+        or after it as its offset (_NONE_IN_BLOCK: none); uint8 offsets (fast accumulates)."""
         count = len(planes)
-        if count == 0:
-            return
-        # Offsets within the block as uint8 (fast accumulates): last spike <= plane as offset + 1
-        # (0: none), first spike >= plane as offset (_NONE_IN_BLOCK: none).
         offsets = np.arange(count, dtype=np.uint8)[:, None, None]
         spikes = planes.astype(bool, copy=False)
         last_in = spikes * (offsets + np.uint8(1))
@@ -420,10 +434,17 @@ class Tfi:
         for k in range(1, count):
             np.maximum(last_in[k - 1], last_in[k], out=last_in[k])
             np.minimum(first_from[count - k], first_from[count - k - 1], out=first_from[count - k - 1])
+        return last_in, first_from
+
+    def _process_block(self, planes: np.ndarray, start: int) -> None:
+        count = len(planes)
+        if count == 0:
+            return
+        last_in, first_from = self._scan(planes)
 
         def first_spike(lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
             """Absolute first spike in planes lo..hi of this block, and where there is one."""
-            found = first_from[lo - start].astype(np.int64)
+            found = self._int64(first_from[lo - start])
             return start + found, found <= hi - start
 
         for r, _, nxt in self._pending.values():  # pending frames: search this block for next
@@ -434,27 +455,27 @@ class Tfi:
                 nxt[take] = found[take]
         while self._reference(self._next_frame) < start + count:
             r = self._reference(self._next_frame)  # >= start: earlier blocks created frames before it
-            in_block = last_in[r - start]
-            prev = np.where(in_block > 0, start + in_block.astype(np.int64) - 1, self._last_spike)
-            nxt = np.full(prev.shape, -1, dtype=np.int64)
+            in_block = self._int64(last_in[r - start])
+            prev = self._where(in_block > 0, start + in_block - 1, self._last_spike)
+            nxt = self._full_like(prev, -1)
             hi = min(r + self.max_reach, start + count - 1)
             if r + 1 <= hi:
                 found, hit = first_spike(r + 1, hi)
                 nxt[hit] = found[hit]
             self._pending[self._next_frame] = (r, prev, nxt)
             self._next_frame += 1
-        last = last_in[-1]
-        np.copyto(self._last_spike, start + last.astype(np.int64) - 1, where=last > 0)
+        last = self._int64(last_in[-1])
+        self._last_spike = self._where(last > 0, start + last - 1, self._last_spike)
         self._pos = start + count
 
     def _frame(self, i: int, state: tuple[int, np.ndarray, np.ndarray]) -> Frame:
         r, prev, nxt = state
         lo = max(r - self.max_reach + 1, self._first)
         hi = min(r + self.max_reach, self._pos - 1)
-        prev = np.where(prev >= lo, prev, lo - 1)
-        nxt = np.where(nxt >= 0, nxt, hi + 1)
-        interval = np.maximum(nxt - prev, 1)
-        image = (1.0 / interval).astype(np.float32)
+        prev = self._where(prev >= lo, prev, lo - 1)
+        nxt = self._where(nxt >= 0, nxt, hi + 1)
+        interval = nxt - prev
+        image = self._image(self._where(interval >= 1, interval, 1))
         return Frame(index=i, time_s=_centre2(i, self.step) / 2 / self._rate_hz, image=image)
 
 

@@ -16,7 +16,8 @@ full frame over 2x2 blocks gives the binned frame back. This is joint (guided) u
 noise-aware gain.
 
 With a learned detail stage (``rmbvideo.net.detail.DetailNet``, ``detail=``) the factor is predicted
-instead, from TFP over each of the stage's windows (and TFI when the stage reads it).
+instead, from TFP over each of the stage's windows (and TFI when the stage reads it). With the binned method on a
+GPU those rates are made there too, in a thread beside it (``rmbvideo.recon.device_rates``, the same frames).
 """
 
 from __future__ import annotations
@@ -100,6 +101,12 @@ def rates_beside_by_default(device: Any) -> bool:
     return getattr(device, "type", "cpu") == "cuda"
 
 
+def rates_on_device_by_default(device: Any) -> bool:
+    """Whether the raw stream's rates (TFP, TFI) are made on the binned method's device: on a GPU, where one CPU core
+    would cap the frame rate (``rmbvideo.recon.device_rates``; the same frames)."""
+    return getattr(device, "type", "cpu") == "cuda"
+
+
 def block_mean(image: np.ndarray) -> np.ndarray:
     """2x2 block means of ``image`` (even sides), spread back to every pixel of the block."""
     h, w = image.shape
@@ -146,7 +153,8 @@ class FullResolution:
 
     def __init__(self, binned: Any, readout: RmbReadout | None, step: int = 20,
                  settings: DetailSettings = DetailSettings(), detail: Any = None, threads: int | None = None,
-                 precision: str = "auto", rates_beside: bool | None = None) -> None:
+                 precision: str = "auto", rates_beside: bool | None = None,
+                 rates_on_device: bool | None = None) -> None:
         if binned.input_kind != "rmb":
             raise ValueError(f"full resolution wraps a method on the binned stream, not {type(binned).__name__}")
         self.binned = binned
@@ -159,9 +167,22 @@ class FullResolution:
         self.threads = threads if threads is not None else default_threads()
         self._binner = StreamBinner()
         windows = detail.config.windows if detail is not None else (settings.window,)
-        self._rates: list[Tfp | Tfi] = [Tfp(window=w, step=step) for w in windows]
-        if detail is not None and detail.config.interval_reach:
-            self._rates.append(Tfi(step=step, max_reach=detail.config.interval_reach))
+        reach = detail.config.interval_reach if detail is not None else 0
+        # on a GPU the raw stream's rates are made there too (``rmbvideo.recon.device_rates``: the same frames)
+        if rates_on_device is None:
+            rates_on_device = rates_on_device_by_default(self.device)
+        self._rates_device = None
+        if rates_on_device:
+            import torch
+
+            from rmbvideo.recon.device_rates import DeviceTfi, DeviceTfp
+
+            self._rates_device = torch.device(self.device if self.device is not None else "cpu")
+            self._rates: list = [DeviceTfp(window=w, step=step) for w in windows]
+            self._rates += [DeviceTfi(step=step, max_reach=reach)] if reach else []
+        else:
+            self._rates = [Tfp(window=w, step=step) for w in windows]
+            self._rates += [Tfi(step=step, max_reach=reach)] if reach else []
         self._coarse: dict[int, Frame] = {}
         self._fine: list[dict[int, Frame]] = [{} for _ in self._rates]
         self.stage_seconds = getattr(binned, "stage_seconds", {})
@@ -173,7 +194,7 @@ class FullResolution:
 
     def push(self, chunk: SpikeChunk | PackedChunk) -> list[Frame]:
         spikes = chunk.unpack() if isinstance(chunk, PackedChunk) else chunk
-        rates = self._start(lambda rate: rate.push(chunk if getattr(rate, "accepts_packed", False) else spikes))
+        rates = self._start(lambda: self._push_rates(chunk, spikes))
         binned = self._binner.push(spikes)
         if binned is not None:
             if self.readout is not None:
@@ -184,7 +205,7 @@ class FullResolution:
         return self._combine()
 
     def flush(self) -> list[Frame]:
-        rates = self._start(lambda rate: rate.flush())
+        rates = self._start(lambda: [rate.flush() for rate in self._rates])
         self._keep(self._coarse, self.binned.flush())
         for store, frames in zip(self._fine, rates.result()):
             self._keep(store, frames)
@@ -196,14 +217,24 @@ class FullResolution:
             store.clear()
         return frames
 
-    def _start(self, step: Callable[[Any], list[Frame]]) -> Future:
-        """``step`` over the raw-rate methods in order: in their thread when they have one (their state is theirs
+    def _push_rates(self, chunk: SpikeChunk | PackedChunk, spikes: SpikeChunk) -> list[list[Frame]]:
+        """Each raw-rate method's frames from ``chunk``: on the device from its planes sent there once, else from the
+        stored bits (TFP) or the decoded planes."""
+        if self._rates_device is not None:
+            from rmbvideo.recon.device_rates import to_device
+
+            planes = to_device(chunk, self._rates_device)
+            return [rate.push(planes) for rate in self._rates]
+        return [rate.push(chunk if getattr(rate, "accepts_packed", False) else spikes) for rate in self._rates]
+
+    def _start(self, task: Callable[[], list[list[Frame]]]) -> Future:
+        """``task`` (the raw-rate methods' step, in order): in their thread when they have one (their state is theirs
         alone, and each chunk's task ends before the next is queued: the frames are the same), else now."""
         if self._beside is None:
             done: Future = Future()
-            done.set_result([step(rate) for rate in self._rates])
+            done.set_result(task())
             return done
-        return self._beside.submit(lambda: [step(rate) for rate in self._rates])
+        return self._beside.submit(task)
 
     @staticmethod
     def _keep(store: dict[int, Frame], frames: list[Frame]) -> None:
