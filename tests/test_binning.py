@@ -165,3 +165,25 @@ def test_stream_binner_rejects_odd_start_and_gaps() -> None:
     binner.push(SpikeChunk(planes, start=0, rate_hz=1.0))
     with pytest.raises(ValueError):
         binner.push(SpikeChunk(planes, start=6, rate_hz=1.0))
+
+
+@pytest.mark.parametrize("sizes", [[11], [1] * 11, [3, 3, 5], [2, 1, 1, 7]])
+@pytest.mark.parametrize("flip", [True, False])
+def test_stream_binner_bins_stored_bytes_as_it_bins_decoded_planes(sizes: list[int], flip: bool) -> None:
+    """``push_stored`` (planes as a .dat stores them, header columns and all) gives ``push``'s readouts, carried
+    planes included; a stream does not mix the two kinds."""
+    planes = random_planes(np.random.default_rng(4), (11, 7, 16), 0.4)
+    stored = pack_stored(planes, header_cols=8, flip=flip).reshape(11, -1)
+    decoded, _ = _stream(planes, sizes, start=40)
+    binner, out, s = StreamBinner(), [], 0
+    for size in sizes:
+        result = binner.push_stored(stored[s : s + size], 40 + s, 20000.0, height=7, image_width=16, flip=flip)
+        s += size
+        if result is not None:
+            out.append(result)
+    assert [c.start for c in out] == [c.start for c in decoded] and binner.pending_planes == 1
+    for a, b in zip(out, decoded):
+        np.testing.assert_array_equal(a.single, b.single)
+        np.testing.assert_array_equal(a.multi, b.multi)
+    with pytest.raises(ValueError, match="one kind"):
+        binner.push(SpikeChunk(planes[:2], start=51, rate_hz=20000.0))

@@ -193,9 +193,17 @@ class FullResolution:
         self._beside = ThreadPoolExecutor(max_workers=1, thread_name_prefix="raw-rates") if rates_beside else None
 
     def push(self, chunk: SpikeChunk | PackedChunk) -> list[Frame]:
-        spikes = chunk.unpack() if isinstance(chunk, PackedChunk) else chunk
+        stored = isinstance(chunk, PackedChunk) and chunk.geometry.byte_aligned
+        # decoded on the CPU only where a method there needs the planes (the binning of other geometries, TFI)
+        decode = not stored or (self._rates_device is None and any(not getattr(r, "accepts_packed", False)
+                                                                    for r in self._rates))
+        spikes = chunk.unpack() if decode and isinstance(chunk, PackedChunk) else chunk
         rates = self._start(lambda: self._push_rates(chunk, spikes))
-        binned = self._binner.push(spikes)
+        if stored:
+            g = chunk.geometry
+            binned = self._binner.push_stored(chunk.data, chunk.start, chunk.rate_hz, g.height, g.image_width, g.flip)
+        else:
+            binned = self._binner.push(spikes)
         if binned is not None:
             if self.readout is not None:
                 binned = self.readout.apply(binned)

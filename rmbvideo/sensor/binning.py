@@ -172,11 +172,15 @@ class StreamBinner:
 
     Binning a capture in any chunking gives the same readouts as binning it whole. The first
     chunk must start at an even raw plane, and chunks must follow each other without gaps.
+    ``push_stored`` takes planes as a ``.dat`` stores them (byte-aligned rows) and bins them from the
+    stored bytes (``bin_packed``: bit for bit the same, several times faster than decoding, then
+    binning). One stream is one kind of chunk.
     """
 
     def __init__(self) -> None:
-        self._carry: np.ndarray | None = None  # (1, H, W) plane waiting for its pair
+        self._carry: np.ndarray | None = None  # (1, ...) plane waiting for its pair, as its chunk held it
         self._next_start: int | None = None
+        self._stored: bool | None = None  # whether the stream comes as stored bytes
 
     @property
     def pending_planes(self) -> int:
@@ -185,22 +189,37 @@ class StreamBinner:
 
     def push(self, chunk: SpikeChunk) -> RmbChunk | None:
         """Bin ``chunk`` with any carried plane; ``None`` when no complete pair is available yet."""
+        paired = self._pair(chunk.planes, chunk.start, stored=False)
+        return None if paired is None else binned_rmb_chunk(*bin_2x2x2(paired[0]), paired[1], chunk.rate_hz)
+
+    def push_stored(self, data: np.ndarray, start: int, rate_hz: float, height: int, image_width: int,
+                    flip: bool) -> RmbChunk | None:
+        """``push`` for planes as stored: ``data`` (T, plane_bytes) uint8 of ``height`` rows whose first
+        ``image_width`` columns (a multiple of 8) are the image, rows upside down when ``flip``."""
+        paired = self._pair(data, start, stored=True)
+        if paired is None:
+            return None
+        planes, raw_start = paired
+        single, multi = bin_packed(planes.reshape(len(planes), height, -1), image_width, flip)
+        return binned_rmb_chunk(single, multi, raw_start, rate_hz)
+
+    def _pair(self, planes: np.ndarray, start: int, stored: bool) -> tuple[np.ndarray, int] | None:
+        """The whole pairs of planes from the carried one and ``planes`` (from raw plane ``start``), and the raw
+        plane they start at; an odd last plane is carried."""
         if self._next_start is None:
-            if chunk.start % 2:
-                raise ValueError(f"binning must start at an even raw plane, got {chunk.start}")
-        elif chunk.start != self._next_start:
-            raise ValueError(f"chunk starts at plane {chunk.start}, expected {self._next_start}")
-        self._next_start = chunk.stop
-        planes = chunk.planes
-        raw_start = chunk.start
+            if start % 2:
+                raise ValueError(f"binning must start at an even raw plane, got {start}")
+        elif start != self._next_start:
+            raise ValueError(f"chunk starts at plane {start}, expected {self._next_start}")
+        if self._stored is not None and stored != self._stored:
+            raise ValueError("a binned stream is one kind of chunk: stored bytes or decoded planes")
+        self._stored = stored
+        self._next_start = start + len(planes)
         if self._carry is not None:
             planes = np.concatenate([self._carry, planes])
-            raw_start -= 1
+            start -= 1
             self._carry = None
         if len(planes) % 2:
             self._carry = planes[-1:].copy()
             planes = planes[:-1]
-        if len(planes) == 0:
-            return None
-        single, multi = bin_2x2x2(planes)
-        return binned_rmb_chunk(single, multi, raw_start, chunk.rate_hz)
+        return (planes, start) if len(planes) else None
