@@ -6,13 +6,17 @@ only, with the shipped model and no retraining. Run from the repository root (ea
     python models/experiments/blend-hedging/probe.py gates        # hard gates on the robust merge's support / chi^2
     python models/experiments/blend-hedging/probe.py window       # the window's neighbours marked missing throughout
     python models/experiments/blend-hedging/probe.py prime        # first-frame figures with --prime 3 and 8
+    python models/experiments/blend-hedging/probe.py radius       # the aligned mean over 3, 5 (shipped) and 8 frames
+    python models/experiments/blend-hedging/probe.py flip         # the network also on the mirrored stream, averaged
 
 The blend is hooked at ``rmbvideo.net.model.blend`` (its candidates in linear units and the softmax weights), the
 aligned mean's merge at ``rmbvideo.recon.aligned_box._RobustMerge`` (its weights and the warped neighbours' spread).
 """
 
 import sys
+import tempfile
 from dataclasses import replace
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -27,6 +31,8 @@ from rmbvideo.evaluate.heldout import (DEVELOPMENT_RANDOM_OFFSET, DEVELOPMENT_VI
 from rmbvideo.evaluate.metrics import robust_scale
 from rmbvideo.evaluate.video_checks import edge_report
 from rmbvideo.mulaw import mu_law
+from rmbvideo.net.model import RmbNet
+from rmbvideo.net.weights import default_model_path, load_model, save_model
 
 CANDIDATES = ["own", "reference", "pool 3", "pool 7", "centre 2", "centre 4", "centre 6", "aligned"]
 RECORD: list = []  # (candidates (1, K, H, W), weights (1, K, H, W)) of every blend call
@@ -201,6 +207,33 @@ def prime() -> None:
                  "prime 8: edge cost"])
 
 
+def radius() -> None:
+    """The shipped weights with the aligned mean's half-width (``aligned_radius``) at 3, 5 (shipped) and 8 frames."""
+    shipped, card = load_model(default_model_path())
+    rows: dict[str, list[float]] = {}
+    with tempfile.TemporaryDirectory() as folder:
+        paths = []
+        for r in (3, 5, 8):
+            network = RmbNet(replace(shipped.config, aligned_radius=r))
+            network.load_state_dict(shipped.state_dict())
+            paths.append(save_model(Path(folder) / f"radius-{r}.safetensors", network, card))
+        for seq in development():
+            rows[seq.name] = [score(run(seq, model=path)[0], seq) for path in paths]
+    table(rows, ["radius 3", "radius 5 (shipped)", "radius 8"])
+
+
+def flip() -> None:
+    """The default, and the mean of it and of its frames of the left-right mirrored stream, mirrored back."""
+    rows = {}
+    for seq in development():
+        mirrored = replace(seq, single=np.ascontiguousarray(seq.single[..., ::-1]),
+                           multi=np.ascontiguousarray(seq.multi[..., ::-1]), gt=seq.gt[..., ::-1])
+        plain, other = run(seq)[0], run(mirrored)[0]
+        rows[seq.name] = [score(plain, seq), score({i: 0.5 * (plain[i] + other[i][..., ::-1]) for i in plain}, seq)]
+    table(rows, ["default", "with its mirror"])
+
+
 if __name__ == "__main__":
     command = sys.argv[1] if len(sys.argv) > 1 else "bands"
-    {"bands": bands, "bias": bias, "gates": gates, "window": window, "prime": prime}[command](*sys.argv[2:])
+    {"bands": bands, "bias": bias, "gates": gates, "window": window, "prime": prime, "radius": radius,
+     "flip": flip}[command](*sys.argv[2:])
