@@ -8,6 +8,7 @@ only, with the shipped model and no retraining. Run from the repository root (ea
     python models/experiments/blend-hedging/probe.py prime        # first-frame figures with --prime 3 and 8
     python models/experiments/blend-hedging/probe.py radius       # the aligned mean over 3, 5 (shipped) and 8 frames
     python models/experiments/blend-hedging/probe.py flip         # the network also on the mirrored stream, averaged
+    python models/experiments/blend-hedging/probe.py models A.safetensors B.safetensors ...   # candidates side by side
 
 The blend is hooked at ``rmbvideo.net.model.blend`` (its candidates in linear units and the softmax weights), the
 aligned mean's merge at ``rmbvideo.recon.aligned_box._RobustMerge`` (its weights and the warped neighbours' spread).
@@ -233,7 +234,14 @@ def flip() -> None:
     table(rows, ["default", "with its mirror"])
 
 
+def models(*paths: str) -> None:
+    """Mean mu-law PSNR of model files (the shipped one first) on the 16 development pans and 5 video sequences."""
+    files = [default_model_path(), *map(Path, paths)]
+    rows = {seq.name: [score(run(seq, model=path)[0], seq) for path in files] for seq in development()}
+    table(rows, [f"{path.parent.name}/{path.stem}" for path in files])
+
+
 if __name__ == "__main__":
     command = sys.argv[1] if len(sys.argv) > 1 else "bands"
     {"bands": bands, "bias": bias, "gates": gates, "window": window, "prime": prime, "radius": radius,
-     "flip": flip}[command](*sys.argv[2:])
+     "flip": flip, "models": models}[command](*sys.argv[2:])
