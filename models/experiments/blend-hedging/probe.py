@@ -8,6 +8,7 @@ only, with the shipped model and no retraining. Run from the repository root (ea
     python models/experiments/blend-hedging/probe.py prime        # first-frame figures with --prime 3 and 8
     python models/experiments/blend-hedging/probe.py radius       # the aligned mean over 3, 5 (shipped) and 8 frames
     python models/experiments/blend-hedging/probe.py flip         # the network also on the mirrored stream, averaged
+    python models/experiments/blend-hedging/probe.py sharpen      # the blend's logits scaled by s at inference
     python models/experiments/blend-hedging/probe.py models A.safetensors B.safetensors ...   # candidates side by side
 
 The blend is hooked at ``rmbvideo.net.model.blend`` (its candidates in linear units and the softmax weights), the
@@ -38,14 +39,14 @@ from rmbvideo.net.weights import default_model_path, load_model, save_model
 CANDIDATES = ["own", "reference", "pool 3", "pool 7", "centre 2", "centre 4", "centre 6", "aligned"]
 RECORD: list = []  # (candidates (1, K, H, W), weights (1, K, H, W)) of every blend call
 MERGES: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # frame -> (support, chi^2 of the neighbours' spread)
-LOGIT_BIAS = {"aligned": 0.0}
+LOGIT_BIAS = {"aligned": 0.0, "scale": 1.0}
 _blend, _mean = model_module.blend, aligned_module.AlignedBox.mean
 _init, _add, _result = (aligned_module._RobustMerge.__init__, aligned_module._RobustMerge.add,
                         aligned_module._RobustMerge.result)
 
 
 def blend(own, candidates, logits):
-    logits = logits.clone()
+    logits = logits.clone() * LOGIT_BIAS["scale"]
     logits[:, -1] += LOGIT_BIAS["aligned"]
     weights = torch.softmax(logits.float(), 1)
     RECORD.append((torch.cat([own.float(), *(c.float() for c in candidates)], 1).numpy().copy(), weights.numpy().copy()))
@@ -165,6 +166,19 @@ def bias() -> None:
     table(rows, [f"b = {b}" for b in values])
 
 
+def sharpen() -> None:
+    """Mean mu-law PSNR with the blend's logits times s (s > 1: each pixel leans harder on its favourite)."""
+    values = (1.0, 1.5, 2.0)
+    rows = {}
+    for seq in development():
+        rows[seq.name] = []
+        for value in values:
+            LOGIT_BIAS["scale"] = value
+            rows[seq.name].append(score(run(seq)[0], seq))
+    LOGIT_BIAS["scale"] = 1.0
+    table(rows, [f"s = {v}" for v in values])
+
+
 def gates() -> None:
     """The blend, and the aligned mean where the merge's support reaches s (else the blend), and where the warped
     neighbours' spread is within c x (a Bernoulli rate's variance) (smoothed, sigma 1; else the blend)."""
@@ -244,4 +258,4 @@ def models(*paths: str) -> None:
 if __name__ == "__main__":
     command = sys.argv[1] if len(sys.argv) > 1 else "bands"
     {"bands": bands, "bias": bias, "gates": gates, "window": window, "prime": prime, "radius": radius,
-     "flip": flip, "models": models}[command](*sys.argv[2:])
+     "flip": flip, "models": models, "sharpen": sharpen}[command](*sys.argv[2:])
