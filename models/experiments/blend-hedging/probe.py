@@ -39,8 +39,9 @@ from rmbvideo.net.weights import default_model_path, load_model, save_model
 CANDIDATES = ["own", "reference", "pool 3", "pool 7", "centre 2", "centre 4", "centre 6", "aligned"]
 RECORD: list = []  # (candidates (1, K, H, W), weights (1, K, H, W)) of every blend call
 MERGES: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # frame -> (support, chi^2 of the neighbours' spread)
+FLOWS: dict[tuple[int, int], np.ndarray] = {}  # (frame, next frame) -> DIS flow between them
 LOGIT_BIAS = {"aligned": 0.0, "scale": 1.0}
-_blend, _mean = model_module.blend, aligned_module.AlignedBox.mean
+_blend, _mean, _step = model_module.blend, aligned_module.AlignedBox.mean, aligned_module.AlignedBox._step_flow
 _init, _add, _result = (aligned_module._RobustMerge.__init__, aligned_module._RobustMerge.add,
                         aligned_module._RobustMerge.result)
 
@@ -71,6 +72,26 @@ def merge_result(self):
     return _result(self)
 
 
+def step_flow(self, a, b):
+    flow = _step(self, a, b)
+    if b == a + 1:
+        FLOWS[(a, b)] = flow
+    return flow
+
+
+def roughness(i: int) -> np.ndarray:
+    """How far the flow around frame ``i`` is from one rigid motion: the magnitude of its spatial gradient
+    (pixels of motion per pixel), the larger of the flows to the next and from the previous frame, smoothed."""
+    out = None
+    for key in ((i, i + 1), (i - 1, i)):
+        if key in FLOWS:
+            flow = FLOWS[key]
+            grad = sum(np.square(cv2.Sobel(flow[..., c], cv2.CV_32F, dx, 1 - dx) / 8) for c in (0, 1) for dx in (0, 1))
+            grad = cv2.GaussianBlur(np.sqrt(grad), (0, 0), 1.5)
+            out = grad if out is None else np.maximum(out, grad)
+    return out
+
+
 def aligned_mean(self, i, neighbours):
     merges = []
     original = aligned_module._RobustMerge.result
@@ -91,6 +112,7 @@ model_module.blend = blend
 aligned_module._RobustMerge.__init__, aligned_module._RobustMerge.add = merge_init, merge_add
 aligned_module._RobustMerge.result = merge_result
 aligned_module.AlignedBox.mean = aligned_mean
+aligned_module.AlignedBox._step_flow = step_flow
 
 
 def development(names=()) -> list:
@@ -103,6 +125,7 @@ def run(seq, **options):
     """The default's frames of ``seq`` (index -> image) and, per frame, its blend record (priming calls dropped)."""
     RECORD.clear()
     MERGES.clear()
+    FLOWS.clear()
     spec = MethodSpec("default", "rmbnet", {"threads": 1, "input_mode": "binned", "precision": "fp32", **options},
                       "pure-m")
     frames, _, _ = run_frames(spec, seq)
@@ -180,9 +203,10 @@ def sharpen() -> None:
 
 
 def gates() -> None:
-    """The blend, and the aligned mean where the merge's support reaches s (else the blend), and where the warped
-    neighbours' spread is within c x (a Bernoulli rate's variance) (smoothed, sigma 1; else the blend)."""
-    supports, spreads = (0.8, 0.95), (0.03, 0.1)
+    """The blend, and the aligned mean where the merge's support reaches s (else the blend), where the warped
+    neighbours' spread is within c x (a Bernoulli rate's variance) (smoothed, sigma 1), and where the flow is close
+    to one rigid motion (its gradient below r pixels per pixel; else the blend)."""
+    supports, spreads, rough = (0.8, 0.95), (0.03, 0.1), (0.02, 0.05)
     rows = {}
     for seq in development():
         _, records = run(seq)
@@ -195,8 +219,12 @@ def gates() -> None:
                 for s in supports]
         row += [score({i: np.where(chi2[i] < c, aligned[i], blended[i]) for i in seq.scored_frames}, seq)
                 for c in spreads]
+        flow = {i: roughness(i) for i in seq.scored_frames}
+        row += [score({i: np.where(flow[i] < r, aligned[i], blended[i]) for i in seq.scored_frames}, seq)
+                for r in rough]
         rows[seq.name] = row
-    table(rows, ["blend"] + [f"support >= {s}" for s in supports] + [f"chi2 < {c}" for c in spreads])
+    table(rows, ["blend"] + [f"support >= {s}" for s in supports] + [f"chi2 < {c}" for c in spreads]
+          + [f"flow gradient < {r}" for r in rough])
 
 
 def window() -> None:
