@@ -225,7 +225,7 @@ class FullResolution:
             store.clear()
         return frames
 
-    def _push_rates(self, chunk: SpikeChunk | PackedChunk, spikes: SpikeChunk) -> list[list[Frame]]:
+    def _push_rates(self, chunk: SpikeChunk | PackedChunk, spikes: SpikeChunk | PackedChunk) -> list[list[Frame]]:
         """Each raw-rate method's frames from ``chunk``: on the device from its planes sent there once, else from the
         stored bits (TFP) or the decoded planes."""
         if self._rates_device is not None:

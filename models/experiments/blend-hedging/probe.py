@@ -40,15 +40,15 @@ CANDIDATES = ["own", "reference", "pool 3", "pool 7", "centre 2", "centre 4", "c
 RECORD: list = []  # (candidates (1, K, H, W), weights (1, K, H, W)) of every blend call
 MERGES: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # frame -> (support, chi^2 of the neighbours' spread)
 FLOWS: dict[tuple[int, int], np.ndarray] = {}  # (frame, next frame) -> DIS flow between them
-LOGIT_BIAS = {"aligned": 0.0, "scale": 1.0}
+BLEND_KNOBS = {"aligned": 0.0, "scale": 1.0}
 _blend, _mean, _step = model_module.blend, aligned_module.AlignedBox.mean, aligned_module.AlignedBox._step_flow
 _init, _add, _result = (aligned_module._RobustMerge.__init__, aligned_module._RobustMerge.add,
                         aligned_module._RobustMerge.result)
 
 
 def blend(own, candidates, logits):
-    logits = logits.clone() * LOGIT_BIAS["scale"]
-    logits[:, -1] += LOGIT_BIAS["aligned"]
+    logits = logits.clone() * BLEND_KNOBS["scale"]
+    logits[:, -1] += BLEND_KNOBS["aligned"]
     weights = torch.softmax(logits.float(), 1)
     RECORD.append((torch.cat([own.float(), *(c.float() for c in candidates)], 1).numpy().copy(), weights.numpy().copy()))
     return _blend(own, candidates, logits)
@@ -176,30 +176,27 @@ def bands(seed: str = "57") -> None:
         print(f"{name:10s} " + " ".join(f"{v:.2e}" for v in error / counts) + extra)
 
 
-def bias() -> None:
-    """Mean mu-law PSNR with the aligned mean's logit raised by b."""
-    values = (0.0, 0.5, 1.0, 2.0)
-    rows = {}
+def sweep(key: str, values: tuple[float, ...], label: str) -> None:
+    """Mean mu-law PSNR with the blend hook's ``key`` set to each value in turn."""
+    default = BLEND_KNOBS[key]
+    rows: dict[str, list[float]] = {}
     for seq in development():
         rows[seq.name] = []
-        for b in values:
-            LOGIT_BIAS["aligned"] = b
+        for value in values:
+            BLEND_KNOBS[key] = value
             rows[seq.name].append(score(run(seq)[0], seq))
-    LOGIT_BIAS["aligned"] = 0.0
-    table(rows, [f"b = {b}" for b in values])
+    BLEND_KNOBS[key] = default
+    table(rows, [f"{label} = {v}" for v in values])
+
+
+def bias() -> None:
+    """Mean mu-law PSNR with the aligned mean's logit raised by b."""
+    sweep("aligned", (0.0, 0.5, 1.0, 2.0), "b")
 
 
 def sharpen() -> None:
     """Mean mu-law PSNR with the blend's logits times s (s > 1: each pixel leans harder on its favourite)."""
-    values = (1.0, 1.5, 2.0)
-    rows = {}
-    for seq in development():
-        rows[seq.name] = []
-        for value in values:
-            LOGIT_BIAS["scale"] = value
-            rows[seq.name].append(score(run(seq)[0], seq))
-    LOGIT_BIAS["scale"] = 1.0
-    table(rows, [f"s = {v}" for v in values])
+    sweep("scale", (1.0, 1.5, 2.0), "s")
 
 
 def gates() -> None:
