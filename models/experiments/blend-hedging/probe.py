@@ -9,6 +9,7 @@ only, with the shipped model and no retraining. Run from the repository root (ea
     python models/experiments/blend-hedging/probe.py radius       # the aligned mean over 3, 5 (shipped) and 8 frames
     python models/experiments/blend-hedging/probe.py flip         # the network also on the mirrored stream, averaged
     python models/experiments/blend-hedging/probe.py sharpen      # the blend's logits scaled by s at inference
+    python models/experiments/blend-hedging/probe.py learned-gate odd|even all|noflow|nomerge|images   # a learned mix
     python models/experiments/blend-hedging/probe.py models A.safetensors B.safetensors ...   # candidates side by side
 
 The blend is hooked at ``rmbvideo.net.model.blend`` (its candidates in linear units and the softmax weights), the
@@ -224,6 +225,72 @@ def gates() -> None:
           + [f"flow gradient < {r}" for r in rough])
 
 
+def gate_features(seq) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per scored frame: the blend, the aligned mean and per-pixel features a gate between them could use (the
+    flow's gradient and magnitude, the light, their relative difference, the merge's support and spread)."""
+    _, records = run(seq)
+    h, w = seq.shape
+    out = {}
+    for i in seq.scored_frames:
+        candidates, weights = records[i][0][0, :, :h, :w], records[i][1][0, :, :h, :w]
+        blended, aligned = (candidates * weights).sum(0), candidates[-1]
+        flow = FLOWS.get((i, i + 1), FLOWS.get((i - 1, i)))
+        magnitude = cv2.GaussianBlur(np.hypot(flow[..., 0], flow[..., 1]), (0, 0), 1.5)
+        level = np.log(np.maximum(blended, 1e-4))
+        difference = np.abs(aligned - blended) / np.maximum(blended, 1e-3)
+        support, chi2 = MERGES[i]
+        features = np.stack([roughness(i), magnitude, level, difference, support, np.log1p(chi2)])
+        out[i] = (blended, aligned, features.astype(np.float32))
+    return out
+
+
+def learned_gate(half: str = "odd", features: str = "all") -> None:
+    """How much a gate that sees the flow could gain: a small network maps per-pixel features (``gate_features``) to
+    the share of the aligned mean in the output, fitted on ``half`` ("odd" or "even") of the development sequences to
+    the mu-law L2 and scored on the other half (what the head could learn from these features; fitted on development
+    data, so a figure for a decision, never a model). ``features``: "all", "noflow" (without the flow's two),
+    "nomerge" (without the merge's support and spread), "images" (the light and the two images' difference only)."""
+    sequences = development()
+    data = {seq.name: gate_features(seq) for seq in sequences}
+    fit, test = (sequences[1::2], sequences[0::2]) if half == "odd" else (sequences[0::2], sequences[1::2])
+    keep = {"all": [0, 1, 2, 3, 4, 5], "noflow": [2, 3, 4, 5], "nomerge": [0, 1, 2, 3], "images": [2, 3]}[features]
+    rng = np.random.default_rng(0)
+
+    def pixels(seqs, count):
+        feats, blends, aligned, truths = [], [], [], []
+        for seq in seqs:
+            for i, (b, a, f) in data[seq.name].items():
+                truth = np.minimum(seq.gt[i], SATURATION)
+                scale = robust_scale(truth)
+                pick = rng.integers(0, b.size, count)
+                feats.append(f[keep].reshape(len(f[keep]), -1)[:, pick].T)
+                blends.append((b / scale).ravel()[pick]), aligned.append((a / scale).ravel()[pick])
+                truths.append((truth / scale).ravel()[pick])
+        return [torch.from_numpy(np.concatenate(x).astype(np.float32)) for x in (feats, blends, aligned, truths)]
+
+    feats, blends, aligned, truths = pixels(fit, 2000)
+    mean, std = feats.mean(0), feats.std(0) + 1e-6
+    gate = torch.nn.Sequential(torch.nn.Linear(feats.shape[1], 16), torch.nn.ReLU(), torch.nn.Linear(16, 1))
+    optimiser = torch.optim.Adam(gate.parameters(), lr=3e-3)
+    tone = lambda x: torch.log1p(5000 * x.clamp(0, 1)) / np.log1p(5000)  # noqa: E731
+    for _ in range(1500):
+        share = torch.sigmoid(gate((feats - mean) / std))[:, 0]
+        loss = ((tone(share * aligned + (1 - share) * blends) - tone(truths)) ** 2).mean()
+        optimiser.zero_grad()
+        loss.backward()
+        optimiser.step()
+    rows = {}
+    with torch.no_grad():
+        for seq in test:
+            images = {}
+            for i, (b, a, f) in data[seq.name].items():
+                x = (torch.from_numpy(f[keep].reshape(len(f[keep]), -1).T) - mean) / std
+                share = torch.sigmoid(gate(x))[:, 0].numpy().reshape(b.shape)
+                images[i] = share * a + (1 - share) * b
+            rows[seq.name] = [score({i: v[0] for i, v in data[seq.name].items()}, seq), score(images, seq)]
+    table(rows, ["blend", "learned gate (fitted on the other sequences)"])
+
+
 def window() -> None:
     """The default, and with its window's neighbours marked missing at every frame (the aligned mean unchanged)."""
     valid = engine_module.window_valid
@@ -283,4 +350,5 @@ def models(*paths: str) -> None:
 if __name__ == "__main__":
     command = sys.argv[1] if len(sys.argv) > 1 else "bands"
     {"bands": bands, "bias": bias, "gates": gates, "window": window, "prime": prime, "radius": radius,
-     "flip": flip, "models": models, "sharpen": sharpen}[command](*sys.argv[2:])
+     "flip": flip, "models": models, "sharpen": sharpen,
+     "learned-gate": learned_gate}[command](*sys.argv[2:])
