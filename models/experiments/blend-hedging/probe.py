@@ -9,7 +9,7 @@ only, with the shipped model and no retraining. Run from the repository root (ea
     python models/experiments/blend-hedging/probe.py radius       # the aligned mean over 3, 5 (shipped) and 8 frames
     python models/experiments/blend-hedging/probe.py flip         # the network also on the mirrored stream, averaged
     python models/experiments/blend-hedging/probe.py sharpen      # the blend's logits scaled by s at inference
-    python models/experiments/blend-hedging/probe.py learned-gate odd|even all|noflow|nomerge|images   # a learned mix
+    python models/experiments/blend-hedging/probe.py learned-gate odd|even|heldout all|noflow|nomerge|images   # a learned mix
     python models/experiments/blend-hedging/probe.py models A.safetensors B.safetensors ...   # candidates side by side
 
 The blend is hooked at ``rmbvideo.net.model.blend`` (its candidates in linear units and the softmax weights), the
@@ -29,8 +29,8 @@ import rmbvideo.net.model as model_module
 import rmbvideo.recon.aligned_box as aligned_module
 import rmbvideo.recon.rmbnet as engine_module
 from rmbvideo.evaluate.harness import SATURATION, MethodSpec, run_frames, score_frames
-from rmbvideo.evaluate.heldout import (DEVELOPMENT_RANDOM_OFFSET, DEVELOPMENT_VIDEO_FIRST, FULL, load_heldout_config,
-                                       load_video_heldout)
+from rmbvideo.evaluate.heldout import (DEVELOPMENT_RANDOM_OFFSET, DEVELOPMENT_VIDEO_FIRST, FULL, load_heldout,
+                                       load_heldout_config, load_video_heldout)
 from rmbvideo.evaluate.metrics import robust_scale
 from rmbvideo.evaluate.video_checks import edge_report
 from rmbvideo.mulaw import mu_law
@@ -247,12 +247,15 @@ def gate_features(seq) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
 def learned_gate(half: str = "odd", features: str = "all") -> None:
     """How much a gate that sees the flow could gain: a small network maps per-pixel features (``gate_features``) to
     the share of the aligned mean in the output, fitted on ``half`` ("odd" or "even") of the development sequences to
-    the mu-law L2 and scored on the other half (what the head could learn from these features; fitted on development
+    the mu-law L2 and scored on the other half ("heldout": fitted on all of them, scored on the held-out set) (what the head could learn from these features; fitted on development
     data, so a figure for a decision, never a model). ``features``: "all", "noflow" (without the flow's two),
     "nomerge" (without the merge's support and spread), "images" (the light and the two images' difference only)."""
     sequences = development()
-    data = {seq.name: gate_features(seq) for seq in sequences}
-    fit, test = (sequences[1::2], sequences[0::2]) if half == "odd" else (sequences[0::2], sequences[1::2])
+    if half == "heldout":  # fitted on every development sequence, scored once on the held-out set
+        fit, test = sequences, load_heldout(False) + load_video_heldout(False)
+    else:
+        fit, test = (sequences[1::2], sequences[0::2]) if half == "odd" else (sequences[0::2], sequences[1::2])
+    data = {seq.name: gate_features(seq) for seq in [*fit, *test]}
     keep = {"all": [0, 1, 2, 3, 4, 5], "noflow": [2, 3, 4, 5], "nomerge": [0, 1, 2, 3], "images": [2, 3]}[features]
     rng = np.random.default_rng(0)
 
