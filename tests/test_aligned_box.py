@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rmbvideo.recon.aligned_box import AlignedBox, AlignedBoxConfig, aligned_means, aligned_window
+from rmbvideo.recon.aligned_box import STATISTICS, AlignedBox, AlignedBoxConfig, aligned_means, aligned_window
 
 H, W = 48, 64
 
@@ -48,6 +48,33 @@ def test_moving_texture_is_followed_not_blurred():
     aligned_error = np.abs(out - clean[3])[inner].mean()
     assert aligned_error < 0.7 * np.abs(frames[3] - clean[3])[inner].mean()  # better than the frame alone
     assert aligned_error < 0.5 * np.abs(frames.mean(axis=0) - clean[3])[inner].mean()  # and than the blur
+
+
+def test_statistics_say_where_the_mean_can_be_trusted():
+    """``mean(statistics=True)``: the same mean, and per pixel the flow's gradient and magnitude, the robust test's
+    support and the neighbours' spread. Two halves panned apart: a flow of their speed, smooth inside each half and
+    steep where they meet, every neighbour kept inside them; a neighbour of other content: fewer kept, more spread."""
+    left, right = texture(4), texture(5)
+    speed, rng = 2, np.random.default_rng(6)
+    clean = [np.concatenate([left[:, 20 + speed * (k - 3): 52 + speed * (k - 3)],
+                             right[:, 40 - speed * (k - 3): 72 - speed * (k - 3)]], axis=1) for k in range(7)]
+    box = AlignedBox(AlignedBoxConfig())
+    for k, frame in enumerate(clean):
+        box.add(k, noisy(frame, rng))
+    mean, stats = box.mean(3, range(7), statistics=True)
+    assert np.array_equal(mean, box.mean(3, range(7))) and stats.shape == (len(STATISTICS), H, W)
+    assert stats.dtype == np.float32 and np.isfinite(stats).all()
+    roughness, magnitude, support, spread = stats
+    halves, seam = (slice(8, -8), np.r_[8:22, 42:56]), (slice(8, -8), slice(28, 36))
+    assert abs(np.median(magnitude[halves]) - speed) < 0.3
+    assert np.median(roughness[halves]) < 0.05 and np.median(roughness[seam]) > 2 * np.median(roughness[halves])
+    assert np.median(support[halves]) > 0.95 and 0 < support.min() and support.max() <= 1
+    other = AlignedBox(AlignedBoxConfig())
+    for k, frame in enumerate(clean):
+        other.add(k, noisy(texture(9)[:, :W] if k == 4 else frame, rng))
+    _, mixed = other.mean(3, range(7), statistics=True)
+    assert np.median(mixed[2][halves]) < np.median(support[halves]) - 0.05
+    assert np.median(mixed[3][halves]) > np.median(spread[halves])
 
 
 def test_window_cut_at_the_ends_and_neighbours_only_where_they_exist():

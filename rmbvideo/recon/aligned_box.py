@@ -179,14 +179,17 @@ class AlignedBox:
                 if k in wanted:
                     yield k, flow
 
-    def mean(self, i: int, neighbours: Sequence[int]) -> np.ndarray:
+    def mean(self, i: int, neighbours: Sequence[int],
+             statistics: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         """Frame ``i``'s rate averaged with the ``neighbours`` warped onto it, each pixel weighted by
         the robust agreement test: (H, W) float32 in [0, 1]; (2, H, W) with the sharp images' mean second
-        when frame ``i`` brought one (then every neighbour must have)."""
+        when frame ``i`` brought one (then every neighbour must have). With ``statistics``, also how far that
+        mean can be trusted per pixel (``STATISTICS``, (4, H, W) float32)."""
         cfg = self.config
         gx, gy = self._grid  # type: ignore[misc]
         kinds = [(self._rates, cfg.trials)] + ([(self._sharp, cfg.sharp_trials)] if i in self._sharp else [])
-        merges = [_RobustMerge(images[i], trials, cfg) for images, trials in kinds]
+        merges = [_RobustMerge(images[i], trials, cfg, spread=statistics and k == 0)
+                  for k, (images, trials) in enumerate(kinds)]
         h, w = self._rates[i].shape
         for j, flow in self._flows_from(i, neighbours):
             map_x, map_y = gx + flow[..., 0], gy + flow[..., 1]
@@ -195,19 +198,47 @@ class AlignedBox:
                 merge.add(cv2.remap(images[j], map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE),
                           inside)
         means = [merge.result() for merge in merges]
-        return means[0] if len(means) == 1 else np.stack(means)
+        mean = means[0] if len(means) == 1 else np.stack(means)
+        return (mean, self._statistics(i, merges[0], len(neighbours))) if statistics else mean
+
+    def _statistics(self, i: int, merge: "_RobustMerge", frames: int) -> np.ndarray:
+        """``STATISTICS`` of frame ``i``'s mean from its merge over ``frames`` frames (the flows to its next frame
+        and from its previous one, where the window has them)."""
+        h, w = self._rates[i].shape
+        steps = [self._flows[key] for key in ((i, i + 1), (i - 1, i)) if key in self._flows]
+        roughness, magnitude = np.zeros((h, w), np.float32), np.zeros((h, w), np.float32)
+        for flow in steps:
+            squares = sum(np.square(cv2.Sobel(flow[..., c], cv2.CV_32F, dx, 1 - dx) / 8) for c in (0, 1) for dx in (0, 1))
+            np.maximum(roughness, cv2.GaussianBlur(np.sqrt(squares), (0, 0), STATISTICS_SIGMA), out=roughness)
+        if steps:
+            magnitude = cv2.GaussianBlur(np.hypot(steps[0][..., 0], steps[0][..., 1]), (0, 0), STATISTICS_SIGMA)
+        support, spread = merge.support(frames), merge.spread()
+        return np.stack([roughness, magnitude, support, spread]).astype(np.float32)
+
+
+#: What ``AlignedBox.mean(statistics=True)`` says of each pixel of a mean, in this order: how far the flow around the
+#: frame is from one rigid motion (its spatial gradient, pixels of motion per pixel), how far it moves (pixels per
+#: frame), the share of the window's frames the robust test kept, and how far the kept neighbours scatter around the
+#: mean (log(1 + their variance over a rate's Bernoulli variance)). The pans whose default output gains from leaning
+#: on the aligned mean are those that move as one piece with neighbours that agree (models/experiments/blend-hedging).
+STATISTICS = ("flow gradient", "flow magnitude", "support", "spread")
+#: Gaussian blur (pixels) of the flow statistics: a flow's gradient is noisy pixel by pixel.
+STATISTICS_SIGMA = 1.5
 
 
 class _RobustMerge:
     """Running robust mean onto a reference image: a warped neighbour counts per pixel by
-    ``min(1, tau / z^2)``, z the difference of local means on the arcsine-sqrt scale over its standard error."""
+    ``min(1, tau / z^2)``, z the difference of local means on the arcsine-sqrt scale over its standard error.
+    With ``spread`` it also keeps the weighted squares, for the neighbours' scatter around the mean."""
 
-    def __init__(self, reference: np.ndarray, trials: int, config: AlignedBoxConfig) -> None:
+    def __init__(self, reference: np.ndarray, trials: int, config: AlignedBoxConfig, spread: bool = False) -> None:
         self._size = (config.patch, config.patch)
         self._tau = config.tau
+        self._trials = trials
         self._variance = 2.0 / (trials * config.patch * config.patch)
         self._angle = _arcsine_sqrt(self._local(reference))
         self._total, self._weights = reference.copy(), np.ones_like(reference)
+        self._squares = np.square(reference, dtype=np.float64) if spread else None
 
     def _local(self, a: np.ndarray) -> np.ndarray:
         return cv2.boxFilter(a, -1, self._size, normalize=True, borderType=cv2.BORDER_REPLICATE)
@@ -224,9 +255,22 @@ class _RobustMerge:
         self._weights += weight
         weight *= warped
         self._total += weight
+        if self._squares is not None:
+            self._squares += weight * warped.astype(np.float64)
 
     def result(self) -> np.ndarray:
         return (self._total / self._weights).astype(np.float32)
+
+    def support(self, frames: int) -> np.ndarray:
+        """The merge's weights over the ``frames`` frames of its window: 1 where every one was kept."""
+        return (self._weights / max(frames, 1)).astype(np.float32)
+
+    def spread(self) -> np.ndarray:
+        """log(1 + the weighted variance of the merged images over a rate's Bernoulli variance at the mean)."""
+        mean = self._total / self._weights
+        variance = np.maximum(self._squares / self._weights - np.square(mean), 0.0)
+        bernoulli = np.maximum(mean * (1.0 - mean), 1.0 / self._trials) / self._trials
+        return np.log1p(variance / bernoulli).astype(np.float32)
 
 
 def aligned_window(i: int, radius: int, count: int | None, shift: bool = False) -> range:

@@ -13,7 +13,7 @@ only, with the shipped model and no retraining. Run from the repository root (ea
     python models/experiments/blend-hedging/probe.py models A.safetensors B.safetensors ...   # candidates side by side
 
 The blend is hooked at ``rmbvideo.net.model.blend`` (its candidates in linear units and the softmax weights), the
-aligned mean's merge at ``rmbvideo.recon.aligned_box._RobustMerge`` (its weights and the warped neighbours' spread).
+aligned mean at ``rmbvideo.recon.aligned_box.AlignedBox.mean`` (its per-pixel statistics, ``STATISTICS`` there).
 """
 
 import sys
@@ -39,12 +39,9 @@ from rmbvideo.net.weights import default_model_path, load_model, save_model
 
 CANDIDATES = ["own", "reference", "pool 3", "pool 7", "centre 2", "centre 4", "centre 6", "aligned"]
 RECORD: list = []  # (candidates (1, K, H, W), weights (1, K, H, W)) of every blend call
-MERGES: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # frame -> (support, chi^2 of the neighbours' spread)
-FLOWS: dict[tuple[int, int], np.ndarray] = {}  # (frame, next frame) -> DIS flow between them
+STATISTICS: dict[int, np.ndarray] = {}  # frame -> its aligned mean's per-pixel statistics (aligned_box.STATISTICS)
 BLEND_KNOBS = {"aligned": 0.0, "scale": 1.0}
-_blend, _mean, _step = model_module.blend, aligned_module.AlignedBox.mean, aligned_module.AlignedBox._step_flow
-_init, _add, _result = (aligned_module._RobustMerge.__init__, aligned_module._RobustMerge.add,
-                        aligned_module._RobustMerge.result)
+_blend, _mean = model_module.blend, aligned_module.AlignedBox.mean
 
 
 def blend(own, candidates, logits):
@@ -55,65 +52,13 @@ def blend(own, candidates, logits):
     return _blend(own, candidates, logits)
 
 
-def merge_init(self, reference, trials, config):
-    _init(self, reference, trials, config)
-    self.squares, self.trials = reference.astype(np.float64) ** 2, trials
-
-
-def merge_add(self, warped, inside):
-    before = self._weights.copy()
-    _add(self, warped, inside)
-    self.squares = self.squares + (self._weights - before) * warped.astype(np.float64) ** 2
-
-
-def merge_result(self):
-    mean = self._total / self._weights
-    spread = np.maximum(self.squares / self._weights - mean ** 2, 0)
-    self.chi2 = spread / (np.maximum(mean * (1 - mean), 1.0 / self.trials) / self.trials)
-    return _result(self)
-
-
-def step_flow(self, a, b):
-    flow = _step(self, a, b)
-    if b == a + 1:
-        FLOWS[(a, b)] = flow
-    return flow
-
-
-def roughness(i: int) -> np.ndarray:
-    """How far the flow around frame ``i`` is from one rigid motion: the magnitude of its spatial gradient
-    (pixels of motion per pixel), the larger of the flows to the next and from the previous frame, smoothed."""
-    out = None
-    for key in ((i, i + 1), (i - 1, i)):
-        if key in FLOWS:
-            flow = FLOWS[key]
-            grad = sum(np.square(cv2.Sobel(flow[..., c], cv2.CV_32F, dx, 1 - dx) / 8) for c in (0, 1) for dx in (0, 1))
-            grad = cv2.GaussianBlur(np.sqrt(grad), (0, 0), 1.5)
-            out = grad if out is None else np.maximum(out, grad)
-    return out
-
-
 def aligned_mean(self, i, neighbours):
-    merges = []
-    original = aligned_module._RobustMerge.result
-
-    def keep(merge):
-        merges.append(merge)
-        return original(merge)
-    aligned_module._RobustMerge.result = keep
-    try:
-        out = _mean(self, i, neighbours)
-    finally:
-        aligned_module._RobustMerge.result = original
-    MERGES[i] = (merges[0]._weights / len(neighbours), merges[0].chi2)
-    return out
+    mean, STATISTICS[i] = _mean(self, i, neighbours, statistics=True)
+    return mean
 
 
 model_module.blend = blend
-aligned_module._RobustMerge.__init__, aligned_module._RobustMerge.add = merge_init, merge_add
-aligned_module._RobustMerge.result = merge_result
 aligned_module.AlignedBox.mean = aligned_mean
-aligned_module.AlignedBox._step_flow = step_flow
 
 
 def development(names=()) -> list:
@@ -125,8 +70,7 @@ def development(names=()) -> list:
 def run(seq, **options):
     """The default's frames of ``seq`` (index -> image) and, per frame, its blend record (priming calls dropped)."""
     RECORD.clear()
-    MERGES.clear()
-    FLOWS.clear()
+    STATISTICS.clear()
     spec = MethodSpec("default", "rmbnet", {"threads": 1, "input_mode": "binned", "precision": "fp32", **options},
                       "pure-m")
     frames, _, _ = run_frames(spec, seq)
@@ -211,14 +155,13 @@ def gates() -> None:
         h, w = seq.shape
         blended = {i: (r[0][0] * r[1][0]).sum(0)[:h, :w] for i, r in records.items()}
         aligned = {i: r[0][0, -1, :h, :w] for i, r in records.items()}
-        chi2 = {i: cv2.GaussianBlur(MERGES[i][1].astype(np.float32), (0, 0), 1.0) for i in seq.scored_frames}
+        chi2 = {i: cv2.GaussianBlur(np.expm1(STATISTICS[i][3]), (0, 0), 1.0) for i in seq.scored_frames}
         row = [score(blended, seq)]
-        row += [score({i: np.where(MERGES[i][0] >= s, aligned[i], blended[i]) for i in seq.scored_frames}, seq)
+        row += [score({i: np.where(STATISTICS[i][2] >= s, aligned[i], blended[i]) for i in seq.scored_frames}, seq)
                 for s in supports]
         row += [score({i: np.where(chi2[i] < c, aligned[i], blended[i]) for i in seq.scored_frames}, seq)
                 for c in spreads]
-        flow = {i: roughness(i) for i in seq.scored_frames}
-        row += [score({i: np.where(flow[i] < r, aligned[i], blended[i]) for i in seq.scored_frames}, seq)
+        row += [score({i: np.where(STATISTICS[i][0] < r, aligned[i], blended[i]) for i in seq.scored_frames}, seq)
                 for r in rough]
         rows[seq.name] = row
     table(rows, ["blend"] + [f"support >= {s}" for s in supports] + [f"chi2 < {c}" for c in spreads]
@@ -234,12 +177,10 @@ def gate_features(seq) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     for i in seq.scored_frames:
         candidates, weights = records[i][0][0, :, :h, :w], records[i][1][0, :, :h, :w]
         blended, aligned = (candidates * weights).sum(0), candidates[-1]
-        flow = FLOWS.get((i, i + 1), FLOWS.get((i - 1, i)))
-        magnitude = cv2.GaussianBlur(np.hypot(flow[..., 0], flow[..., 1]), (0, 0), 1.5)
         level = np.log(np.maximum(blended, 1e-4))
         difference = np.abs(aligned - blended) / np.maximum(blended, 1e-3)
-        support, chi2 = MERGES[i]
-        features = np.stack([roughness(i), magnitude, level, difference, support, np.log1p(chi2)])
+        roughness, magnitude, support, spread = STATISTICS[i]
+        features = np.stack([roughness, magnitude, level, difference, support, spread])
         out[i] = (blended, aligned, features.astype(np.float32))
     return out
 
@@ -272,6 +213,7 @@ def learned_gate(half: str = "odd", features: str = "all") -> None:
         return [torch.from_numpy(np.concatenate(x).astype(np.float32)) for x in (feats, blends, aligned, truths)]
 
     feats, blends, aligned, truths = pixels(fit, 2000)
+    torch.manual_seed(0)
     mean, std = feats.mean(0), feats.std(0) + 1e-6
     gate = torch.nn.Sequential(torch.nn.Linear(feats.shape[1], 16), torch.nn.ReLU(), torch.nn.Linear(16, 1))
     optimiser = torch.optim.Adam(gate.parameters(), lr=3e-3)
