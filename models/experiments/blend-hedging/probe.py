@@ -9,7 +9,7 @@ only, with the shipped model and no retraining. Run from the repository root (ea
     python models/experiments/blend-hedging/probe.py radius       # the aligned mean over 3, 5 (shipped) and 8 frames
     python models/experiments/blend-hedging/probe.py flip         # the network also on the mirrored stream, averaged
     python models/experiments/blend-hedging/probe.py sharpen      # the blend's logits scaled by s at inference
-    python models/experiments/blend-hedging/probe.py learned-gate odd|even|heldout all|noflow|nomerge|images   # a learned mix
+    python models/experiments/blend-hedging/probe.py learned-gate odd|even|heldout all|noflow|nomerge|images [SEEDS]   # a learned mix
     python models/experiments/blend-hedging/probe.py models A.safetensors B.safetensors ...   # candidates side by side
 
 The blend is hooked at ``rmbvideo.net.model.blend`` (its candidates in linear units and the softmax weights), the
@@ -185,12 +185,14 @@ def gate_features(seq) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     return out
 
 
-def learned_gate(half: str = "odd", features: str = "all") -> None:
+def learned_gate(half: str = "odd", features: str = "all", seeds: str = "1") -> None:
     """How much a gate that sees the flow could gain: a small network maps per-pixel features (``gate_features``) to
     the share of the aligned mean in the output, fitted on ``half`` ("odd" or "even") of the development sequences to
-    the mu-law L2 and scored on the other half ("heldout": fitted on all of them, scored on the held-out set) (what the head could learn from these features; fitted on development
-    data, so a figure for a decision, never a model). ``features``: "all", "noflow" (without the flow's two),
-    "nomerge" (without the merge's support and spread), "images" (the light and the two images' difference only)."""
+    the mu-law L2 and scored on the other half ("heldout": fitted on all of them, scored on the held-out set): what
+    the head could learn from these features (fitted on development data, so a figure for a decision, never a
+    model). ``features``: "all", "noflow" (without the flow's two), "nomerge" (without the merge's support and
+    spread), "images" (the light and the two images' difference only). ``seeds``: initialisations fitted (torch
+    seeds 0..); each sequence's score is their mean, and the mean gain of each is printed."""
     sequences = development()
     if half == "heldout":  # fitted on every development sequence, scored once on the held-out set
         fit, test = sequences, load_heldout(False) + load_video_heldout(False)
@@ -199,41 +201,43 @@ def learned_gate(half: str = "odd", features: str = "all") -> None:
     data = {seq.name: gate_features(seq) for seq in [*fit, *test]}
     keep = {"all": [0, 1, 2, 3, 4, 5], "noflow": [2, 3, 4, 5], "nomerge": [0, 1, 2, 3], "images": [2, 3]}[features]
     rng = np.random.default_rng(0)
-
-    def pixels(seqs, count):
-        feats, blends, aligned, truths = [], [], [], []
-        for seq in seqs:
-            for i, (b, a, f) in data[seq.name].items():
-                truth = np.minimum(seq.gt[i], SATURATION)
-                scale = robust_scale(truth)
-                pick = rng.integers(0, b.size, count)
-                feats.append(f[keep].reshape(len(f[keep]), -1)[:, pick].T)
-                blends.append((b / scale).ravel()[pick]), aligned.append((a / scale).ravel()[pick])
-                truths.append((truth / scale).ravel()[pick])
-        return [torch.from_numpy(np.concatenate(x).astype(np.float32)) for x in (feats, blends, aligned, truths)]
-
-    feats, blends, aligned, truths = pixels(fit, 2000)
-    torch.manual_seed(0)
+    feats, blends, aligned, truths = [], [], [], []
+    for seq in fit:  # 2,000 pixels of every scored frame
+        for i, (b, a, f) in data[seq.name].items():
+            truth = np.minimum(seq.gt[i], SATURATION)
+            scale = robust_scale(truth)
+            pick = rng.integers(0, b.size, 2000)
+            feats.append(f[keep].reshape(len(keep), -1)[:, pick].T)
+            blends.append((b / scale).ravel()[pick]), aligned.append((a / scale).ravel()[pick])
+            truths.append((truth / scale).ravel()[pick])
+    feats, blends, aligned, truths = (torch.from_numpy(np.concatenate(x).astype(np.float32))
+                                      for x in (feats, blends, aligned, truths))
     mean, std = feats.mean(0), feats.std(0) + 1e-6
-    gate = torch.nn.Sequential(torch.nn.Linear(feats.shape[1], 16), torch.nn.ReLU(), torch.nn.Linear(16, 1))
-    optimiser = torch.optim.Adam(gate.parameters(), lr=3e-3)
     tone = lambda x: torch.log1p(5000 * x.clamp(0, 1)) / np.log1p(5000)  # noqa: E731
-    for _ in range(1500):
-        share = torch.sigmoid(gate((feats - mean) / std))[:, 0]
-        loss = ((tone(share * aligned + (1 - share) * blends) - tone(truths)) ** 2).mean()
-        optimiser.zero_grad()
-        loss.backward()
-        optimiser.step()
-    rows = {}
-    with torch.no_grad():
-        for seq in test:
-            images = {}
-            for i, (b, a, f) in data[seq.name].items():
-                x = (torch.from_numpy(f[keep].reshape(len(f[keep]), -1).T) - mean) / std
-                share = torch.sigmoid(gate(x))[:, 0].numpy().reshape(b.shape)
-                images[i] = share * a + (1 - share) * b
-            rows[seq.name] = [score({i: v[0] for i, v in data[seq.name].items()}, seq), score(images, seq)]
-    table(rows, ["blend", "learned gate (fitted on the other sequences)"])
+    blend_scores = {seq.name: score({i: v[0] for i, v in data[seq.name].items()}, seq) for seq in test}
+    gated: dict[str, list[float]] = {seq.name: [] for seq in test}
+    for seed in range(int(seeds)):
+        torch.manual_seed(seed)
+        gate = torch.nn.Sequential(torch.nn.Linear(len(keep), 16), torch.nn.ReLU(), torch.nn.Linear(16, 1))
+        optimiser = torch.optim.Adam(gate.parameters(), lr=3e-3)
+        for _ in range(1500):
+            share = torch.sigmoid(gate((feats - mean) / std))[:, 0]
+            loss = ((tone(share * aligned + (1 - share) * blends) - tone(truths)) ** 2).mean()
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+        with torch.no_grad():
+            for seq in test:
+                images = {}
+                for i, (b, a, f) in data[seq.name].items():
+                    x = (torch.from_numpy(f[keep].reshape(len(keep), -1).T) - mean) / std
+                    share = torch.sigmoid(gate(x))[:, 0].numpy().reshape(b.shape)
+                    images[i] = share * a + (1 - share) * b
+                gated[seq.name].append(score(images, seq))
+        print(f"initialisation {seed}: mean gain "
+              f"{np.mean([gated[n][-1] - blend_scores[n] for n in gated]):+.2f} dB", flush=True)
+    table({name: [blend_scores[name], float(np.mean(values))] for name, values in gated.items()},
+          ["blend", "learned gate (fitted on the other sequences)"])
 
 
 def window() -> None:
