@@ -21,6 +21,11 @@ log = logging.getLogger(__name__)
 
 
 
+def _auto_choice(flag: str, choices: tuple[str, ...], help_text: str):
+    """An option choosing among ``choices`` or "auto" (the default: decided per capture, ``recon.run.prepare_run``)."""
+    return click.option(flag, type=click.Choice(["auto", *choices]), default="auto", show_default=True, help=help_text)
+
+
 def rmbnet_options(func):
     """Options that only RMB-Net uses (ignored by the other methods)."""
     options = [
@@ -40,19 +45,19 @@ def rmbnet_options(func):
                   "else the idle cores, at most 8; RMB-Net's aligned window means in a thread of their own "
                   "when a second core is idle; with the network on a GPU, every core but one for them]. With 2 or "
                   "more, the aligned means take one of them; on a GPU they take them all."),
-        click.option("--convention", type=click.Choice(["auto", *CONVENTIONS]), default="auto", show_default=True,
-                     help="What made the spikes: physical (pixels reset to zero at a spike: rmbvideo's emission "
-                          "model) or spikezoo (the charge past the threshold kept: spikezoo's REDS streams, and real "
-                          "cameras such as car.dat's). auto: physical for a capture `rmbvideo simulate` made, else "
-                          "what its first 200 planes show (a pile-up of spike counts at half the planes means reset "
-                          "to zero), physical when they cannot tell."),
-        click.option("--response", type=click.Choice(["auto", *RESPONSES]), default="auto", show_default=True,
-                     help="How a camera's rates are read back as light where RMB-Net passes them through: "
-                          "closed-form (any camera: smooth, reads above half a threshold per plane dark) or "
-                          "emission-model (the tabulated response of rmbvideo's simulated camera: exact for streams "
-                          "`rmbvideo simulate` made with shot noise and threshold mismatch, as every bundled scene "
-                          "has; contours on a camera whose response differs). auto: emission-model where the "
-                          "capture's sidecar says `rmbvideo simulate` made it with those effects, else closed-form."),
+        _auto_choice("--convention", CONVENTIONS,
+                     "What made the spikes: physical (pixels reset to zero at a spike: rmbvideo's emission model) or "
+                     "spikezoo (the charge past the threshold kept: spikezoo's REDS streams, and real cameras such as "
+                     "car.dat's). auto: for a capture `rmbvideo simulate` made, the pixel its sidecar records; else "
+                     "what its first 200 planes show (a pile-up of spike counts at half the planes means reset to "
+                     "zero), physical when they cannot tell."),
+        _auto_choice("--response", RESPONSES,
+                     "How a camera's rates are read back as light where RMB-Net passes them through: closed-form (any "
+                     "camera: smooth, reads above half a threshold per plane dark) or emission-model (the tabulated "
+                     "response of rmbvideo's simulated camera: exact for streams `rmbvideo simulate` made with shot "
+                     "noise and threshold mismatch, as every bundled scene has; contours on a camera whose response "
+                     "differs). auto: emission-model where the capture's sidecar says `rmbvideo simulate` made it "
+                     "with those effects, else closed-form."),
         click.option("--frame-batch", type=click.IntRange(min=1), default=None,
                      help="Output frames RMB-Net makes per batched pass (its ConvLSTM still steps through them in "
                           "order; the same frames) [default: up to 128 on a GPU, fewer for large frames; 1 on a CPU, "

@@ -183,6 +183,9 @@ class FullResolution:
         else:
             self._rates = [Tfp(window=w, step=step) for w in windows]
             self._rates += [Tfi(step=step, max_reach=reach)] if reach else []
+        # whether a raw-rate method on the CPU reads decoded planes (TFI; TFP sums the stored bits)
+        self._rates_decode = self._rates_device is None and not all(getattr(r, "accepts_packed", False)
+                                                                    for r in self._rates)
         self._coarse: dict[int, Frame] = {}
         self._fine: list[dict[int, Frame]] = [{} for _ in self._rates]
         self.stage_seconds = getattr(binned, "stage_seconds", {})
@@ -195,8 +198,7 @@ class FullResolution:
     def push(self, chunk: SpikeChunk | PackedChunk) -> list[Frame]:
         stored = isinstance(chunk, PackedChunk) and chunk.geometry.byte_aligned
         # decoded on the CPU only where a method there needs the planes (the binning of other geometries, TFI)
-        decode = not stored or (self._rates_device is None and any(not getattr(r, "accepts_packed", False)
-                                                                    for r in self._rates))
+        decode = not stored or self._rates_decode
         spikes = chunk.unpack() if decode and isinstance(chunk, PackedChunk) else chunk
         rates = self._start(lambda: self._push_rates(chunk, spikes))
         if stored:

@@ -11,6 +11,8 @@ only, with the shipped model and no retraining. Run from the repository root (ea
     python models/experiments/blend-hedging/probe.py sharpen      # the blend's logits scaled by s at inference
     python models/experiments/blend-hedging/probe.py learned-gate odd|even|heldout all|noflow|nomerge|images [SEEDS]   # a learned mix
     python models/experiments/blend-hedging/probe.py models A.safetensors B.safetensors ...   # candidates side by side
+    python models/experiments/blend-hedging/probe.py flow         # per pan: how much the aligned mean helps, the flow
+    python models/experiments/blend-hedging/probe.py car A.safetensors   # a model against the default on car.dat
 
 The blend is hooked at ``rmbvideo.net.model.blend`` (its candidates in linear units and the softmax weights), the
 aligned mean at ``rmbvideo.recon.aligned_box.AlignedBox.mean`` (its per-pixel statistics, ``STATISTICS`` there).
@@ -296,8 +298,35 @@ def models(*paths: str) -> None:
     table(rows, [f"{path.parent.name}/{path.stem}" for path in files])
 
 
+def flow() -> None:
+    """Per development pan: what raising the aligned mean's logit by 2 gains, and the DIS flow's median and 90th
+    percentile over its frames (the pans that move as one piece have a 90th percentile near the median)."""
+    rows = {}
+    for seq in development()[:16]:
+        plain = score(run(seq)[0], seq)
+        magnitudes = np.stack([STATISTICS[i][1] for i in seq.scored_frames])
+        BLEND_KNOBS["aligned"] = 2.0
+        raised = score(run(seq)[0], seq)
+        BLEND_KNOBS["aligned"] = 0.0
+        median, p90 = np.median(magnitudes), np.quantile(magnitudes, 0.9)
+        rows[seq.name] = [raised - plain, median, p90, p90 / max(median, 1e-6)]
+    table(rows, ["gain at b = 2 (dB)", "flow median (px/frame)", "flow 90th percentile", "ratio"])
+
+
+def car(path: str) -> None:
+    """A model file against the default on the real capture ``../shared/data/real/car.dat`` (no ground truth): the
+    mean relative difference of their frames and the ratio of their means."""
+    from rmbvideo.recon.run import reconstruct_frames
+
+    capture = Path("../shared/data/real/car.dat")
+    frames = [np.stack([f.image for f in reconstruct_frames(capture, "rmbnet", model=m, threads=1)])
+              for m in (default_model_path(), Path(path))]
+    print(f"mean relative difference {np.abs(frames[1] - frames[0]).mean() / frames[0].mean():.4f}, "
+          f"ratio of means {frames[1].mean() / frames[0].mean():.4f}")
+
+
 if __name__ == "__main__":
     command = sys.argv[1] if len(sys.argv) > 1 else "bands"
     {"bands": bands, "bias": bias, "gates": gates, "window": window, "prime": prime, "radius": radius,
      "flip": flip, "models": models, "sharpen": sharpen,
-     "learned-gate": learned_gate}[command](*sys.argv[2:])
+     "learned-gate": learned_gate, "flow": flow, "car": car}[command](*sys.argv[2:])
