@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from rmbvideo.recon.aligned_batched import BatchedAlignedWorker, warp
-from rmbvideo.recon.aligned_box import AlignedBox, AlignedBoxConfig, aligned_window
+from rmbvideo.recon.aligned_batched import BatchedAlignedWorker, _reflect_101, warp
+from rmbvideo.recon.aligned_box import STATISTICS, AlignedBox, AlignedBoxConfig, aligned_window
 from tests.test_aligned_box import noisy, texture
 
 
@@ -28,10 +28,12 @@ DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 
 
 @pytest.mark.parametrize("device", DEVICES)
-@pytest.mark.parametrize("sharp", [False, True])
-def test_batched_means_are_the_opencv_means_streamed_with_evictions(sharp, device):
+@pytest.mark.parametrize("sharp, statistics", [(False, False), (True, False), (True, True)])
+def test_batched_means_are_the_opencv_means_streamed_with_evictions(sharp, statistics, device):
     """A texture panned 2 px a frame (and a still stretch), its frames added one at a time and its means asked for in
-    runs as the engine does, windows slid inwards at both ends; old frames evicted after each run."""
+    runs as the engine does, windows slid inwards at both ends; old frames evicted after each run. With
+    ``statistics`` also each mean's ``STATISTICS``: the flow's to float (the same DIS flows), the merge's support and
+    spread to the means' precision."""
     rng = np.random.default_rng(3)
     scene = texture(4, (48, 64 + 40))
     count, radius = 17, 3
@@ -42,7 +44,7 @@ def test_batched_means_are_the_opencv_means_streamed_with_evictions(sharp, devic
     box = AlignedBox(config)
     for k in range(count):
         box.add(k, frames[k], sharps[k])
-    expected = [box.mean(i, aligned_window(i, radius, count, shift=True)) for i in range(count)]
+    expected = [box.mean(i, aligned_window(i, radius, count, shift=True), statistics) for i in range(count)]
 
     worker = BatchedAlignedWorker(config, device, workers=2)
     got, added = {}, 0
@@ -50,17 +52,37 @@ def test_batched_means_are_the_opencv_means_streamed_with_evictions(sharp, devic
         while added < min(count, run[-1] + 2 * radius + 1):
             worker.add(added, frames[added], sharps[added])
             added += 1
-        handles = {i: worker.mean(i, aligned_window(i, radius, count, shift=True)) for i in run}
+        handles = {i: worker.mean(i, aligned_window(i, radius, count, shift=True), statistics) for i in run}
         got.update({i: h.result() for i, h in handles.items()})
         worker.evict(run[-1] + 1 - 2 * radius)
     worker.close()
     assert sorted(got) == list(range(count))
+    if statistics:
+        for i in range(count):
+            (got[i], stats), (expected[i], opencv) = got[i], expected[i]
+            assert stats.shape == opencv.shape == (len(STATISTICS), 48, 64) and stats.dtype == np.float32
+            np.testing.assert_allclose(stats[:2], opencv[:2], rtol=1e-4, atol=1e-5)
+            merged = np.abs(stats[2:] - opencv[2:])  # a pixel at the frame's edge may keep or drop a neighbour
+            assert merged.mean() < 2e-3 and np.quantile(merged, 0.995) < 0.02, (i, merged.max())
+        assert np.median(opencv_stats(box, 3)[1]) > 1.5 and opencv_stats(box, 3)[2].min() < 1  # a pan; cut windows
     for i in range(count):
         assert got[i].shape == expected[i].shape and got[i].dtype == np.float32 and np.isfinite(got[i]).all()
         difference = np.abs(got[i] - expected[i])
         assert difference.mean() < 1e-4 and np.quantile(difference, 0.999) < 2e-3, (i, difference.max())
     assert worker.busy_seconds > 0 and set(worker._images) == set(range(count - 2 * radius - 1, count)) - set(
         range(0, 16 + 1 - 2 * radius))
+
+
+def opencv_stats(box: AlignedBox, i: int) -> np.ndarray:
+    return box.mean(i, aligned_window(i, 3, 17, shift=True), statistics=True)[1]
+
+
+def test_reflected_border_is_opencvs_default_for_any_size():
+    import cv2
+
+    for size, pad in ((1, 3), (2, 6), (5, 6), (13, 6)):
+        expected = [cv2.borderInterpolate(p, size, cv2.BORDER_REFLECT_101) for p in range(-pad, size + pad)]
+        assert _reflect_101(size, pad) == expected, (size, pad)
 
 
 def test_black_and_saturated_frames_stay_finite():
@@ -76,13 +98,14 @@ def test_black_and_saturated_frames_stay_finite():
     assert np.array_equal(alone, np.ones((16, 24), np.float32))
 
 
-def test_the_engine_with_batched_means_gives_the_frames_of_the_opencv_means(monkeypatch):
-    """What a GPU runs, forced onto the CPU: batched aligned means and batched passes of the network give the
-    frames of the plain run to the means' precision."""
+@pytest.mark.parametrize("evidence", [False, True])
+def test_the_engine_with_batched_means_gives_the_frames_of_the_opencv_means(monkeypatch, evidence):
+    """What a GPU runs, forced onto the CPU: batched aligned means (with their statistics for a model that reads
+    them) and batched passes of the network give the frames of the plain run to the means' precision."""
     import rmbvideo.recon.rmbnet as engine_module
     from tests.test_rmbnet_stream import aligned_model_and_stream, split, stream
 
-    model, data = aligned_model_and_stream(8)
+    model, data = aligned_model_and_stream(8, evidence)
     plain, _ = stream(model, [data], threads=1)
     monkeypatch.setattr(engine_module, "aligned_worker_for",
                         lambda device, config, workers: BatchedAlignedWorker(config, device, 2))

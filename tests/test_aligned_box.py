@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rmbvideo.recon.aligned_box import STATISTICS, AlignedBox, AlignedBoxConfig, aligned_means, aligned_window
+from rmbvideo.recon.aligned_box import (STATISTICS, AlignedBox, AlignedBoxConfig, aligned_means, aligned_window,
+                                        network_input)
 
 H, W = 48, 64
 
@@ -75,6 +76,31 @@ def test_statistics_say_where_the_mean_can_be_trusted():
     _, mixed = other.mean(3, range(7), statistics=True)
     assert np.median(mixed[2][halves]) < np.median(support[halves]) - 0.05
     assert np.median(mixed[3][halves]) > np.median(spread[halves])
+
+
+def test_statistics_of_a_clip_read_only_its_windows_flows_and_join_the_means_as_the_network_reads_them():
+    """``aligned_means(statistics=True)``: each frame's statistics, the same whatever flows an earlier mean left
+    cached (a window's own flows only: the last frame has no flow to a next one); ``network_input``: the means as
+    sums, then the statistics unscaled."""
+    rng = np.random.default_rng(8)
+    frames = np.stack([noisy(texture(3)[:, 2 * k: 2 * k + W], rng) for k in range(6)])
+    means, stats = aligned_means(frames, 2, statistics=True)
+    assert np.array_equal(means, aligned_means(frames, 2)) and stats.shape == (6, len(STATISTICS), H, W)
+    box = AlignedBox()
+    for k, frame in enumerate(frames):
+        box.add(k, frame)
+    box.mean(3, range(1, 6))  # caches the flows from 3 to 4 and 4 to 5
+    _, late = box.mean(5, range(3, 6), statistics=True)
+    fresh = AlignedBox()
+    for k, frame in enumerate(frames):
+        fresh.add(k, frame)
+    np.testing.assert_array_equal(late, fresh.mean(5, range(3, 6), statistics=True)[1])
+    assert np.median(late[1]) > 1.5  # the pan's 2 px a frame, from the flow into the last frame
+    joined = network_input(means[0], stats[0], 80.0)
+    assert joined.shape == (1 + len(STATISTICS), H, W) and joined.dtype == np.float32
+    np.testing.assert_allclose(joined[0], means[0] * 80.0, rtol=1e-6)
+    np.testing.assert_array_equal(joined[1:], stats[0])
+    assert np.array_equal(network_input(means[0], None, 80.0), means[0] * np.float32(80.0))
 
 
 def test_window_cut_at_the_ends_and_neighbours_only_where_they_exist():

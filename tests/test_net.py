@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
-import torch
 import pytest
+import torch
 
 from rmbvideo.net.attention import PairProjection, attend
 from rmbvideo.net.convlstm import ConvLSTMCell
@@ -432,6 +433,44 @@ def test_aligned_candidate_is_checked_round_trips_and_passes_through_exactly():
         with pytest.raises(ValueError, match="aligned window mean"):
             model.forward_sequence(i_s, i_m, convention=1.0)
     torch.testing.assert_close(out, (i_a / (7 * 10)).clamp(0, 1) * (7 / BIN_TRIALS), rtol=2e-5, atol=1e-6)
+
+
+def test_aligned_evidence_is_head_inputs_only_named_as_the_aligned_box_makes_them():
+    """``aligned_evidence``: the aligned mean's statistics follow the means in ``aligned`` and join the head's inputs
+    (squashed into [0, 1), NaN-safe), not its blend candidates; a stage that gains them (new inputs at zero weight,
+    ``widen_model``) computes what it did; with weights on them, they change the output; a wrong channel count is an
+    error naming both."""
+    from rmbvideo.net.config import EVIDENCE
+    from rmbvideo.net.model import evidence_inputs
+    from rmbvideo.net.weights import widen_model
+    from rmbvideo.recon.aligned_box import STATISTICS
+
+    assert EVIDENCE == STATISTICS
+    with pytest.raises(ValueError, match="aligned_evidence need aligned"):
+        RmbNetConfig(readout="pure-m", blend=True, aligned_evidence=True)
+    old = blend_model(aligned=True)
+    model = widen_model(old, replace(old.config, aligned_evidence=True))
+    assert "aligned_evidence" not in old.config.to_dict() and RmbNetConfig.from_dict(model.config.to_dict()) == model.config
+    first, last = model.decoder.head[0][0], model.decoder.head[-1]
+    assert first.in_channels == old.decoder.head[0][0].in_channels + len(EVIDENCE)
+    assert last.out_channels == old.decoder.head[-1].out_channels  # no new blend candidate
+    i_s, i_m = random_inputs(k=9, h=16, w=16)
+    g = torch.Generator().manual_seed(5)
+    i_a = torch.rand(1, 9, 1, 16, 16, generator=g) * 50
+    statistics = torch.rand(1, 9, len(EVIDENCE), 16, 16, generator=g) * 3
+    with torch.inference_mode():
+        before = old.forward_sequence(i_s, i_m, i_a=i_a[:, :, 0])[0]
+        widened = model.forward_sequence(i_s, i_m, i_a=torch.cat([i_a, statistics], dim=2))[0]
+        torch.testing.assert_close(widened, before)
+        first.weight[:, -len(EVIDENCE):] = 0.5
+        moved = model.forward_sequence(i_s, i_m, i_a=torch.cat([i_a, statistics], dim=2))[0]
+        assert (moved - before).abs().max() > 1e-3 and torch.isfinite(moved).all()
+        with pytest.raises(ValueError, match="1 aligned means and 4 statistics, got 1 channels"):
+            model.forward_sequence(i_s, i_m, i_a=i_a[:, :, 0])
+    odd = torch.tensor([0.0, 0.1, 1e9, float("nan"), -1.0, float("inf")]).reshape(1, 1, 1, 6).expand(1, 4, 1, 6)
+    squashed = evidence_inputs(odd)
+    assert torch.isfinite(squashed).all() and (squashed >= 0).all() and (squashed <= 1).all()
+    assert squashed[0, 0, 0, 1] == pytest.approx(0.5) and squashed[0, 2, 0, 2] == 1.0 and squashed[0, 1, 0, 3] == 0
 
 
 @pytest.mark.parametrize("kw", [dict(), dict(readout="pure-m", blend=True, centre_windows=(2, 4), aligned=True)])

@@ -254,19 +254,22 @@ def test_bf16_weights_stored_once_give_what_autocast_casting_them_per_call_gives
     assert np.array_equal(np.stack([f.image for f in stored]), np.stack([f.image for f in cast]))
 
 
-@pytest.mark.parametrize("radius, shift, sharp", [(None, False, 0), (4, True, 2)])
-def test_aligned_model_stream_equals_forward_sequence_with_the_aligned_means(radius, shift, sharp):
+@pytest.mark.parametrize("radius, shift, sharp, evidence", [(None, False, 0, False), (4, True, 2, False),
+                                                             (4, True, 0, True)])
+def test_aligned_model_stream_equals_forward_sequence_with_the_aligned_means(radius, shift, sharp, evidence):
     """A model with the aligned window mean: the engine computes it per reference frame (windows cut at,
-    or with ``aligned_shift`` slid inwards from, the capture's edges; radius w or wider) and matches the
-    plain forward pass given ``aligned_means``, whatever the chunking."""
+    or with ``aligned_shift`` slid inwards from, the capture's edges; radius w or wider; with ``aligned_evidence``
+    its statistics too) and matches the plain forward pass given ``aligned_means``, whatever the chunking."""
     from rmbvideo.net.blend import BIN_TRIALS
-    from rmbvideo.recon.aligned_box import aligned_means
+    from rmbvideo.recon.aligned_box import aligned_means, network_input
 
     torch.manual_seed(0)
     model = RmbNet(RmbNetConfig(w=2, width=0.25, readout="pure-m", blend=True, aligned=True, aligned_radius=radius,
-                                aligned_shift=shift, aligned_centre=sharp)).eval()
-    with torch.no_grad():  # make the aligned candidate count, so a wrong one shows
+                                aligned_shift=shift, aligned_centre=sharp, aligned_evidence=evidence)).eval()
+    with torch.no_grad():  # make the aligned candidate (and its statistics) count, so a wrong one shows
         model.decoder.head[-1].bias[-1] = 3.0
+        if evidence:
+            model.decoder.head[0][0].weight[:, -4:] = 2.0
     rng = np.random.default_rng(6)
     multi = rng.integers(0, 8, (95, H, W)).astype(np.uint8)
     data = RmbChunk((multi > 3).astype(np.uint8), multi, np.ones((95, H), bool), start=0, rate_hz=10_000.0)
@@ -275,14 +278,18 @@ def test_aligned_model_stream_equals_forward_sequence_with_the_aligned_means(rad
     i_m = np.stack([p.i_m for p in pframes]).astype(np.float32)
     centre = (np.stack([select_centre(p.i_c, 10, (sharp,))[0] for p in pframes]).astype(np.float32) / (BIN_TRIALS * sharp)
               if sharp else None)
-    i_a = aligned_means(i_m / (BIN_TRIALS * 10), model.config.aligned_half_width, shift=shift, sharp=centre) * (BIN_TRIALS * 10)
-    assert i_a.ndim == (4 if sharp else 3)
+    means = aligned_means(i_m / (BIN_TRIALS * 10), model.config.aligned_half_width, shift=shift, sharp=centre,
+                          statistics=evidence)
+    means, statistics = means if evidence else (means, [None] * len(means))
+    i_a = np.stack([network_input(m, e, BIN_TRIALS * 10) for m, e in zip(means, statistics)])
+    assert i_a.shape[1:] == ((1 + 4, H, W) if evidence else (2, H, W) if sharp else (H, W))
     with torch.inference_mode():
         reference = model.forward_sequence(torch.from_numpy(np.stack([p.i_s for p in pframes]))[None],
                                            torch.from_numpy(i_m)[None], i_a=torch.from_numpy(i_a)[None],
                                            prime=model.config.w)[0][0]
         plain = model.forward_sequence(torch.from_numpy(np.stack([p.i_s for p in pframes]))[None],
-                                       torch.from_numpy(i_m)[None], i_a=torch.from_numpy(np.ascontiguousarray(i_a[:, ::-1]) if sharp else i_m)[None])[0][0]
+                                       torch.from_numpy(i_m)[None], i_a=torch.from_numpy(
+                                           np.ascontiguousarray(i_a[:, ::-1]) if i_a.ndim == 4 else i_m)[None])[0][0]
     assert not np.allclose(reference.numpy(), plain.numpy())
     for size in (7, 95):
         images = np.stack([f.image for f in stream(model, split(data, size))[0]])
@@ -292,14 +299,16 @@ def test_aligned_model_stream_equals_forward_sequence_with_the_aligned_means(rad
         model.forward_sequence(torch.from_numpy(np.stack([p.i_s for p in pframes]))[None], torch.from_numpy(i_m)[None])
 
 
-def aligned_model_and_stream(seed: int) -> tuple[RmbNet, RmbChunk]:
-    """A tiny model that reads the aligned means (their candidate weighted up, so a wrong one shows) and 135
-    readouts of random multi-bit counts."""
+def aligned_model_and_stream(seed: int, evidence: bool = False) -> tuple[RmbNet, RmbChunk]:
+    """A tiny model that reads the aligned means (their candidate weighted up, so a wrong one shows; with
+    ``evidence`` their statistics too, likewise) and 135 readouts of random multi-bit counts."""
     torch.manual_seed(0)
     model = RmbNet(RmbNetConfig(w=2, width=0.25, readout="pure-m", blend=True, aligned=True, aligned_radius=4,
-                                aligned_shift=True, aligned_centre=2)).eval()
+                                aligned_shift=True, aligned_centre=2, aligned_evidence=evidence)).eval()
     with torch.no_grad():
         model.decoder.head[-1].bias[-1] = 3.0
+        if evidence:
+            model.decoder.head[0][0].weight[:, -4:] = 2.0
     multi = np.random.default_rng(seed).integers(0, 8, (135, H, W)).astype(np.uint8)
     return model, RmbChunk((multi > 3).astype(np.uint8), multi, np.ones((135, H), bool), start=0, rate_hz=10_000.0)
 
@@ -318,13 +327,14 @@ def test_aligned_means_beside_the_network_give_the_same_frames_bit_for_bit():
         assert engine.stage_seconds["aligned mean"] > 0
 
 
-def test_aligned_means_of_a_worker_pool_in_batched_passes_give_the_frames_of_the_plain_run(monkeypatch):
+@pytest.mark.parametrize("evidence", [False, True])
+def test_aligned_means_of_a_worker_pool_in_batched_passes_give_the_frames_of_the_plain_run(monkeypatch, evidence):
     """With the network on a GPU the aligned means come from a pool of threads (every core but one) and the network
-    makes batched runs of frames: the frames are those of the inline, frame-by-frame run (the means bit for bit,
-    the network's output to float rounding)."""
+    makes batched runs of frames: the frames are those of the inline, frame-by-frame run (the means, and their
+    statistics, bit for bit; the network's output to float rounding)."""
     import rmbvideo.recon.rmbnet as engine_module
 
-    model, data = aligned_model_and_stream(8)
+    model, data = aligned_model_and_stream(8, evidence)
     plain, _ = stream(model, [data], threads=1)
     monkeypatch.setattr(engine_module, "aligned_workers", lambda device, threads: 3)
     for size, batch in ((9, 4), (135, 32)):

@@ -165,6 +165,28 @@ def test_aligned_model_trains_on_batches_with_their_aligned_means(tmp_path):
     assert model.decoder.head[-1].weight.grad is not None and model.decoder.head[-1].weight.grad.abs().sum() > 0
 
 
+def test_evidence_model_trains_on_batches_with_the_means_statistics(tmp_path):
+    """A model that reads the aligned mean's statistics (``aligned_evidence``) gets them after the means in ``i_a``,
+    unscaled (the means in sums), and its head's new inputs get gradients."""
+    from rmbvideo.recon.aligned_box import STATISTICS, AlignedBoxConfig, aligned_means
+
+    samples = [SampleCache(tmp_path, TINY_SPEC).get(k) for k in (0, 1)]
+    config = RmbNetConfig(w=1, width=0.25, n=4, readout="pure-m", blend=True, aligned=True, aligned_radius=2,
+                          aligned_evidence=True)
+    batch = Batch.from_samples(samples, torch.device("cpu"), flips=[False, True], n=4, aligned=config)
+    scale = 8 * 4
+    means, statistics = aligned_means(samples[1].i_m[..., ::-1] / scale, 2, AlignedBoxConfig.for_frames(4), False,
+                                      statistics=True)
+    assert batch.i_a.shape[2] == 1 + len(STATISTICS)
+    np.testing.assert_allclose(batch.i_a[1, :, 0].numpy(), means * scale, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(batch.i_a[1, :, 1:].numpy(), statistics, rtol=1e-6, atol=1e-7)
+    torch.manual_seed(0)
+    model = RmbNet(config)
+    parts = train_batch(model, batch, tbptt=2, loss_config=LossConfig())
+    assert all(np.isfinite(v) for v in parts.values())
+    assert model.decoder.head[0][0].weight.grad[:, -len(STATISTICS):].abs().sum() > 0
+
+
 def _graph_size(tensor: torch.Tensor) -> int:
     seen, stack = set(), [tensor.grad_fn]
     while stack:

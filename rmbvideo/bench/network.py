@@ -40,13 +40,15 @@ class NetworkResult:
 
 
 def _inputs(model: RmbNet, width: int, height: int, count: int, device: torch.device) -> tuple[torch.Tensor, ...]:
-    """Random preliminary sums for ``count`` output frames (2w more frames around them) and their aligned means."""
+    """Random preliminary sums for ``count`` output frames (2w more frames around them) and their aligned means (with
+    their statistics for a model that reads them)."""
     config, frames = model.config, count + 2 * model.config.w
     g = torch.Generator().manual_seed(0)
     i_s = torch.randint(0, 81, (frames, height, width), generator=g).float()
     i_m = torch.randint(0, 7 * 81, (frames, height, width), generator=g).float()
     i_c = torch.randint(0, 7 * 8 * 4, (frames, max(1, len(config.centre_windows)), height, width), generator=g).float()
-    aligned = torch.rand(count, height, width, generator=g) * 7 * 80
+    aligned = torch.rand(count, config.aligned_channels + config.evidence_channels, height, width, generator=g)
+    aligned[:, : config.aligned_channels] *= 7 * 80  # the means in sums, then their statistics
     return tuple(t.to(device) for t in (i_s, i_m, i_c, aligned))
 
 

@@ -14,6 +14,9 @@ INPUT_MODES = ("binned", "native")
 READOUTS = ("rmb", "pure-s", "pure-m", "full-m")
 #: Largest half-width of the aligned window mean (frames): its flows compose one step per frame.
 MAX_ALIGNED_RADIUS = 12
+#: What ``aligned_evidence`` reads of each pixel's aligned mean, in this order (``rmbvideo.recon.aligned_box.STATISTICS``
+#: makes them; net/ imports torch and its siblings only, so the names are repeated here and tested equal).
+EVIDENCE = ("flow gradient", "flow magnitude", "support", "spread")
 
 
 @dataclass(frozen=True)
@@ -45,6 +48,10 @@ class RmbNetConfig:
     motion blurs a whole frame), moved by the same flows: one more head input and blend candidate.
     ``output_mu``/``output_max``: the decoder predicts the mu-law domain T(G) (the training loss
     domain, mu = 5000) through a softplus, capped at ``output_max`` so the inverse cannot overflow.
+    ``aligned_evidence``: the head also sees how far the aligned mean can be trusted per pixel (``EVIDENCE``: the flow's
+    local gradient and magnitude, the robust merge's support and the kept neighbours' spread; given after the means
+    in ``RmbNet.step``'s ``aligned``), inputs only, not blend candidates: the flow tells a pan that moves as one piece,
+    where the aligned mean is nearly exact, from a scene of independent movers (models/experiments/blend-hedging).
     ``cell_decay``: each ConvLSTM's cell state is scaled by it before each step (``ConvLSTMCell``): 1 keeps the
     state as trained; below 1 it forgets old evidence it would otherwise carry through a long still capture.
     """
@@ -73,6 +80,7 @@ class RmbNetConfig:
     aligned_radius: int | None = None
     aligned_shift: bool = False
     aligned_centre: int = 0
+    aligned_evidence: bool = False
     cell_decay: float = 1.0
 
     def __post_init__(self) -> None:
@@ -101,8 +109,9 @@ class RmbNetConfig:
             raise ValueError("centre_windows need the blend output")
         if self.aligned and not self.blend:
             raise ValueError("aligned needs the blend output")
-        if (self.aligned_radius is not None or self.aligned_shift or self.aligned_centre) and not self.aligned:
-            raise ValueError("aligned_radius, aligned_shift and aligned_centre need aligned")
+        if (self.aligned_radius is not None or self.aligned_shift or self.aligned_centre or self.aligned_evidence) \
+                and not self.aligned:
+            raise ValueError("aligned_radius, aligned_shift, aligned_centre and aligned_evidence need aligned")
         if self.aligned_centre and (not 0 < self.aligned_centre < self.n or (self.n - self.aligned_centre) % 2):
             raise ValueError(f"aligned_centre must be a length in 1..{self.n - 1} of the parity of n, got {self.aligned_centre}")
         if self.aligned_radius is not None and not 0 <= self.aligned_radius <= MAX_ALIGNED_RADIUS:
@@ -128,6 +137,11 @@ class RmbNetConfig:
         return int(self.aligned) + int(self.aligned_centre > 0)
 
     @property
+    def evidence_channels(self) -> int:
+        """Per-pixel statistics of the aligned mean the head reads (``aligned_evidence``): 0 or len(EVIDENCE)."""
+        return len(EVIDENCE) if self.aligned_evidence else 0
+
+    @property
     def channels(self) -> tuple[int, int, int]:
         """Encoder channels per block after the width multiplier."""
         return tuple(max(1, round(c * self.width)) for c in self.base_channels)  # type: ignore[return-value]
@@ -150,7 +164,7 @@ class RmbNetConfig:
         out["centre_windows"] = list(self.centre_windows)
         if not self.centre_windows:
             del out["centre_windows"]
-        for name in ("aligned", "aligned_shift", "aligned_centre"):
+        for name in ("aligned", "aligned_shift", "aligned_centre", "aligned_evidence"):
             if not out[name]:
                 del out[name]
         if self.aligned_radius is None:

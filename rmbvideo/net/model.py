@@ -33,6 +33,9 @@ Choices where the paper and supplement are silent:
   the neighbours warped onto it by optical flow and merged where they agree (computed outside the
   network, ``rmbvideo.recon.aligned_box``; ``step(aligned=...)``) joins the head inputs (mu-law
   compressed) and the blend candidates (last of each).
+- Aligned evidence (``config.aligned_evidence``): the aligned mean's per-pixel statistics (``config.EVIDENCE``), given
+  after the means in ``step(aligned=...)``, join the head inputs last, each squashed to [0, 1) (``evidence_inputs``),
+  so the head can tell where the aligned mean is nearly exact; they are not blend candidates.
 """
 
 from __future__ import annotations
@@ -53,6 +56,11 @@ from rmbvideo.net.encoder import Encoder
 from rmbvideo.mulaw import inverse_mu_law, mu_law
 
 PAD_MULTIPLE = 8
+#: Per-pixel statistics of the aligned mean -> head inputs: x / (x + scale) for the flow's gradient (pixels per pixel),
+#: its magnitude (pixels per frame) and the neighbours' spread (log units), so the heavy tails stay in [0, 1) with the
+#: typical values (medians 0.01-0.25, 0.1-4 and 0.07-0.2 on the development sets) mid-range; the support, already in
+#: [0, 1], as it is (None).
+EVIDENCE_SCALES: tuple[float | None, ...] = (0.1, 2.0, None, 0.25)
 # (scale, query frame index, key frame index) -> XBA mask logits of that pair, (B, C, h, w)
 PairCache = dict[tuple[int, int, int], torch.Tensor]
 
@@ -143,6 +151,16 @@ class _Prepared:
     aligned_rate: torch.Tensor | None
 
 
+def evidence_inputs(statistics: torch.Tensor) -> torch.Tensor:
+    """The aligned mean's statistics (B, len(EVIDENCE), H, W) -> head inputs in [0, 1) (``EVIDENCE_SCALES``;
+    NaN and negative values read as 0)."""
+    parts = []
+    for channel, scale in zip(statistics.float().split(1, dim=1), EVIDENCE_SCALES):
+        x = torch.nan_to_num(channel, nan=0.0, posinf=1e6).clamp(0.0, 1e6)
+        parts.append(x.clamp(max=1.0) if scale is None else x / (x + scale))
+    return torch.cat(parts, dim=1)
+
+
 class RmbNet(nn.Module):
     """The whole network; ``forward_sequence`` is the plain, non-streaming reference path."""
 
@@ -172,7 +190,7 @@ class RmbNet(nn.Module):
         outputs = (2 + candidate_count(config.pooled_windows, config.centre_windows, config.aligned_channels)
                    if config.blend else 1)
         head_inputs = (2 + 2 * len(config.pooled_windows) + int(config.convention_input) + len(config.centre_windows)
-                       + config.aligned_channels)
+                       + config.aligned_channels + config.evidence_channels)
         self.decoder = Decoder(channels, config.lstm_kernel, input_channels=head_inputs, outputs=outputs,
                                cell_decay=config.cell_decay)
         if config.blend:  # start from the network's own estimate (weight ~0.98), whatever the input
@@ -208,21 +226,29 @@ class RmbNet(nn.Module):
         scale = torch.tensor([self.config.level * k for k in windows], dtype=torch.float32, device=i_c.device)
         return torch.nan_to_num(i_c.float() / scale.reshape(1, -1, 1, 1), nan=0.0).clamp(0.0, 1.0)
 
-    def normalise_aligned(self, i_a: torch.Tensor | None, size: tuple[int, int]) -> torch.Tensor | None:
-        """(B,H,W) aligned window mean of the multi-bit sums, or (B,A,H,W) with the central readouts' mean
-        second (``config.aligned_centre``; in sums per N readouts too) -> (B,A,Hp,Wp) rates I_a/(level N) in
-        [0, 1], padded like the inputs (None without ``config.aligned``; missing or wrong ones are an error)."""
-        channels = self.config.aligned_channels
+    def normalise_aligned(self, i_a: torch.Tensor | None,
+                          size: tuple[int, int]) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+        """(B,H,W) aligned window mean of the multi-bit sums, or (B,C,H,W): the means (the central readouts' second with
+        ``config.aligned_centre``; in sums per N readouts too), then their statistics with ``config.aligned_evidence``
+        -> the rates I_a/(level N) in [0, 1] (B,A,Hp,Wp) and the evidence inputs (``evidence_inputs``, (B,E,Hp,Wp), or
+        None), padded like the inputs ((None, None) without ``config.aligned``; missing or wrong ones are an error)."""
+        cfg = self.config
+        channels, evidence = cfg.aligned_channels, cfg.evidence_channels
         if not channels:
-            return None
+            return None, None
         if i_a is None:
             raise ValueError("the model reads the aligned window mean (aligned=...), got none")
-        rate = torch.nan_to_num(i_a.float() / (self.config.level * self.config.n), nan=0.0).clamp(0.0, 1.0)
-        rate = rate.unsqueeze(1) if rate.dim() == 3 else rate
-        if rate.shape[1] != channels:
-            raise ValueError(f"the model reads {channels} aligned means, got {rate.shape[1]}")
+        i_a = i_a.unsqueeze(1) if i_a.dim() == 3 else i_a
+        if i_a.shape[1] != channels + evidence:
+            raise ValueError(f"the model reads {channels} aligned means and {evidence} statistics, "
+                             f"got {i_a.shape[1]} channels")
+        rate = torch.nan_to_num(i_a[:, :channels].float() / (cfg.level * cfg.n), nan=0.0).clamp(0.0, 1.0)
+        statistics = evidence_inputs(i_a[:, channels:]) if evidence else None
         pad_h, pad_w = (-size[0]) % PAD_MULTIPLE, (-size[1]) % PAD_MULTIPLE
-        return F.pad(rate, (0, pad_w, 0, pad_h), mode="replicate") if pad_h or pad_w else rate
+        if pad_h or pad_w:
+            rate = F.pad(rate, (0, pad_w, 0, pad_h), mode="replicate")
+            statistics = None if statistics is None else F.pad(statistics, (0, pad_w, 0, pad_h), mode="replicate")
+        return rate, statistics
 
     def encode(self, i_s: torch.Tensor, i_m: torch.Tensor, indices: Sequence[int],
                i_c: torch.Tensor | None = None) -> list[EncodedFrame]:
@@ -328,12 +354,13 @@ class RmbNet(nn.Module):
 
     def _head_inputs(self, window: Sequence[EncodedFrame], valid: Sequence[bool],
                      convention: torch.Tensor | float, pooled: Sequence[torch.Tensor] | None = None,
-                     aligned: torch.Tensor | None = None) -> torch.Tensor:
+                     aligned: torch.Tensor | None = None, evidence: torch.Tensor | None = None) -> torch.Tensor:
         """The reference's compressed inputs plus its mean rates over each pooled window (valid
         frames only; ``pooled``, from ``_pooled_rates`` when None), mu-law compressed, plus the
         convention plane when the config has it: then the reference's central rates (mu-law
-        compressed) when the config has centre windows, then the aligned mean rate (mu-law compressed)
-        when given: (B, 2 + 2 len(pooled_windows) [+ 1] + len(centre_windows) [+ 1], Hp, Wp)."""
+        compressed) when the config has centre windows, then the aligned mean rates (mu-law compressed)
+        and the aligned mean's evidence inputs when given:
+        (B, 2 + 2 len(pooled_windows) [+ 1] + len(centre_windows) [+ A] [+ E], Hp, Wp)."""
         w = self.config.w
         inputs = window[w].inputs
         pooled = self._pooled_rates(window, valid) if pooled is None else pooled
@@ -345,6 +372,8 @@ class RmbNet(nn.Module):
             parts.append(mu_law(window[w].centre, self.config.input_mu))
         if aligned is not None:
             parts.append(mu_law(aligned, self.config.input_mu).to(inputs.dtype))
+        if evidence is not None:
+            parts.append(evidence.to(inputs.dtype))
         return torch.cat(parts, dim=1) if len(parts) > 1 else parts[0]
 
     def step(
@@ -359,7 +388,8 @@ class RmbNet(nn.Module):
         ``valid`` marks the positions that hold real frames (default: all; see ``window_valid``).
         ``convention``: 0 (a camera) or 1 (the rate convention), a scalar or one per batch item; used
         only when ``config.convention_input``. ``aligned``: the reference's aligned window mean of the
-        multi-bit sums (B,H,W), or (B,2,H,W) with ``config.aligned_centre``; needed when ``config.aligned``.
+        multi-bit sums (B,H,W), or (B,C,H,W): the means, then their statistics (``normalise_aligned``); needed when
+        ``config.aligned``.
         """
         if len(window) != self.config.window:
             raise ValueError(f"window has {len(window)} frames, the model needs {self.config.window}")
@@ -390,7 +420,7 @@ class RmbNet(nn.Module):
         The same as K calls of ``step`` (to float rounding): everything but the decoder's ConvLSTM recurrences
         runs on the K windows at once, and the recurrences step through them in order
         (``Decoder.forward`` with ``run``). On a GPU this turns hundreds of tiny launches per frame into a few per run.
-        ``aligned``: the K references' aligned means, (K,H,W) or (K,2,H,W). ``graphed``: on a GPU without autograd the
+        ``aligned``: the K references' aligned means, (K,H,W) or (K,C,H,W) (``step``). ``graphed``: on a GPU without autograd the
         recurrences replay as CUDA graphs (``ConvLSTMCell.run``). Returns t (K,1,H,W) and the state.
         """
         count = len(frames) - 2 * self.config.w
@@ -430,8 +460,8 @@ class RmbNet(nn.Module):
         reference.append(canonical_batch(f_ms_coarse[self.config.w]))
         fused = self.time_fusion(f_ms_coarse, mask).contiguous(memory_format=torch.channels_last)
         pooled = self._pooled_rates(window, valid)
-        aligned_rate = self.normalise_aligned(aligned, ref.size)
-        inputs = self._head_inputs(window, valid, convention, pooled, aligned_rate)
+        aligned_rate, evidence = self.normalise_aligned(aligned, ref.size)
+        inputs = self._head_inputs(window, valid, convention, pooled, aligned_rate, evidence)
         return _Prepared(ref, (fused, reference, inputs), pooled, aligned_rate)
 
     def _finish(self, z: torch.Tensor, prepared: "_Prepared", convention: torch.Tensor | float) -> torch.Tensor:
@@ -466,7 +496,8 @@ class RmbNet(nn.Module):
 
         Linear HDR by default; ``linear=False`` returns the mu-law domain (the training loss domain).
         ``i_c`` (B,K,C,H,W): central sums, when the config has centre windows; ``i_a`` (B,K,H,W) or
-        (B,K,2,H,W): each frame's aligned mean(s) of the multi-bit sums, when the config has ``aligned``.
+        (B,K,C,H,W): each frame's aligned mean(s) of the multi-bit sums (and their statistics: ``step``), when the
+        config has ``aligned``.
         Without a ``state``, the first frame's is primed backwards over frames ``prime`` .. 1 (``step_backward``;
         the streaming engine's default is w).
         """

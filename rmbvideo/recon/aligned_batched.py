@@ -6,7 +6,8 @@ On a GPU the per-frame work of ``AlignedBox.mean`` (30 remaps and 20 merges, eac
 calls) is what a pool of CPU threads could not do as fast as the network makes frames: its Python steps take
 turns on the interpreter lock. Here it is a few dozen batched kernels per run. Bilinear sampling is at the exact
 positions, where OpenCV rounds them to 1/32 pixel, so the means agree with ``AlignedBox``'s to float and that
-rounding (tested), not bit for bit.
+rounding (tested), not bit for bit. Their statistics (``aligned_box.STATISTICS``), when asked for, likewise: the
+flows' Sobel gradients and Gaussian blurs as ``cv2``'s kernels with its reflected border.
 """
 
 from __future__ import annotations
@@ -21,10 +22,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from rmbvideo.recon.aligned_box import INVERSION_ITERATIONS, AlignedBox, AlignedBoxConfig
+from rmbvideo.recon.aligned_box import INVERSION_ITERATIONS, STATISTICS_SIGMA, AlignedBox, AlignedBoxConfig
 from rmbvideo.recon.aligned_worker import BusyClock
 
-Request = tuple[int, tuple[int, ...]]
+Request = tuple[int, tuple[int, ...], bool]  # frame, its window, whether its statistics are wanted
 
 
 def warp(image: torch.Tensor, flow: torch.Tensor) -> torch.Tensor:
@@ -39,6 +40,44 @@ def warp(image: torch.Tensor, flow: torch.Tensor) -> torch.Tensor:
                          align_corners=True)
 
 
+def _reflect_101(size: int, pad: int) -> list[int]:
+    """Source index of each position -pad .. size - 1 + pad under OpenCV's default border (BORDER_REFLECT_101:
+    ``gfedcb|abcdefgh|gfedcba``), repeated as often as a small image needs."""
+    if size == 1:
+        return [0] * (size + 2 * pad)
+    period = 2 * (size - 1)
+    out = []
+    for p in range(-pad, size + pad):
+        q = p % period
+        out.append(q if q < size else period - q)
+    return out
+
+
+def _filter(images: torch.Tensor, rows: torch.Tensor, columns: torch.Tensor) -> torch.Tensor:
+    """``images`` (B,1,H,W) filtered by the separable kernel ``rows`` x ``columns`` (1-D, odd lengths, correlation as
+    cv2.filter2D/sepFilter2D) with OpenCV's default reflected border."""
+    _, _, h, w = images.shape
+    ky, kx = len(columns) // 2, len(rows) // 2
+    padded = images[:, :, _reflect_101(h, ky)][..., _reflect_101(w, kx)]
+    out = F.conv2d(padded, rows.reshape(1, 1, 1, -1))
+    return F.conv2d(out, columns.reshape(1, 1, -1, 1))
+
+
+def _flow_statistics(flows: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per flow (U,2,H,W): its local gradient and its magnitude, each Gaussian-blurred, (U,1,H,W) each (what
+    ``AlignedBox._statistics`` computes of one flow with OpenCV)."""
+    dev, dtype = flows.device, flows.dtype
+    gauss = torch.from_numpy(cv2.getGaussianKernel(int(round(STATISTICS_SIGMA * 8 + 1)) | 1, STATISTICS_SIGMA,
+                                                   cv2.CV_32F)[:, 0]).to(dev, dtype)
+    smooth = torch.tensor((1.0, 2.0, 1.0), device=dev, dtype=dtype)
+    slope = torch.tensor((-1.0, 0.0, 1.0), device=dev, dtype=dtype)
+    components = flows.reshape(-1, 1, *flows.shape[-2:])
+    squares = sum(_filter(components, a, b).square() for a, b in ((slope, smooth), (smooth, slope))) / 64.0
+    gradient = squares.reshape(flows.shape).sum(dim=1, keepdim=True).sqrt()
+    magnitude = torch.hypot(flows[:, :1], flows[:, 1:])
+    return _filter(gradient, gauss, gauss), _filter(magnitude, gauss, gauss)
+
+
 def _inside(flow: torch.Tensor) -> torch.Tensor:
     """(B,1,H,W): where x + flow(x) falls inside the frame (the evidence a warped neighbour has)."""
     _, _, h, w = flow.shape
@@ -51,10 +90,13 @@ class _BatchedMerge:
     """``aligned_box._RobustMerge`` for a batch of references, one channel per kind (rate, sharp) with its own
     variance."""
 
-    def __init__(self, reference: torch.Tensor, variance: torch.Tensor, config: AlignedBoxConfig) -> None:
+    def __init__(self, reference: torch.Tensor, variance: torch.Tensor, config: AlignedBoxConfig,
+                 spread: bool = False) -> None:
         self._patch, self._tau, self._variance = config.patch, config.tau, variance
         self._angle = self._arcsine_sqrt(self._local(reference))
         self.total, self.weights = reference.clone(), torch.ones_like(reference)
+        # weighted squares of the first kind (the rate), for the kept neighbours' scatter (``_RobustMerge.spread``)
+        self.squares = reference[:, :1].double().square() if spread else None
 
     def _local(self, a: torch.Tensor) -> torch.Tensor:
         pad = self._patch // 2
@@ -71,9 +113,22 @@ class _BatchedMerge:
         weight = (self._tau / z2.clamp(min=1e-12)).clamp(max=1.0) * inside
         self.weights[rows] += weight
         self.total[rows] += weight * warped
+        if self.squares is not None:
+            self.squares[rows] += (weight[:, :1] * warped[:, :1]).double() * warped[:, :1].double()
 
     def result(self) -> torch.Tensor:
         return self.total / self.weights
+
+    def support_spread(self, rows: Sequence[int], frames: torch.Tensor,
+                       trials: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """For references ``rows``: the rate's support over their ``frames`` (R,) and the kept neighbours' spread,
+        (R,1,H,W) each (``_RobustMerge.support`` and ``spread``)."""
+        weights, total = self.weights[list(rows), :1], self.total[list(rows), :1]
+        mean = total.double() / weights.double()
+        variance = (self.squares[list(rows)] / weights.double() - mean.square()).clamp(min=0.0)  # type: ignore[index]
+        bernoulli = (mean * (1.0 - mean)).clamp(min=1.0 / trials) / trials
+        support = weights / frames.clamp(min=1).to(weights.dtype).reshape(-1, 1, 1, 1)
+        return support, torch.log1p(variance / bernoulli).to(weights.dtype)
 
 
 class BatchedAlignedMean:
@@ -82,7 +137,7 @@ class BatchedAlignedMean:
     def __init__(self, worker: "BatchedAlignedWorker", request: Request) -> None:
         self._worker, self._request = worker, request
 
-    def result(self) -> np.ndarray:
+    def result(self) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         return self._worker._result(self._request)
 
 
@@ -107,7 +162,7 @@ class BatchedAlignedWorker:
         self._flows: dict[int, Future] = {}  # DIS flow from frame k - 1 to k, by k
         self._steps: dict[tuple[int, int], torch.Tensor] = {}  # one-step flows (2,H,W) on the device
         self._queued: list[Request] = []
-        self._done: dict[Request, np.ndarray] = {}
+        self._done: dict[Request, np.ndarray | tuple[np.ndarray, np.ndarray]] = {}
         self.waited_seconds = 0.0
 
     def add(self, index: int, rate: np.ndarray, sharp: np.ndarray | None = None) -> None:
@@ -135,9 +190,9 @@ class BatchedAlignedWorker:
     def _timed(self, func: Callable[..., Any], *args: Any) -> Any:
         return self._busy.timed(func, *args)
 
-    def mean(self, i: int, neighbours: Sequence[int]) -> BatchedAlignedMean:
-        """Queue frame ``i``'s aligned mean over ``neighbours`` (``AlignedBox.mean``)."""
-        request = (i, tuple(neighbours))
+    def mean(self, i: int, neighbours: Sequence[int], statistics: bool = False) -> BatchedAlignedMean:
+        """Queue frame ``i``'s aligned mean over ``neighbours`` (``AlignedBox.mean``, with its ``statistics``)."""
+        request = (i, tuple(neighbours), statistics)
         self._queued.append(request)
         return BatchedAlignedMean(self, request)
 
@@ -162,7 +217,7 @@ class BatchedAlignedWorker:
             cv2.setNumThreads(self._cv_threads)
             self._cv_threads = None
 
-    def _result(self, request: Request) -> np.ndarray:
+    def _result(self, request: Request) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         if request not in self._done:
             self._compute()
         return self._done.pop(request)
@@ -186,18 +241,19 @@ class BatchedAlignedWorker:
         further (F(i, k + 1) = F(i, k) + F(k, k + 1) at x + F(i, k)) and merges the neighbours reached."""
         requests, self._queued = self._queued, []
         waited = time.perf_counter()
-        for i, neighbours in requests:  # the flows a request reads, made on the pool
+        for i, neighbours, _ in requests:  # the flows a request reads, made on the pool
             for k in range(min((i, *neighbours)) + 1, max((i, *neighbours)) + 1):
                 if k in self._flows:
                     self._flows[k].result()
         began = time.perf_counter()
         cfg = self.config
-        reference = torch.stack([self._images[i] for i, _ in requests])
+        reference = torch.stack([self._images[i] for i, _, _ in requests])
         variance = torch.tensor([2.0 / (t * cfg.patch * cfg.patch) for t in (cfg.trials, cfg.sharp_trials)],
                                 dtype=reference.dtype, device=self.device)[: reference.shape[1]].reshape(1, -1, 1, 1)
-        merge = _BatchedMerge(reference, variance, cfg)
+        wanted = [r for r, request in enumerate(requests) if request[2]]
+        merge = _BatchedMerge(reference, variance, cfg, spread=bool(wanted))
         for d in (-1, 1):
-            far = [max([(j - i) * d for j in set(n) - {i} if (j - i) * d > 0], default=0) for i, n in requests]
+            far = [max([(j - i) * d for j in set(n) - {i} if (j - i) * d > 0], default=0) for i, n, _ in requests]
             flow: torch.Tensor | None = None
             for s in range(1, max(far, default=0) + 1):
                 rows = [r for r, f in enumerate(far) if f >= s]
@@ -216,8 +272,33 @@ class BatchedAlignedWorker:
                     merge.add(torch.tensor([rows[k] for k in reached], device=self.device), warp(images, picked),
                               _inside(picked))
         means = merge.result().cpu().numpy()
-        for request, mean in zip(requests, means):
-            self._done[request] = mean[0] if mean.shape[0] == 1 else mean
+        statistics = dict(zip(wanted, self._statistics([requests[r] for r in wanted], merge, wanted)))
+        for r, (request, mean) in enumerate(zip(requests, means)):
+            mean = mean[0] if mean.shape[0] == 1 else mean
+            self._done[request] = (mean, statistics[r]) if r in statistics else mean
         ended = time.perf_counter()
         self._busy.add(ended - began)  # the batch's own time is the stage's work, and the caller's wait like the flows'
         self.waited_seconds += ended - waited
+
+    def _statistics(self, requests: Sequence[Request], merge: _BatchedMerge, rows: Sequence[int]) -> list[np.ndarray]:
+        """``STATISTICS`` (4,H,W) of each request's mean (rows ``rows`` of ``merge``), as ``AlignedBox._statistics``:
+        the flow gradient (the larger of the DIS flows from frame i to the next and from the previous one to i, where
+        the window has those frames), the magnitude of the first of them, the merge's support and spread."""
+        if not requests:
+            return []
+        h, w = self._images[requests[0][0]].shape[-2:]
+        steps = [[k for k in (i + 1, i) if {k - 1, k} <= {i, *n}] for i, n, _ in requests]  # flows k-1 -> k
+        used = sorted({k for ks in steps for k in ks})
+        gradient = magnitude = None
+        if used:
+            gradient, magnitude = _flow_statistics(torch.stack([self._step(k - 1, k) for k in used]))
+        place = {k: u for u, k in enumerate(used)}
+        zero = torch.zeros((1, h, w), device=self.device, dtype=torch.float32)
+        frames = torch.tensor([len(n) for _, n, _ in requests], device=self.device)
+        support, spread = merge.support_spread(rows, frames, self.config.trials)
+        out = []
+        for r, ks in enumerate(steps):
+            rough = torch.stack([gradient[place[k]] for k in ks]).amax(dim=0) if ks else zero  # type: ignore[index]
+            moved = magnitude[place[ks[0]]] if ks else zero  # type: ignore[index]
+            out.append(torch.cat([rough, moved, support[r], spread[r]]).float().cpu().numpy())
+        return out

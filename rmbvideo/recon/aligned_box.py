@@ -199,20 +199,20 @@ class AlignedBox:
                           inside)
         means = [merge.result() for merge in merges]
         mean = means[0] if len(means) == 1 else np.stack(means)
-        return (mean, self._statistics(i, merges[0], len(neighbours))) if statistics else mean
+        return (mean, self._statistics(i, merges[0], neighbours)) if statistics else mean
 
-    def _statistics(self, i: int, merge: "_RobustMerge", frames: int) -> np.ndarray:
-        """``STATISTICS`` of frame ``i``'s mean from its merge over ``frames`` frames (the flows to its next frame
-        and from its previous one, where the window has them)."""
+    def _statistics(self, i: int, merge: "_RobustMerge", neighbours: Sequence[int]) -> np.ndarray:
+        """``STATISTICS`` of frame ``i``'s mean from its merge over the window's frames ``neighbours`` (the DIS flows
+        from frame i to the next and from the previous one to i, where the window has those frames)."""
         h, w = self._rates[i].shape
-        steps = [self._flows[key] for key in ((i, i + 1), (i - 1, i)) if key in self._flows]
+        steps = [self._flows[(a, b)] for a, b in ((i, i + 1), (i - 1, i)) if {a, b} <= {i, *neighbours}]
         roughness, magnitude = np.zeros((h, w), np.float32), np.zeros((h, w), np.float32)
         for flow in steps:
             squares = sum(np.square(cv2.Sobel(flow[..., c], cv2.CV_32F, dx, 1 - dx) / 8) for c in (0, 1) for dx in (0, 1))
             np.maximum(roughness, cv2.GaussianBlur(np.sqrt(squares), (0, 0), STATISTICS_SIGMA), out=roughness)
         if steps:
             magnitude = cv2.GaussianBlur(np.hypot(steps[0][..., 0], steps[0][..., 1]), (0, 0), STATISTICS_SIGMA)
-        support, spread = merge.support(frames), merge.spread()
+        support, spread = merge.support(len(neighbours)), merge.spread()
         return np.stack([roughness, magnitude, support, spread]).astype(np.float32)
 
 
@@ -287,13 +287,27 @@ def aligned_window(i: int, radius: int, count: int | None, shift: bool = False) 
     return range(lo, hi + 1 if count is None else min(count, hi + 1))
 
 
-def aligned_means(rates: np.ndarray, radius: int, config: AlignedBoxConfig | None = None,
-                  shift: bool = False, sharp: np.ndarray | None = None) -> np.ndarray:
+def aligned_means(rates: np.ndarray, radius: int, config: AlignedBoxConfig | None = None, shift: bool = False,
+                  sharp: np.ndarray | None = None,
+                  statistics: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Every frame's aligned mean over its ``aligned_window`` in a clip: ``rates`` (F, H, W) -> (F, H, W)
     float32, or (F, 2, H, W) with the means of the ``sharp`` images (F, H, W) second (what the streaming
-    engine computes for a clip)."""
+    engine computes for a clip); with ``statistics``, also their ``STATISTICS`` (F, 4, H, W)."""
     box = AlignedBox(config)
     count = len(rates)
     for k, rate in enumerate(rates):
         box.add(k, rate, None if sharp is None else sharp[k])
-    return np.stack([box.mean(i, aligned_window(i, radius, count, shift)) for i in range(count)])
+    results = [box.mean(i, aligned_window(i, radius, count, shift), statistics) for i in range(count)]
+    if not statistics:
+        return np.stack(results)
+    return np.stack([mean for mean, _ in results]), np.stack([stats for _, stats in results])
+
+
+def network_input(mean: np.ndarray, statistics: np.ndarray | None, scale: float) -> np.ndarray:
+    """One frame's aligned mean (H, W) or means (A, H, W), as rates, in the form RMB-Net reads (``RmbNet.step``'s
+    ``aligned``): sums (the rates x ``scale``, the trials behind a frame's rate), then the ``statistics`` (4, H, W)
+    when given, float32."""
+    sums = np.asarray(mean, np.float32) * np.float32(scale)
+    if statistics is None:
+        return sums
+    return np.concatenate([sums.reshape(-1, *sums.shape[-2:]), np.asarray(statistics, np.float32)])

@@ -149,18 +149,18 @@ class AlignedWorker:
         if isinstance(handle, Future):
             self._pending.append(handle)
 
-    def mean(self, i: int, neighbours: Sequence[int]) -> "AlignedMean":
-        """Queue frame ``i``'s aligned mean over ``neighbours`` (``AlignedBox.mean``)."""
+    def mean(self, i: int, neighbours: Sequence[int], statistics: bool = False) -> "AlignedMean":
+        """Queue frame ``i``'s aligned mean over ``neighbours`` (``AlignedBox.mean``, with its ``statistics``)."""
         if not self.pooled:
-            return AlignedMean(self, self._submit(self._box.mean, i, neighbours))
+            return AlignedMean(self, self._submit(self._box.mean, i, neighbours, statistics))
         frames = sorted({i, *neighbours})
         needs = [self._added[j] for j in frames if j in self._added]
         needs += [self._flowed[j] for j in range(frames[0] + 1, frames[-1] + 1) if j in self._flowed]
-        handle = self._after(needs, self._box.mean, i, neighbours)
+        handle = self._after(needs, self._box.mean, i, neighbours, statistics)
         self._means.append(handle)
         return AlignedMean(self, handle)
 
-    def _wait(self, handle: Future | Ready) -> np.ndarray:
+    def _wait(self, handle: Future | Ready) -> Any:
         began = time.perf_counter()
         try:
             if not self.pooled:  # an add or eviction that failed fails here, in the caller (a pool's mean
@@ -181,10 +181,10 @@ class AlignedWorker:
 
 
 class AlignedMean:
-    """One frame's aligned mean, queued: ``result()`` waits for it."""
+    """One frame's aligned mean (with its statistics, as a pair, when asked for), queued: ``result()`` waits for it."""
 
     def __init__(self, worker: AlignedWorker, handle: Future | Ready) -> None:
         self._worker, self._handle = worker, handle
 
-    def result(self) -> np.ndarray:
+    def result(self) -> Any:
         return self._worker._wait(self._handle)

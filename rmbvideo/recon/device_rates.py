@@ -33,7 +33,10 @@ def unpack_on(data: np.ndarray, geometry: DatGeometry, device: torch.device) -> 
     """Stored plane bytes (T, plane_bytes) -> (T, H, image_width) uint8 planes on ``device``: the bits decoded there
     as ``rmbvideo.io.dat.unpack_planes`` decodes them (little bit order, rows flipped when the geometry says)."""
     g = geometry
-    packed = torch.from_numpy(np.ascontiguousarray(data)).to(device)
+    data = np.ascontiguousarray(data)
+    # torch wants writable memory (it warns of undefined behaviour otherwise): a read-only buffer, e.g. a file's
+    # mapped bytes, is copied (the packed bytes, an eighth of the planes)
+    packed = torch.from_numpy(data if data.flags.writeable else data.copy()).to(device)
     shifts = torch.arange(8, dtype=torch.uint8, device=device)
     bits = ((packed[..., None] >> shifts) & 1).reshape(len(data), g.height, g.width)
     if g.flip:

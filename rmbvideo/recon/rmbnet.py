@@ -44,7 +44,7 @@ from rmbvideo.net.model import (
     window_indices,
     window_valid,
 )
-from rmbvideo.recon.aligned_box import AlignedBoxConfig, aligned_window
+from rmbvideo.recon.aligned_box import AlignedBoxConfig, aligned_window, network_input
 from rmbvideo.recon.aligned_batched import BatchedAlignedMean, BatchedAlignedWorker
 from rmbvideo.recon.aligned_worker import AlignedMean, AlignedWorker, Ready
 from rmbvideo.recon.precision import PRECISIONS, uses_bf16
@@ -444,13 +444,20 @@ class RmbNetReconstructor:
         if self._aligned_box is None:
             return None
         config = self._net.config
-        return self._aligned_box.mean(i, aligned_window(i, config.aligned_half_width, count, config.aligned_shift))
+        return self._aligned_box.mean(i, aligned_window(i, config.aligned_half_width, count, config.aligned_shift),
+                                      config.aligned_evidence)
+
+    def _aligned_array(self, value: np.ndarray | tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        """An aligned mean's result ((H,W) or (2,H,W) rates; with their statistics, a pair) as the network reads it
+        (``aligned_box.network_input``: sums, then the statistics)."""
+        mean, statistics = value if isinstance(value, tuple) else (value, None)
+        return network_input(mean, statistics, BIN_TRIALS * self.n)
 
     def _aligned_input(self, mean: AlignedMean | Ready | None) -> torch.Tensor | None:
-        """A queued aligned mean ((H,W) or (2,H,W) rates) as the network's input: sums, (1,...) on the device."""
+        """A queued aligned mean as the network's input (``_aligned_array``), (1,...) on the device."""
         if mean is None:
             return None
-        return torch.from_numpy(mean.result() * (BIN_TRIALS * self.n)).unsqueeze(0).to(self.device)
+        return torch.from_numpy(self._aligned_array(mean.result())).unsqueeze(0).to(self.device)
 
     def _emit(self, i: int, count: int | None, mean: AlignedMean | Ready | None) -> Frame:
         """Frame ``i`` from its window and its queued aligned mean ((H,W) or (2,H,W) rates, made sums here)."""
@@ -471,7 +478,8 @@ class RmbNetReconstructor:
         """Frames ``run`` (consecutive, their windows whole) in one batched pass (``RmbNet.step_run``); a run with
         a NaN/Inf frame is made again frame by frame, so the state is reset right after the bad frame."""
         rates = None if means[0] is None else [m.result() for m in means]  # type: ignore[union-attr]
-        aligned = None if rates is None else torch.from_numpy(np.stack(rates) * (BIN_TRIALS * self.n)).to(self.device)
+        aligned = (None if rates is None
+                   else torch.from_numpy(np.stack([self._aligned_array(r) for r in rates])).to(self.device))
         frames = [self._encoded[j] for j in range(run[0] - self._w, run[-1] + self._w + 1)]
         try:
             t, state = self._net.step_run(frames, self._state, convention=self._convention, aligned=aligned,

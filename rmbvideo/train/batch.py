@@ -10,7 +10,7 @@ import torch
 
 from rmbvideo.net.blend import BIN_TRIALS
 from rmbvideo.net.config import RmbNetConfig
-from rmbvideo.recon.aligned_box import AlignedBoxConfig, aligned_means
+from rmbvideo.recon.aligned_box import AlignedBoxConfig, aligned_means, network_input
 from rmbvideo.recon.prelim import select_centre
 from rmbvideo.train.dataset import Sample
 
@@ -19,9 +19,9 @@ from rmbvideo.train.dataset import Sample
 class Batch:
     """Samples stacked on a device: ``i_s``, ``i_m``, ``gt`` (B, F, H, W) float32, ``convention`` (B,),
     ``i_c`` (B, F, C, H, W): central sums over the model's centre windows, or None when it has none;
-    ``i_a`` (B, F, H, W), or (B, F, 2, H, W) with ``aligned_centre``: each frame's aligned window mean(s) of
-    the multi-bit sums (the model's radius and edge policy at the sample's ends, as at a clip's), or None
-    when the model does not read it."""
+    ``i_a`` (B, F, H, W), or (B, F, C, H, W) with ``aligned_centre`` or ``aligned_evidence``: each frame's aligned
+    window mean(s) of the multi-bit sums, then their statistics (``RmbNet.step``; the model's radius and edge policy
+    at the sample's ends, as at a clip's), or None when the model does not read it."""
 
     i_s: torch.Tensor
     i_m: torch.Tensor
@@ -52,9 +52,13 @@ class Batch:
             sharp = (stack([select_centre(s.i_c, n, (k,))[:, 0] for s in samples]).cpu().numpy() / (BIN_TRIALS * k)
                      if k else [None] * len(samples))
             box = AlignedBoxConfig.for_frames(n, k)
-            means = [aligned_means(m / scale, aligned.aligned_half_width, box, aligned.aligned_shift, c) * scale
-                     for m, c in zip(i_m.cpu().numpy(), sharp)]
-            i_a = torch.from_numpy(np.stack(means).astype(np.float32)).to(device)
+            clips = []
+            for m, c in zip(i_m.cpu().numpy(), sharp):
+                means = aligned_means(m / scale, aligned.aligned_half_width, box, aligned.aligned_shift, c,
+                                      aligned.aligned_evidence)
+                means, statistics = means if aligned.aligned_evidence else (means, [None] * len(means))
+                clips.append(np.stack([network_input(a, e, scale) for a, e in zip(means, statistics)]))
+            i_a = torch.from_numpy(np.stack(clips)).to(device)
         return cls(i_s, i_m, gt, convention, i_c, i_a)
 
 

@@ -54,9 +54,9 @@ def blend(own, candidates, logits):
     return _blend(own, candidates, logits)
 
 
-def aligned_mean(self, i, neighbours):
+def aligned_mean(self, i, neighbours, statistics=False):
     mean, STATISTICS[i] = _mean(self, i, neighbours, statistics=True)
-    return mean
+    return (mean, STATISTICS[i]) if statistics else mean
 
 
 model_module.blend = blend
