@@ -331,6 +331,10 @@ def test_warm_start_widens_the_head_and_starts_new_logits_where_the_recipe_says(
     recipe.write_text(text.replace(f'init = "{source}"\n', ""))
     with pytest.raises(InputError, match="init_new_logit"):
         load_recipe(recipe)
+    narrower = tmp_path / "narrower.toml"  # a recipe without the old model's inputs: an error, not fresh weights
+    narrower.write_text(TINY_RECIPE.format(steps=1).replace('minutes = 5', f'minutes = 5\ninit = "{source}"'))
+    with pytest.raises(InputError, match="cannot widen decoder.head"):
+        Trainer(load_recipe(narrower), tmp_path / "out2", cache_dir=tmp_path / "cache")
 
 
 def test_time_budget_stops_cleanly_and_still_saves(tmp_path):

@@ -208,6 +208,9 @@ def widen_model(old: RmbNet, config: RmbNetConfig, new_logit: float | None = Non
             target[: tensor.shape[0]] = tensor
             if target.dim() == 1 and new_logit is not None:
                 target[tensor.shape[0]:] = new_logit
+        else:  # a narrower network: nothing of old's would be kept in this tensor, so say so rather than start it anew
+            raise ValueError(f"cannot widen {name} from {tuple(tensor.shape)} to {tuple(target.shape)}: the new network "
+                             "lacks inputs or outputs the old one has")
     widened.load_state_dict(new_state)
     return widened.eval()
 

@@ -248,7 +248,10 @@ class Trainer:
         if not path.suffix:
             path = default_model_path(self.config.model.input_mode).with_name(f"{source}.safetensors")
         old, _card = load_model(path)
-        widened = widen_model(old, self.config.model, self.config.init_new_logit)
+        try:
+            widened = widen_model(old, self.config.model, self.config.init_new_logit)
+        except ValueError as error:
+            raise InputError(f"{self.config.source}: init {path}: {error}") from None
         self.model.load_state_dict(widened.state_dict())
         log.info("warm start from %s (widened to this recipe's network where it gained inputs or candidates)", path)
 
