@@ -400,9 +400,12 @@ def test_shipped_models_load_and_match_their_cards(mode):
     with torch.no_grad():
         i_s = torch.full((1, 7, 16, 16), 3.0)
         i_c = torch.stack([i_s * 8 * k / 10 for k in windows], dim=2) if windows else None
-        # a still scene: each aligned mean (whole frame, central readouts) is the frame's own rate
+        # a still scene: each aligned mean (whole frame, central readouts) is the frame's own rate; its evidence: no
+        # flow, every neighbour kept, no spread (aligned_box.STATISTICS)
         channels = model.config.aligned_channels
-        i_a = torch.stack([i_s * 8] * channels, dim=2) if channels else None
+        evidence = torch.tensor([0.0, 0.0, 1.0, 0.0])[: model.config.evidence_channels].reshape(1, 1, -1, 1, 1)
+        i_a = (torch.cat([torch.stack([i_s * 8] * channels, dim=2), evidence.expand(1, 7, -1, 16, 16)], dim=2)
+               if channels else None)
         out, _ = model.forward_sequence(i_s, i_s * 8, i_c=i_c, i_a=i_a)
     assert torch.isfinite(out).all()
 
