@@ -96,6 +96,8 @@ def test_statistics_of_a_clip_read_only_its_windows_flows_and_join_the_means_as_
         fresh.add(k, frame)
     np.testing.assert_array_equal(late, fresh.mean(5, range(3, 6), statistics=True)[1])
     assert np.median(late[1]) > 1.5  # the pan's 2 px a frame, from the flow into the last frame
+    alone, lone = box.mean(2, [2], statistics=True)  # a window of one frame: the frame, no flow, all kept, no spread
+    assert np.array_equal(alone, frames[2]) and not lone[:2].any() and (lone[2] == 1).all() and not lone[3].any()
     joined = network_input(means[0], stats[0], 80.0)
     assert joined.shape == (1 + len(STATISTICS), H, W) and joined.dtype == np.float32
     np.testing.assert_allclose(joined[0], means[0] * 80.0, rtol=1e-6)

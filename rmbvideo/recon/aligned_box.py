@@ -206,12 +206,12 @@ class AlignedBox:
     def _statistics(self, i: int, merge: "_RobustMerge", neighbours: Sequence[int]) -> np.ndarray:
         """``STATISTICS`` of frame ``i``'s mean from its merge over the window's frames ``neighbours`` (the DIS flows
         from frame i to the next and from the previous one to i, where the window has those frames)."""
-        h, w = self._rates[i].shape
         steps = [self._step_statistics(key) for key in ((i, i + 1), (i - 1, i)) if set(key) <= {i, *neighbours}]
-        roughness = np.maximum(*(g for g, _ in steps)) if len(steps) == 2 else steps[0][0] if steps else None
-        zero = np.zeros((h, w), np.float32)
-        support, spread = merge.support(len(neighbours)), merge.spread()
-        return np.stack([zero if roughness is None else roughness, steps[0][1] if steps else zero, support, spread])
+        if steps:
+            roughness, magnitude = np.max([gradient for gradient, _ in steps], axis=0), steps[0][1]
+        else:  # a window of one frame: no flow
+            roughness = magnitude = np.zeros(self._rates[i].shape, np.float32)
+        return np.stack([roughness, magnitude, merge.support(len(neighbours)), merge.spread()])
 
     def _step_statistics(self, key: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
         """The DIS flow ``key``'s local gradient and magnitude, each blurred (made once: a flow between two frames

@@ -460,7 +460,7 @@ class RmbNetReconstructor:
         return torch.from_numpy(self._aligned_array(mean.result())).unsqueeze(0).to(self.device)
 
     def _emit(self, i: int, count: int | None, mean: AlignedMean | Ready | None) -> Frame:
-        """Frame ``i`` from its window and its queued aligned mean ((H,W) or (2,H,W) rates, made sums here)."""
+        """Frame ``i`` from its window and its queued aligned mean (made the network's input here: ``_aligned_input``)."""
         cache = self._pair_cache if self.align == "none" else None
         t, state = self._net.step(self._window(i, count), self._state, cache, valid=window_valid(i, self._w, count),
                                   convention=self._convention, aligned=self._aligned_input(mean))

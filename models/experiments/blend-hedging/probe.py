@@ -13,6 +13,8 @@ only, with the shipped model and no retraining. Run from the repository root (ea
     python models/experiments/blend-hedging/probe.py models A.safetensors B.safetensors ...   # candidates side by side
     python models/experiments/blend-hedging/probe.py flow         # per pan: how much the aligned mean helps, the flow
     python models/experiments/blend-hedging/probe.py car A.safetensors   # a model against the default on car.dat
+    python models/experiments/blend-hedging/probe.py cost         # what the aligned mean's statistics cost per frame
+    python models/experiments/blend-hedging/probe.py picture 4768347   # stage14-random-1000000.png (stage 13 at 4768347)
 
 The blend is hooked at ``rmbvideo.net.model.blend`` (its candidates in linear units and the softmax weights), the
 aligned mean at ``rmbvideo.recon.aligned_box.AlignedBox.mean`` (its per-pixel statistics, ``STATISTICS`` there).
@@ -325,8 +327,56 @@ def car(path: str) -> None:
           f"ratio of means {frames[1].mean() / frames[0].mean():.4f}")
 
 
+def cost() -> None:
+    """What the aligned mean's statistics (``aligned_evidence``) cost: ``AlignedBox.mean`` at 200x125 on a panned noisy
+    texture, flows cached, one OpenCV thread, with and without them (each flow's statistics made anew per round, as a
+    stream makes them once), best of five rounds of 20 means."""
+    import time
+
+    cv2.setNumThreads(1)
+    rng = np.random.default_rng(0)
+    texture = cv2.GaussianBlur(rng.random((125, 260)).astype(np.float32), (0, 0), 2)
+    box = aligned_module.AlignedBox(aligned_module.AlignedBoxConfig.for_frames(10))
+    for k in range(30):
+        box.add(k, (rng.binomial(80, np.clip(texture[:, k : k + 200] * 0.8, 0, 1)) / 80).astype(np.float32))
+    window = [aligned_module.aligned_window(i, 5, 30, True) for i in range(5, 25)]
+    for i, frames in zip(range(5, 25), window):  # the flows, once
+        _mean(box, i, frames)
+    best = {False: np.inf, True: np.inf}
+    for _ in range(5):
+        for statistics in (False, True):
+            box._flow_statistics.clear()
+            began = time.perf_counter()
+            for i, frames in zip(range(5, 25), window):
+                _mean(box, i, frames, statistics)
+            best[statistics] = min(best[statistics], (time.perf_counter() - began) / 20)
+    print(f"AlignedBox.mean: {1e3 * best[False]:.2f} ms, with statistics {1e3 * best[True]:.2f} ms")
+
+
+def picture(revision: str) -> None:
+    """``models/figures/stage14-random-1000000.png``: the columns ground truth, MG20, RMB-Net and TFI (raw) of
+    ``models/figures/evaluation.png`` as it is, with the RMB-Net column of that figure at git ``revision`` (the
+    previous default's evaluation) beside it."""
+    import subprocess
+
+    path = "models/figures/evaluation.png"
+    new = cv2.imread(path)
+    old = cv2.imdecode(np.frombuffer(subprocess.run(["git", "show", f"{revision}:{path}"], check=True,
+                                                    capture_output=True).stdout, np.uint8), cv2.IMREAD_COLOR)
+    width = new.shape[1] / 22  # the figure's 22 method columns
+    column = lambda image, k: image[:, int(k * width) : int((k + 1) * width)].copy()  # noqa: E731
+    parts = [(column(new, 0), "ground truth"), (column(new, 5), "MG20"), (column(old, 6), f"at {revision[:7]}"),
+             (column(new, 6), "default now"), (column(new, 13), "TFI (raw)")]
+    for image, label in parts:
+        cv2.rectangle(image, (0, 0), (image.shape[1], 22), (30, 30, 30), -1)
+        cv2.putText(image, label, (4, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
+    out = "models/figures/stage14-random-1000000.png"
+    cv2.imwrite(out, np.concatenate([image for image, _ in parts], axis=1), [cv2.IMWRITE_PNG_COMPRESSION, 9])
+    print("wrote", out)
+
+
 if __name__ == "__main__":
     command = sys.argv[1] if len(sys.argv) > 1 else "bands"
     {"bands": bands, "bias": bias, "gates": gates, "window": window, "prime": prime, "radius": radius,
      "flip": flip, "models": models, "sharpen": sharpen,
-     "learned-gate": learned_gate, "flow": flow, "car": car}[command](*sys.argv[2:])
+     "learned-gate": learned_gate, "flow": flow, "car": car, "cost": cost, "picture": picture}[command](*sys.argv[2:])
