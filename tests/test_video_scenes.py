@@ -76,6 +76,27 @@ def test_camera_speed_is_raw_pixels_per_plane():
     assert math.hypot(dx, dy) == pytest.approx(10.0, abs=0.75)
 
 
+def test_rigid_pans_move_as_one_piece_at_their_speed_and_leave_other_scenes_alone():
+    """A rigid pan is the background alone under a constant velocity in ``pan_speed``: frame k + 10 is frame k
+    shifted by ten times that, everywhere; a scene not drawn as a pan is the same as without the option."""
+    ranges = VideoSceneRanges(pan_probability=1.0, pan_speed=(0.4, 0.4), shadow_probability=0.0)
+    for seed in (4, 5, 7):
+        scene = VideoScene(seed, 128, 128, 300, ranges)
+        assert len(scene.layers) == 1 and scene.layers[0].shake.size == 0
+        assert scene.layers[0].zoom_rate == 0.0 and scene.layers[0].spin == 0.0
+        assert not np.any(scene.layers[0].acceleration)
+        assert float(np.hypot(*scene.layers[0].velocity)) == pytest.approx(0.4)
+        a, b = scene.render(100.0), scene.render(110.0)
+        (dx, dy), _ = cv2.phaseCorrelate(np.log(a + 1e-6).astype(np.float64), np.log(b + 1e-6).astype(np.float64))
+        np.testing.assert_allclose((dx, dy), 10 * scene.layers[0].velocity, atol=0.3)
+    plain = next(s for s in range(50) if np.random.default_rng([s, 0x9A11]).random() >= 0.5)
+    for k in (0.0, 40.0):
+        np.testing.assert_array_equal(VideoScene(plain, 32, 32, 100, VideoSceneRanges(pan_probability=0.5)).render(k),
+                                      VideoScene(plain, 32, 32, 100).render(k))
+    with pytest.raises(ValueError, match="pan_fraction"):
+        SampleSpec(mode="binned", readout="pure-m", scenes="video", pan_fraction=1.5)
+
+
 def test_hdr_range_and_lights():
     levels = []
     for seed in range(12):

@@ -70,6 +70,8 @@ class VideoSceneRanges:
     flat_gradient: float = 0.3       # +- relative brightness change across it
     low_contrast_probability: float = 0.0  # the background's contrast compressed (gravel, foliage, haze)
     low_contrast_gamma: tuple[float, float] = (0.1, 0.5)  # its log-contrast times this (uniform)
+    pan_probability: float = 0.0     # a rigid pan instead: no movers, no shake, zoom or spin (the aligned mean's case)
+    pan_speed: tuple[float, float] = (0.02, 0.5)  # its camera speed, log-uniform
 
 
 def _log_uniform(rng: np.random.Generator, low: float, high: float) -> float:
@@ -216,8 +218,12 @@ class VideoScene:
             self._flat_field(np.random.default_rng([seed, 0xF1A7, 1]), ranges, convention)
             return
         rng = np.random.default_rng([seed, 0x71DE0])
+        pan_rng = np.random.default_rng([seed, 0x9A11])  # apart from the main stream, like the flat fields
+        rigid = pan_rng.random() < ranges.pan_probability
         # the background canvas wraps around, so a camera of any speed stays on it
         speed = 0.0 if rng.random() < ranges.static_probability else _log_uniform(rng, *ranges.camera_speed)
+        if rigid:
+            speed = _log_uniform(pan_rng, *ranges.pan_speed)
         direction = rng.uniform(0, 2 * math.pi)
         velocity = speed * np.array([math.cos(direction), math.sin(direction)])
         canvas_w, canvas_h = 2 * width, 2 * height
@@ -238,14 +244,18 @@ class VideoScene:
         shake = np.array([[rng.uniform(-1, 1) * ranges.shake_px, rng.uniform(-1, 1) * ranges.shake_px,
                            2 * math.pi / rng.uniform(20, 400), rng.uniform(0, 2 * math.pi)]
                           for _ in range(int(rng.integers(0, 3)))]).reshape(-1, 4)
+        moving = float(speed > 0 and not rigid)  # a rigid pan: constant velocity, nothing else
+        if rigid:
+            shake = shake[:0]
         centre = np.array([canvas_w / 2, canvas_h / 2])
         self.layers.append(_Layer(
             value=background, alpha=None, center=centre,
             position0=np.array([width / 2, height / 2]) - velocity * planes / 2,
-            velocity=velocity, acceleration=rng.normal(0, 2e-4, 2) * (speed > 0),
-            angle0=0.0, spin=rng.normal(0, 2e-4) * (speed > 0), zoom0=1.0,
-            zoom_rate=rng.uniform(-1, 1) * ranges.zoom_rate * (speed > 0), shake=shake))
-        for _ in range(int(rng.integers(0, ranges.max_objects + 1))):
+            velocity=velocity, acceleration=rng.normal(0, 2e-4, 2) * moving,
+            angle0=0.0, spin=rng.normal(0, 2e-4) * moving, zoom0=1.0,
+            zoom_rate=rng.uniform(-1, 1) * ranges.zoom_rate * moving, shake=shake))
+        objects = int(rng.integers(0, ranges.max_objects + 1))
+        for _ in range(0 if rigid else objects):
             self.layers.append(self._object(rng, ranges, planes))
         median = float(np.median(self._render_raw(planes / 2)))
         level = _log_uniform(rng, *ranges.median_rate)

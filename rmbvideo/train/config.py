@@ -36,7 +36,8 @@ class DataConfig:
     ``low_contrast_fraction`` backgrounds of compressed contrast (the last two training seeds only; flat
     levels log-uniform from ``flat_min_rate`` to 1: the dark end a model is checked at must lie inside it), of the
     physical scenes a fraction ``subtract_fraction`` made by a pixel reset by subtraction (a real camera's such as
-    ``car.dat``'s: noisy spikes in the rate convention, the network told so), each
+    ``car.dat``'s: noisy spikes in the rate convention, the network told so), ``pan_fraction`` of the training scenes
+    rigid pans (the camera at a constant 0.02-0.5 raw px/plane, no movers, shake or zoom), each
     used by ``reuse`` consecutive steps, simulated by ``workers`` processes;
     ``count`` and ``exposure`` do not apply)."""
 
@@ -55,6 +56,7 @@ class DataConfig:
     low_contrast_fraction: float = 0.0
     flat_min_rate: float = FLAT_MIN_RATE
     subtract_fraction: float = 0.0
+    pan_fraction: float = 0.0
     reuse: int = 1
     workers: int = 1
 
@@ -110,7 +112,7 @@ class TrainConfig:
                           ranges=SceneRanges(exposure=d.exposure), scenes=d.scenes,
                           spikezoo_fraction=d.spikezoo_fraction, flat_fraction=d.flat_fraction,
                           low_contrast_fraction=d.low_contrast_fraction, flat_min_rate=d.flat_min_rate,
-                          subtract_fraction=d.subtract_fraction)
+                          subtract_fraction=d.subtract_fraction, pan_fraction=d.pan_fraction)
 
     def with_minutes(self, minutes: float) -> "TrainConfig":
         """The same recipe with another wall-time budget."""

@@ -77,6 +77,7 @@ class SampleSpec:
     low_contrast_fraction: float = 0.0
     flat_min_rate: float = FLAT_MIN_RATE
     subtract_fraction: float = 0.0
+    pan_fraction: float = 0.0
 
     def __post_init__(self) -> None:
         if self.scenes not in SCENE_KINDS:
@@ -91,6 +92,8 @@ class SampleSpec:
             raise ValueError(f"low_contrast_fraction must be in [0, 1], got {self.low_contrast_fraction}")
         if not 0.0 <= self.subtract_fraction <= 1.0:
             raise ValueError(f"subtract_fraction must be in [0, 1], got {self.subtract_fraction}")
+        if not 0.0 <= self.pan_fraction <= 1.0:
+            raise ValueError(f"pan_fraction must be in [0, 1], got {self.pan_fraction}")
         if not 0.0 < self.flat_min_rate < 1.0:
             raise ValueError(f"flat_min_rate must be in (0, 1), got {self.flat_min_rate}")
         if self.mode not in DATA_MODES:
@@ -120,7 +123,7 @@ class SampleSpec:
     def key(self) -> str:
         """Short stable hash of the spec (and the sample format version): the cache folder name."""
         fields = asdict(self)
-        for name in ("flat_fraction", "low_contrast_fraction", "subtract_fraction"):  # older caches keep their names
+        for name in ("flat_fraction", "low_contrast_fraction", "subtract_fraction", "pan_fraction"):  # older caches keep their names
             if not fields[name]:
                 del fields[name]
         if fields["flat_min_rate"] == SampleSpec.flat_min_rate:
@@ -165,8 +168,8 @@ def _video_planes(spec: SampleSpec, seed: int) -> tuple[Iterator[SpikeChunk], Vi
     physical emission model with a real camera's noise; of those, a fraction ``subtract_fraction`` has a pixel reset
     by subtraction, like ``car.dat``'s camera, whose noisy spikes are in the rate convention. A fraction ``flat_fraction`` of the training
     seeds (never the validation seeds, which stay one fixed set) is a static, nearly flat field (level
-    log-uniform from ``flat_min_rate`` to 1), and a fraction ``low_contrast_fraction`` of them has its
-    background's contrast compressed."""
+    log-uniform from ``flat_min_rate`` to 1), a fraction ``low_contrast_fraction`` of them has its
+    background's contrast compressed, and a fraction ``pan_fraction`` is a rigid pan (no movers, no shake)."""
     rng = np.random.default_rng([seed, 0xC0DE])
     convention = "spikezoo" if rng.random() < spec.spikezoo_fraction else "physical"
     reset = "subtract" if convention == "physical" and rng.random() < spec.subtract_fraction else "zero"
@@ -174,6 +177,7 @@ def _video_planes(spec: SampleSpec, seed: int) -> tuple[Iterator[SpikeChunk], Vi
     train = seed < EVAL_SEED_START
     ranges = VideoSceneRanges(flat_probability=spec.flat_fraction if train else 0.0,
                               low_contrast_probability=spec.low_contrast_fraction if train else 0.0,
+                              pan_probability=spec.pan_fraction if train else 0.0,
                               flat_rate=(spec.flat_min_rate, 1.0))
     scene = VideoScene(seed, 2 * spec.crop, 2 * spec.crop, planes, ranges, convention=convention)
     return capture_planes(scene, planes, RAW_RATE_HZ, reset=reset), scene, "spikezoo" if reset == "subtract" else convention

@@ -386,6 +386,8 @@ class Trainer:
                        "(level 1e-3..1, log-uniform; +-30 % gradient)" if cfg.data.flat_fraction else "")
                     + (f"; {cfg.data.low_contrast_fraction:.0%} of the training scenes with the background's "
                        "log-contrast scaled by 0.1-0.5" if cfg.data.low_contrast_fraction else "")
+                    + (f"; {cfg.data.pan_fraction:.0%} of the training scenes rigid pans (constant 0.02-0.5 raw "
+                       "px/plane, no movers, shake or zoom)" if cfg.data.pan_fraction else "")
                     + (f"; {cfg.data.subtract_fraction:.0%} of the physical scenes by a pixel reset by subtraction "
                        "(a real camera's such as car.dat's: noisy spikes in the rate convention, the network told so)"
                        if cfg.data.subtract_fraction else "")
