@@ -65,5 +65,5 @@ class Decoder(nn.Module):
         x, s1 = lstm1(self.fuse1(torch.cat([x, reference[0]], dim=1)), s1)
         x = self.up1(F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False))
         # both parts channels-last (as x is), so the cat writes the layout the head's conv reads
-        z = self.head(torch.cat([x, inputs.to(x.dtype).contiguous(memory_format=torch.channels_last)], dim=1))
+        z = self.head(torch.cat([x, inputs.to(x.dtype, memory_format=torch.channels_last)], dim=1))  # one copy
         return z, (s3, s2, s1)

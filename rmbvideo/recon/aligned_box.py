@@ -162,9 +162,11 @@ class AlignedBox:
                 self._flows[(a, b)] = flow
         return self._flows[(a, b)]
 
-    def _flows_from(self, i: int, neighbours: Sequence[int]) -> Iterator[tuple[int, np.ndarray]]:
-        """Flows from frame ``i`` to each neighbour (``i`` itself skipped), composed outwards one step at a
-        time on each side (F(i, k+1) = F(i, k) + F(k, k+1) at x + F(i, k)), so a radius r costs r remaps a side."""
+    def _flows_from(self, i: int, neighbours: Sequence[int]) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+        """Where each neighbour's pixels lie seen from frame ``i`` (``i`` itself skipped): the sampling maps
+        x + F(i, k) and y + F(i, k), with the flows composed outwards one step at a time on each side
+        (F(i, k+1) = F(i, k) + F(k, k+1) at x + F(i, k)), so a radius r costs r remaps a side. Each map is made
+        once and serves both the next composition and the neighbour's warp."""
         gx, gy = self._grid  # type: ignore[misc]
         wanted = set(neighbours) - {i}
         for d in (-1, 1):
@@ -173,13 +175,14 @@ class AlignedBox:
                 continue
             far = max(side, key=lambda j: abs(j - i))
             flow = self._step_flow(i, i + d)
+            map_x, map_y = gx + flow[..., 0], gy + flow[..., 1]
             for k in range(i + d, far + d, d):
                 if k != i + d:
                     step = self._step_flow(k - d, k)
-                    flow = flow + cv2.remap(step, gx + flow[..., 0], gy + flow[..., 1], cv2.INTER_LINEAR,
-                                            borderMode=cv2.BORDER_REPLICATE)
+                    flow = flow + cv2.remap(step, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+                    map_x, map_y = gx + flow[..., 0], gy + flow[..., 1]
                 if k in wanted:
-                    yield k, flow
+                    yield k, map_x, map_y
 
     def mean(self, i: int, neighbours: Sequence[int],
              statistics: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
@@ -188,13 +191,11 @@ class AlignedBox:
         when frame ``i`` brought one (then every neighbour must have). With ``statistics``, also how far that
         mean can be trusted per pixel (``STATISTICS``, (4, H, W) float32)."""
         cfg = self.config
-        gx, gy = self._grid  # type: ignore[misc]
         kinds = [(self._rates, cfg.trials)] + ([(self._sharp, cfg.sharp_trials)] if i in self._sharp else [])
         merges = [_RobustMerge(images[i], trials, cfg, spread=statistics and k == 0)
                   for k, (images, trials) in enumerate(kinds)]
         h, w = self._rates[i].shape
-        for j, flow in self._flows_from(i, neighbours):
-            map_x, map_y = gx + flow[..., 0], gy + flow[..., 1]
+        for j, map_x, map_y in self._flows_from(i, neighbours):
             inside = (map_x >= 0) & (map_x <= w - 1) & (map_y >= 0) & (map_y <= h - 1)
             for merge, (images, _) in zip(merges, kinds):
                 merge.add(cv2.remap(images[j], map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE),
