@@ -10,6 +10,7 @@ import torch
 
 from rmbvideo.net.attention import PairProjection, attend
 from rmbvideo.net.convlstm import ConvLSTMCell
+from rmbvideo.net.decoder import upsample2x
 from rmbvideo.net.encoder import MaxPool2x2
 from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.model import RmbNet, canonical_batch, window_indices, window_valid
@@ -148,6 +149,21 @@ def test_strided_max_pool_equals_max_pool_2d(dtype, channels_last):
     if channels_last:
         x = x.contiguous(memory_format=torch.channels_last)
     assert torch.equal(MaxPool2x2()(x), torch.nn.functional.max_pool2d(x, 2))
+
+
+@pytest.mark.parametrize("shape", [(1, 48, 16, 25), (1, 24, 63, 100), (3, 8, 32, 50)])
+def test_float32_upsampling_feeds_a_bf16_conv_the_values_of_bf16_upsampling(shape):
+    """The decoder upsamples bf16 features in float32 (faster on CPUs): once the next conv's autocast rounds them,
+    they are bf16 upsampling's values bit for bit, and so is the conv's output."""
+    torch.manual_seed(0)
+    x = (torch.randn(shape) * 4).to(torch.bfloat16).contiguous(memory_format=torch.channels_last)
+    bf16 = torch.nn.functional.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
+    assert torch.equal(upsample2x(x).to(torch.bfloat16), bf16)
+    conv = torch.nn.Conv2d(shape[1], 5, 3, padding=1).to(torch.bfloat16).to(memory_format=torch.channels_last)
+    with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16):
+        assert torch.equal(conv(upsample2x(x)), conv(bf16))
+    fp32 = x.float()
+    assert upsample2x(fp32).dtype == torch.float32
 
 
 def test_ablations_change_the_graph():
