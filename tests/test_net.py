@@ -8,6 +8,7 @@ from dataclasses import replace
 import pytest
 import torch
 
+from rmbvideo.net.activations import relu_
 from rmbvideo.net.attention import PairProjection, attend
 from rmbvideo.net.convlstm import ConvLSTMCell
 from rmbvideo.net.decoder import upsample2x
@@ -164,6 +165,24 @@ def test_float32_upsampling_feeds_a_bf16_conv_the_values_of_bf16_upsampling(shap
         assert torch.equal(conv(upsample2x(x)), conv(bf16))
     fp32 = x.float()
     assert upsample2x(fp32).dtype == torch.float32
+
+
+@pytest.mark.parametrize("channels_last", [False, True])
+def test_bf16_relu_through_the_bit_pattern_is_torch_relu(channels_last):
+    """``relu_`` clamps bf16 as int16: the values of ``torch.relu`` for signed zeros, infinities, the smallest and
+    largest magnitudes and random values, in place; float32 and tensors needing gradients go through torch."""
+    special = torch.tensor([0.0, -0.0, float("inf"), float("-inf"), 1e-40, -1e-40, 3e38, -3e38, 1.0, -1.0])
+    x = torch.cat([special, torch.randn(4 * 5 * 6 * 7 - special.numel()) * 10]).reshape(4, 5, 6, 7).to(torch.bfloat16)
+    if channels_last:
+        x = x.contiguous(memory_format=torch.channels_last)
+    expected = torch.relu(x)
+    out = relu_(x)
+    assert out.data_ptr() == x.data_ptr() and torch.equal(out, expected)
+    assert not torch.signbit(out).any()  # -0 and the negatives read +0, as torch.relu makes them
+    y = torch.randn(3, 4, requires_grad=True)
+    z = relu_(y * 1.0)
+    z.sum().backward()
+    assert torch.equal(y.grad, (y > 0).float())
 
 
 def test_ablations_change_the_graph():

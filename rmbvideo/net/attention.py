@@ -20,6 +20,8 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
+from rmbvideo.net.activations import relu_
+
 #: log2(e): e^x = 2^(x log2 e)
 LOG2E = 1.4426950408889634
 
@@ -39,10 +41,12 @@ class PairProjection(nn.Module):
         return self.parts[index](x)
 
     def combine(self, summed: torch.Tensor) -> torch.Tensor:
-        """Mask logits from the summed first-layer parts; any leading dims are batched in one call."""
+        """Mask logits from the summed first-layer parts; any leading dims are batched in one call. ``summed`` is
+        consumed: without gradients its ReLU is taken in place (``relu_``)."""
         lead = summed.shape[:-3]
         flat = summed.reshape(-1, *summed.shape[-3:])
-        return self.out(torch.relu(flat)).reshape(*lead, -1, *summed.shape[-2:])
+        hidden = torch.relu(flat) if flat.requires_grad and torch.is_grad_enabled() else relu_(flat)
+        return self.out(hidden).reshape(*lead, -1, *summed.shape[-2:])
 
 
 def attend(logits: Sequence[torch.Tensor], values: Sequence[torch.Tensor],
