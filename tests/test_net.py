@@ -8,6 +8,7 @@ from dataclasses import replace
 import pytest
 import torch
 
+from rmbvideo.net import layout
 from rmbvideo.net.activations import relu_
 from rmbvideo.net.attention import PairProjection, attend
 from rmbvideo.net.convlstm import ConvLSTMCell
@@ -183,6 +184,24 @@ def test_bf16_relu_through_the_bit_pattern_is_torch_relu(channels_last):
     z = relu_(y * 1.0)
     z.sum().backward()
     assert torch.equal(y.grad, (y > 0).float())
+
+
+def test_bf16_layout_moves_as_int16_keep_values_layouts_and_gradients():
+    """``layout.cat`` and ``layout.contiguous`` give torch's tensors bit for bit, in the layout asked for; with a
+    gradient needed they are torch's ops, and the gradient flows."""
+    cl = torch.channels_last
+    a = torch.randn(2, 5, 6, 7).to(torch.bfloat16).contiguous(memory_format=cl)
+    b = torch.randn(2, 3, 6, 7).to(torch.bfloat16).contiguous(memory_format=cl)
+    joined = layout.cat([a, b], dim=1)
+    assert joined.dtype == torch.bfloat16 and torch.equal(joined, torch.cat([a, b], dim=1))
+    assert joined.is_contiguous(memory_format=cl)
+    plain = torch.randn(2, 5, 6, 7).to(torch.bfloat16)
+    moved = layout.contiguous(plain, cl)
+    assert torch.equal(moved, plain) and moved.is_contiguous(memory_format=cl) and moved.dtype == torch.bfloat16
+    assert torch.equal(layout.cat([a.float(), b.float()], dim=1), torch.cat([a.float(), b.float()], dim=1))
+    w = torch.randn(2, 3, requires_grad=True)
+    layout.cat([w.to(torch.bfloat16), w.to(torch.bfloat16)], dim=1).float().sum().backward()
+    assert torch.equal(w.grad, torch.full((2, 3), 2.0))
 
 
 def test_ablations_change_the_graph():

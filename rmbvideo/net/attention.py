@@ -20,6 +20,7 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
+from rmbvideo.net import layout
 from rmbvideo.net.activations import relu_
 
 #: log2(e): e^x = 2^(x log2 e)
@@ -110,7 +111,7 @@ class CrossBitAttention(nn.Module):
         (Q,B,C,H,W) per key; keys where ``valid`` is False are left out."""
         f_m_hat = attend(logits, f_m, valid)
         q = f_s.shape[0]
-        mixed = torch.cat([f_s, f_m_hat], dim=2).flatten(0, 1)
+        mixed = layout.cat([f_s, f_m_hat], dim=2).flatten(0, 1)
         return self.reduce(mixed).unflatten(0, (q, -1))
 
 

@@ -7,6 +7,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from rmbvideo.net import layout
 from rmbvideo.net.cuda_graph import GraphCache
 
 LstmState = tuple[torch.Tensor, torch.Tensor]
@@ -40,7 +41,7 @@ class ConvLSTMCell(nn.Module):
             zeros = x.new_zeros(x.shape[0], self.hidden, *x.shape[-2:])
             state = (zeros, zeros)
         h, c = state
-        return self._update(self.gates(torch.cat([x, h.to(x.dtype)], dim=1)), c)
+        return self._update(self.gates(layout.cat([x, h.to(x.dtype)], dim=1)), c)
 
     def run(self, x: torch.Tensor, state: LstmState | None, graphed: bool = False) -> tuple[torch.Tensor, LstmState]:
         """``forward`` over a sequence x (K,C,H,W) of batch size 1, one step per item -> h (K,hidden,H,W) and the

@@ -9,6 +9,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from rmbvideo.net import layout
 from rmbvideo.net.convlstm import ConvLSTMCell, LstmState
 
 DecoderState = tuple[LstmState, LstmState, LstmState]
@@ -65,12 +66,12 @@ class Decoder(nn.Module):
             return (lambda x, s: cell.run(x, s, graphed)) if run else cell
 
         lstm3, lstm2, lstm1 = (recurrent(cell) for cell in (self.lstm3, self.lstm2, self.lstm1))
-        x, s3 = lstm3(torch.cat([fused, reference[2]], dim=1), s3)
+        x, s3 = lstm3(layout.cat([fused, reference[2]], dim=1), s3)
         x = self.up3(upsample2x(x))
-        x, s2 = lstm2(self.fuse2(torch.cat([x, reference[1]], dim=1)), s2)
+        x, s2 = lstm2(self.fuse2(layout.cat([x, reference[1]], dim=1)), s2)
         x = self.up2(upsample2x(x))
-        x, s1 = lstm1(self.fuse1(torch.cat([x, reference[0]], dim=1)), s1)
+        x, s1 = lstm1(self.fuse1(layout.cat([x, reference[0]], dim=1)), s1)
         x = self.up1(upsample2x(x))
         # both parts channels-last (as x is), so the cat writes the layout the head's conv reads
-        z = self.head(torch.cat([x, inputs.to(x.dtype, memory_format=torch.channels_last)], dim=1))  # one copy
+        z = self.head(layout.cat([x, layout.contiguous(inputs.to(x.dtype), torch.channels_last)], dim=1))
         return z, (s3, s2, s1)
