@@ -1,7 +1,7 @@
 """Moving bf16 features between memory layouts as int16: the same bits, and PyTorch's CPU kernels for a
 channels-last cat or transposition of bf16 run 1.4-2x slower than for int16 (measured on this project's AVX512-BF16
-host: a cat of two 24-channel 64x100 maps 39 -> 27 us, the head's inputs to channels-last 286 -> 144 us). Tensors that need gradients keep PyTorch's own ops, whose gradients these
-int16 views would cut."""
+host: a cat of two 24-channel 64x100 maps 39 -> 27 us, the head's inputs to channels-last 286 -> 144 us). Tensors
+that need gradients keep PyTorch's own ops, whose gradients these int16 views would cut."""
 
 from __future__ import annotations
 
@@ -28,4 +28,3 @@ def cat(tensors: Sequence[torch.Tensor], dim: int = 0) -> torch.Tensor:
     if _as_bits(tensors):
         return torch.cat([t.view(torch.int16) for t in tensors], dim).view(torch.bfloat16)
     return torch.cat(list(tensors), dim)
-

@@ -73,10 +73,11 @@ class PrelimLike(Protocol):
 
 def inference_copy(model: RmbNet, bf16: bool = False) -> RmbNet:
     """An eval-mode copy of ``model`` for fast inference: each BatchNorm folded into the conv before it
-    (same function, one pass less over the features), NHWC (channels-last) weights, which oneDNN
-    runs about twice as fast on CPU, and ReLUs that take bf16 features through their bit pattern (``relu_``). ``bf16``: for bf16 autocast, the convolutions' weights are stored
-    in bf16 once instead of being cast at every call (the same values; the encoders' first convolutions,
-    which autocast leaves in fp32, keep theirs). ``model`` itself is left unchanged (it may be training)."""
+    (same function, one pass less over the features), NHWC (channels-last) weights, which oneDNN runs about
+    twice as fast on CPU, and ReLUs that take bf16 features through their bit pattern (``relu_``, the same
+    values). ``bf16``: for bf16 autocast, the convolutions' weights are stored in bf16 once instead of being cast
+    at every call (the same values; the encoders' first convolutions, which autocast leaves in fp32, keep theirs).
+    ``model`` itself is left unchanged (it may be training)."""
     fast = copy.deepcopy(model).eval()
     for module in fast.modules():
         if isinstance(module, nn.Sequential):
@@ -464,7 +465,7 @@ class RmbNetReconstructor:
         return torch.from_numpy(self._aligned_array(mean.result())).unsqueeze(0).to(self.device)
 
     def _emit(self, i: int, count: int | None, mean: AlignedMean | Ready | None) -> Frame:
-        """Frame ``i`` from its window and its queued aligned mean (made the network's input here: ``_aligned_input``)."""
+        """Frame ``i`` from its window and its queued aligned mean (the network's input made by ``_aligned_input``)."""
         cache = self._pair_cache if self.align == "none" else None
         t, state = self._net.step(self._window(i, count), self._state, cache, valid=window_valid(i, self._w, count),
                                   convention=self._convention, aligned=self._aligned_input(mean))

@@ -254,8 +254,7 @@ class VideoScene:
             velocity=velocity, acceleration=rng.normal(0, 2e-4, 2) * moving,
             angle0=0.0, spin=rng.normal(0, 2e-4) * moving, zoom0=1.0,
             zoom_rate=rng.uniform(-1, 1) * ranges.zoom_rate * moving, shake=shake))
-        objects = int(rng.integers(0, ranges.max_objects + 1))
-        for _ in range(0 if rigid else objects):
+        for _ in range(0 if rigid else int(rng.integers(0, ranges.max_objects + 1))):
             self.layers.append(self._object(rng, ranges, planes))
         median = float(np.median(self._render_raw(planes / 2)))
         level = _log_uniform(rng, *ranges.median_rate)

@@ -353,24 +353,28 @@ def cost() -> None:
     print(f"AlignedBox.mean: {1e3 * best[False]:.2f} ms, with statistics {1e3 * best[True]:.2f} ms")
 
 
-def picture(revision: str) -> None:
-    """``models/figures/stage14-random-1000000.png``: the columns ground truth, MG20, RMB-Net and TFI (raw) of
-    ``models/figures/evaluation.png`` as it is, with the RMB-Net column of that figure at git ``revision`` (the
-    previous default's evaluation) beside it."""
+def picture(before: str, after: str = "", out: str = "models/figures/stage15-random-1000000.png") -> None:
+    """Frame 10 of random-1000000 from ``models/figures/evaluation.png``: the columns ground truth, MG20 and TFI (raw)
+    of the figure at git revision ``after`` (the file as it is when empty), with its RMB-Net column and that of the
+    figure at ``before`` (an earlier default's evaluation) side by side, written to ``out``."""
     import subprocess
 
     path = "models/figures/evaluation.png"
-    new = cv2.imread(path)
-    old = cv2.imdecode(np.frombuffer(subprocess.run(["git", "show", f"{revision}:{path}"], check=True,
-                                                    capture_output=True).stdout, np.uint8), cv2.IMREAD_COLOR)
+
+    def figure(revision: str) -> np.ndarray:
+        if not revision:
+            return cv2.imread(path)
+        data = subprocess.run(["git", "show", f"{revision}:{path}"], check=True, capture_output=True).stdout
+        return cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+
+    new, old = figure(after), figure(before)
     width = new.shape[1] / 22  # the figure's 22 method columns
     column = lambda image, k: image[:, int(k * width) : int((k + 1) * width)].copy()  # noqa: E731
-    parts = [(column(new, 0), "ground truth"), (column(new, 5), "MG20"), (column(old, 6), f"at {revision[:7]}"),
-             (column(new, 6), "default now"), (column(new, 13), "TFI (raw)")]
+    parts = [(column(new, 0), "ground truth"), (column(new, 5), "MG20"), (column(old, 6), f"at {before[:7]}"),
+             (column(new, 6), f"at {after[:7]}" if after else "default now"), (column(new, 13), "TFI (raw)")]
     for image, label in parts:
         cv2.rectangle(image, (0, 0), (image.shape[1], 22), (30, 30, 30), -1)
         cv2.putText(image, label, (4, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
-    out = "models/figures/stage14-random-1000000.png"
     cv2.imwrite(out, np.concatenate([image for image, _ in parts], axis=1), [cv2.IMWRITE_PNG_COMPRESSION, 9])
     print("wrote", out)
 
