@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rmbvideo.recon.aligned_box import (STATISTICS, AlignedBox, AlignedBoxConfig, aligned_means, aligned_window,
-                                        network_input)
+from rmbvideo.recon.aligned_box import (STATISTICS, AlignedBox, AlignedBoxConfig, _white, aligned_means,
+                                        aligned_window, network_input)
 
 H, W = 48, 64
 
@@ -135,6 +135,23 @@ def test_config_is_checked():
         AlignedBoxConfig(preset="slow")
     with pytest.raises(ValueError, match="positive"):
         AlignedBoxConfig(tau=0.0)
+    with pytest.raises(ValueError, match="stride"):
+        AlignedBoxConfig(patch_stride=0)
+
+
+def test_flow_settings_reach_dis_and_white_is_the_high_order_statistic():
+    box = AlignedBox(AlignedBoxConfig(patch_stride=5, descent_iterations=7, refinement_iterations=1))
+    dis = box._dis()
+    settings = dis.getPatchStride(), dis.getGradientDescentIterations(), dis.getVariationalRefinementIterations()
+    assert settings == (5, 7, 1)
+    assert AlignedBox()._dis().getPatchStride() == 4
+    rng = np.random.default_rng(3)
+    image = rng.random((H, W)).astype(np.float32)
+    ordered = np.sort(image.ravel())
+    k = int(0.995 * (image.size - 1))
+    assert _white(image) == ordered[k]  # the order statistic just below np.percentile's interpolated value
+    assert ordered[k] <= np.percentile(image, 99.5) <= ordered[k + 1]
+    assert _white(np.zeros((H, W), np.float32)) == 0.0
 
 
 def test_aligned_window_is_cut_or_slides_inwards_at_the_clip_ends():

@@ -13,7 +13,7 @@ from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.model import RmbNet
 from rmbvideo.recon.prelim import PreliminaryFrames, PrelimFrame, select_centre
 from rmbvideo.recon.precision import cpu_has_native_bf16, uses_bf16
-from rmbvideo.recon.rmbnet import RmbNetReconstructor, inference_copy
+from rmbvideo.recon.rmbnet import RmbNetReconstructor, all_finite, inference_copy
 from rmbvideo.sensor.readout import RmbReadout
 
 H, W = 20, 13
@@ -156,6 +156,13 @@ def test_nonfinite_network_output_is_guarded(frame_batch):
     frames, engine = stream(model, [rmb_stream(90)], frame_batch=frame_batch)
     assert len(frames) == 9 and engine.nonfinite_frames == 9
     assert all(np.isfinite(f.image).all() and (f.image >= 0).all() for f in frames)
+
+
+def test_all_finite_matches_isfinite_including_a_sum_that_overflows():
+    big = torch.full((4, 4), 3e38)  # every value finite, the sum not
+    for t in (torch.rand(3, 5), big, big.bfloat16(), torch.tensor([1.0, float("inf")]),
+              torch.tensor([float("-inf"), float("inf")]), torch.tensor([0.0, float("nan")])):
+        assert all_finite(t) == bool(torch.isfinite(t).all())
 
 
 def test_alignment_with_flow_runs_and_is_chunk_independent():
@@ -341,8 +348,9 @@ def test_aligned_means_of_a_worker_pool_in_batched_passes_give_the_frames_of_the
         pooled, engine = stream(model, split(data, size), threads=1, frame_batch=batch)
         assert engine._aligned_box.pooled and engine.stage_seconds["aligned mean"] > 0
         assert [f.index for f in pooled] == [f.index for f in plain]
+        # batched convolutions sum in another order than frame-by-frame ones: a few values differ by ~2e-5 relative
         np.testing.assert_allclose(np.stack([f.image for f in pooled]), np.stack([f.image for f in plain]),
-                                   rtol=1e-5, atol=1e-6)
+                                   rtol=1e-4, atol=1e-6)
         assert not engine._aligned_box._box._rates.keys() - set(range(135 // 10 - 8, 135 // 10))
 
 

@@ -29,14 +29,18 @@ from rmbvideo.net.blend import BIN_TRIALS
 #: OpenCV DIS presets by name.
 DIS_PRESETS = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
                "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
+#: Percentile of a frame's square-root rates mapped to white in its 8-bit flow image.
+WHITE_PERCENTILE = 99.5
 #: Fixed-point iterations that invert a forward flow into the backward one.
 INVERSION_ITERATIONS = 2
 
 
 @dataclass(frozen=True)
 class AlignedBoxConfig:
-    """DIS preset and its gradient-descent and variational-refinement iterations (the "medium" preset has 25
-    and 5: 12 and 2 score the same on the development sets at 30 % less flow time), the blur of the images
+    """DIS preset, its gradient-descent and variational-refinement iterations (the "medium" preset has 25
+    and 5: 12 and 2 score the same on the development sets at 30 % less flow time) and its patch stride (the
+    preset's 3: 4 scores the same on the 21 development sequences, 35.43 against 35.42 dB, at 30 % less flow
+    time again; the "fast" preset's coarser finest scale loses on fast motion), the blur of the images
     flow is computed on, the robust merge's patch and threshold, ``trials``: Bernoulli trials behind one
     pixel's rate per frame (N readouts x 8 raw pixel-planes), and ``sharp_trials``: those behind a sharp
     image's (its k central readouts x 8)."""
@@ -44,6 +48,7 @@ class AlignedBoxConfig:
     preset: str = "medium"
     descent_iterations: int = 12
     refinement_iterations: int = 2
+    patch_stride: int = 4
     sigma: float = 1.0
     patch: int = 5
     tau: float = 4.0
@@ -61,12 +66,21 @@ class AlignedBoxConfig:
             raise ValueError(f"preset must be one of {sorted(DIS_PRESETS)}, got {self.preset!r}")
         if self.patch < 1 or self.tau <= 0 or self.sigma < 0 or self.trials < 1 or self.sharp_trials < 1:
             raise ValueError(f"patch, tau and trials must be positive and sigma >= 0, got {self}")
-        if self.descent_iterations < 1 or self.refinement_iterations < 0:
-            raise ValueError(f"descent iterations must be >= 1 and refinement iterations >= 0, got {self}")
+        if self.descent_iterations < 1 or self.refinement_iterations < 0 or self.patch_stride < 1:
+            raise ValueError(f"descent iterations and patch stride must be >= 1 and refinement iterations >= 0, "
+                             f"got {self}")
 
 
 def _clean(rate: np.ndarray) -> np.ndarray:
     return np.clip(np.nan_to_num(np.asarray(rate, np.float32), nan=0.0), 0.0, 1.0)
+
+
+def _white(image: np.ndarray) -> float:
+    """White of an 8-bit flow image: its 99.5th percentile (the order statistic below, no interpolation), so a few
+    bright lights do not darken the rest; one partial sort, 8x faster than ``np.percentile``'s."""
+    flat = image.ravel()
+    k = int(WHITE_PERCENTILE / 100.0 * (flat.size - 1))
+    return float(np.partition(flat, k)[k])
 
 
 def _arcsine_sqrt(p: np.ndarray) -> np.ndarray:
@@ -104,8 +118,7 @@ class AlignedBox:
         rate = _clean(rate)
         blurred = cv2.GaussianBlur(rate, (0, 0), self.config.sigma) if self.config.sigma > 0 else rate
         image = np.sqrt(np.maximum(blurred, 0.0))
-        # white of the 8-bit flow images: a high percentile, so a few bright lights do not darken the rest
-        white = float(np.percentile(image, 99.5))
+        white = _white(image)
         with self._lock:
             if self._grid is None or self._grid[0].shape != rate.shape:
                 h, w = rate.shape
@@ -131,6 +144,7 @@ class AlignedBox:
             dis = cv2.DISOpticalFlow_create(DIS_PRESETS[self.config.preset])
             dis.setGradientDescentIterations(self.config.descent_iterations)
             dis.setVariationalRefinementIterations(self.config.refinement_iterations)
+            dis.setPatchStride(self.config.patch_stride)
             self._local.dis = dis
         return dis
 

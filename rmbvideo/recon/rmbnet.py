@@ -98,6 +98,12 @@ def inference_copy(model: RmbNet, bf16: bool = False) -> RmbNet:
     return fast
 
 
+def all_finite(t: torch.Tensor) -> bool:
+    """Whether every value of ``t`` is finite: its sum is unless one is not or the sum overflows (then each value is
+    checked). One pass where ``torch.isfinite(t).all()`` makes three, on every frame."""
+    return bool(torch.isfinite(t.sum())) or bool(torch.isfinite(t).all())
+
+
 def resolve_device(device: str | torch.device) -> torch.device:
     """"auto" -> CUDA when available, else CPU; an explicit "cuda" without a GPU is an error."""
     if str(device) == "auto":
@@ -469,7 +475,7 @@ class RmbNetReconstructor:
         cache = self._pair_cache if self.align == "none" else None
         t, state = self._net.step(self._window(i, count), self._state, cache, valid=window_valid(i, self._w, count),
                                   convention=self._convention, aligned=self._aligned_input(mean))
-        if not bool(torch.isfinite(t).all()):
+        if not all_finite(t):
             self.nonfinite_frames += 1
             log.warning("RMB-Net produced NaN/Inf in frame %d; replaced by 0 and reset the recurrent state", i)
             t = torch.nan_to_num(t, nan=0.0, posinf=0.0, neginf=0.0)
@@ -495,7 +501,7 @@ class RmbNetReconstructor:
             log.warning("CUDA graphs failed (%s); RMB-Net runs without them", str(error).splitlines()[0])
             self._graphed = False
             t, state = self._net.step_run(frames, self._state, convention=self._convention, aligned=aligned)
-        if not bool(torch.isfinite(t).all()):
+        if not all_finite(t):
             return [self._emit(i, count, None if rates is None else Ready(rates[k])) for k, i in enumerate(run)]
         self._state = state
         images = self._net.to_linear(t)[:, 0].float().cpu().numpy()
