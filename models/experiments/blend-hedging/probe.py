@@ -15,6 +15,10 @@ only, with the shipped model and no retraining. Run from the repository root (ea
     python models/experiments/blend-hedging/probe.py car A.safetensors   # a model against the default on car.dat
     python models/experiments/blend-hedging/probe.py cost         # what the aligned mean's statistics cost per frame
     python models/experiments/blend-hedging/probe.py picture 4768347   # stage14-random-1000000.png (stage 13 at 4768347)
+    python models/experiments/blend-hedging/probe.py edges prime0|noshift|symmetric   # edge frames' timing, a cause off
+    python models/experiments/blend-hedging/probe.py stride       # the DIS patch stride 3, 4 (shipped), 5: scores, ms
+    python models/experiments/blend-hedging/probe.py warps        # the neighbours warped bilinear (shipped) or bicubic
+    python models/experiments/blend-hedging/probe.py profile      # where a frame's time goes, one thread, bf16
 
 The blend is hooked at ``rmbvideo.net.model.blend`` (its candidates in linear units and the softmax weights), the
 aligned mean at ``rmbvideo.recon.aligned_box.AlignedBox.mean`` (its per-pixel statistics, ``STATISTICS`` there).
@@ -379,8 +383,143 @@ def picture(before: str, after: str = "", out: str = "models/figures/stage15-ran
     print("wrote", out)
 
 
+def edges(variant: str = "symmetric") -> None:
+    """The development video sequences' edge frames (dB below the clip's median, the time offset each shows, the
+    middle frame's, the edge cost) with the default and with one suspected cause of their offsets turned off:
+    ``prime0`` (no backward priming of the first state), ``noshift`` (the aligned window cut at the clip's ends, not
+    slid inwards) or ``symmetric`` (the network's window cut symmetrically: positions beyond the nearer edge left out)."""
+    import math
+
+    shipped, card = load_model(default_model_path())
+    valid = engine_module.window_valid
+
+    def symmetric(i, w, count):
+        last = math.inf if count is None else count - 1
+        return [0 <= j <= last and abs(j - i) <= min(i, last - i) for j in range(i - w, i + w + 1)]
+
+    with tempfile.TemporaryDirectory() as folder:
+        options = {"threads": 1, "input_mode": "binned"}
+        changed = dict(options, prime=0) if variant == "prime0" else dict(options)
+        if variant == "noshift":
+            network = RmbNet(replace(shipped.config, aligned_shift=False))
+            network.load_state_dict(shipped.state_dict())
+            changed["model"] = save_model(Path(folder) / "noshift.safetensors", network, card)
+        elif variant != "prime0" and variant != "symmetric":
+            raise SystemExit(f"edges: unknown variant {variant!r} (prime0, noshift, symmetric)")
+        rows = {}
+        for seq in development()[16:]:
+            for label, opts in (("default", options), (variant, changed)):
+                if variant == "symmetric" and label == variant:
+                    engine_module.window_valid = symmetric
+                r = edge_report(seq, "rmbnet", opts)
+                engine_module.window_valid = valid
+                rows[f"{seq.name} {label}"] = [r.first_drop_db, r.last_drop_db, r.first_offset_ms, r.last_offset_ms,
+                                               r.middle_offset_ms, r.first_edge_cost_db, r.last_edge_cost_db]
+    print("| sequence | first below median (dB) | last below median | first offset (ms) | last offset | middle offset | "
+          "edge cost, first (dB) | edge cost, last |")
+    print("|---|" + "---:|" * 7)
+    for name, values in rows.items():
+        print(f"| {name} | " + " | ".join(f"{v:+.2f}" for v in values) + " |")
+
+
+def _flow_images(count: int = 12) -> list[np.ndarray]:
+    """8-bit flow images (as ``AlignedBox`` makes them) of a noisy texture panned by 1 px a frame at 200x125."""
+    rng = np.random.default_rng(0)
+    texture = cv2.GaussianBlur(rng.random((125, 200 + count)).astype(np.float32), (0, 0), 1.2)
+    images = []
+    for k in range(count):
+        rate = (rng.binomial(80, np.clip(texture[:, k : k + 200] * 0.8, 0, 1)) / 80).astype(np.float32)
+        image = np.sqrt(cv2.GaussianBlur(rate, (0, 0), 1.0))
+        images.append(np.clip(image * 255 / aligned_module._white(image) + 0.5, 0, 255).astype(np.uint8))
+    return images
+
+
+def stride() -> None:
+    """The DIS patch stride of the aligned mean's flows at 3 (the medium preset's), 4 (shipped) and 5: milliseconds a
+    flow at 200x125 on one thread (best of five rounds) and the mean error against the known 1 px shift of a panned
+    noisy texture; then the shipped weights' scores on the development sequences with each."""
+    import time
+
+    cv2.setNumThreads(1)
+    images, strides = _flow_images(), (3, 4, 5)
+    for value in strides:
+        dis = aligned_module.AlignedBox(aligned_module.AlignedBoxConfig(patch_stride=value))._dis()
+        best = np.inf
+        for _ in range(5):
+            began = time.perf_counter()
+            flows = [dis.calc(a, b, None) for a, b in zip(images[:-1], images[1:])]
+            best = min(best, (time.perf_counter() - began) / len(flows))
+        error = np.mean([np.abs(f[..., 0] + 1).mean() for f in flows])
+        print(f"stride {value}: {1e3 * best:.2f} ms a flow, error {error:.3f} px")
+    original = aligned_module.AlignedBoxConfig.for_frames
+    rows: dict[str, list[float]] = {}
+    for seq in development():
+        rows[seq.name] = []
+        for value in strides:
+            aligned_module.AlignedBoxConfig.for_frames = classmethod(
+                lambda cls, n, k=0, v=value: replace(original(n, k), patch_stride=v))
+            rows[seq.name].append(score(run(seq)[0], seq))
+    aligned_module.AlignedBoxConfig.for_frames = original
+    table(rows, [f"stride {v}" for v in strides])
+
+
+def warps() -> None:
+    """The shipped weights with the aligned mean's neighbours warped bilinear (shipped) or bicubic (clipped to [0, 1];
+    the flows' own compositions stay bilinear)."""
+    real = aligned_module.cv2
+
+    class Bicubic:
+        def __getattr__(self, name):
+            return getattr(real, name)
+
+        @staticmethod
+        def remap(src, map_x, map_y, interpolation, **kw):
+            if src.ndim == 2 and interpolation == real.INTER_LINEAR:
+                return np.clip(real.remap(src, map_x, map_y, real.INTER_CUBIC, **kw), 0.0, 1.0)
+            return real.remap(src, map_x, map_y, interpolation, **kw)
+
+    rows: dict[str, list[float]] = {}
+    for seq in development():
+        rows[seq.name] = [score(run(seq)[0], seq)]
+        aligned_module.cv2 = Bicubic()
+        rows[seq.name].append(score(run(seq)[0], seq))
+        aligned_module.cv2 = real
+    table(rows, ["bilinear (shipped)", "bicubic"])
+
+
+def profile() -> None:
+    """Where a frame's time goes: the engine (binned, one thread, bf16) on 40 frames of random spikes at 200x125 under
+    torch.profiler (each operation's share of the profiled time) and, for the aligned mean, cProfile (its OpenCV
+    calls and merges by total time)."""
+    import cProfile
+    import pstats
+
+    from torch.profiler import ProfilerActivity
+    from torch.profiler import profile as torch_profile
+
+    from rmbvideo.bench.memory import write_random_capture
+    from rmbvideo.recon.run import run_reconstruction
+
+    with tempfile.TemporaryDirectory() as folder:
+        path = write_random_capture(Path(folder) / "c.dat", 20 * 40, 400, 250)
+        options = dict(device="cpu", precision="bf16", threads=1)
+        kwargs = dict(fmt="null", capture=dict(width=400, height=250), extra_options=options, overwrite=True,
+                      resolution="binned")
+        run_reconstruction(path, Path(folder) / "warm", duration_s=0.02, **kwargs)
+        with torch_profile(activities=[ProfilerActivity.CPU]) as prof:
+            summary = run_reconstruction(path, Path(folder) / "a", **kwargs)
+        print(f"{summary.frames} frames;", {k: round(1e3 * v / summary.frames, 2) for k, v in summary.stages.items()})
+        print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=15, max_name_column_width=40))
+        profiler = cProfile.Profile()
+        profiler.enable()
+        run_reconstruction(path, Path(folder) / "b", **kwargs)
+        profiler.disable()
+        pstats.Stats(profiler).sort_stats("tottime").print_stats(r"remap|calc|aligned_box|boxFilter|partition", 12)
+
+
 if __name__ == "__main__":
     command = sys.argv[1] if len(sys.argv) > 1 else "bands"
     {"bands": bands, "bias": bias, "gates": gates, "window": window, "prime": prime, "radius": radius,
      "flip": flip, "models": models, "sharpen": sharpen,
-     "learned-gate": learned_gate, "flow": flow, "car": car, "cost": cost, "picture": picture}[command](*sys.argv[2:])
+     "learned-gate": learned_gate, "flow": flow, "car": car, "cost": cost, "picture": picture,
+     "edges": edges, "stride": stride, "warps": warps, "profile": profile}[command](*sys.argv[2:])
