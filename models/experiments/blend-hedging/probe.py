@@ -387,7 +387,8 @@ def edges(variant: str = "symmetric") -> None:
     """The development video sequences' edge frames (dB below the clip's median, the time offset each shows, the
     middle frame's, the edge cost) with the default and with one suspected cause of their offsets turned off:
     ``prime0`` (no backward priming of the first state), ``noshift`` (the aligned window cut at the clip's ends, not
-    slid inwards) or ``symmetric`` (the network's window cut symmetrically: positions beyond the nearer edge left out)."""
+    slid inwards) or ``symmetric`` (the network's window cut symmetrically: positions beyond the nearer edge left
+    out)."""
     import math
 
     shipped, card = load_model(default_model_path())
@@ -415,8 +416,8 @@ def edges(variant: str = "symmetric") -> None:
                 engine_module.window_valid = valid
                 rows[f"{seq.name} {label}"] = [r.first_drop_db, r.last_drop_db, r.first_offset_ms, r.last_offset_ms,
                                                r.middle_offset_ms, r.first_edge_cost_db, r.last_edge_cost_db]
-    print("| sequence | first below median (dB) | last below median | first offset (ms) | last offset | middle offset | "
-          "edge cost, first (dB) | edge cost, last |")
+    print("| sequence | first below median (dB) | last below median | first offset (ms) | last offset "
+          "| middle offset | edge cost, first (dB) | edge cost, last |")
     print("|---|" + "---:|" * 7)
     for name, values in rows.items():
         print(f"| {name} | " + " | ".join(f"{v:+.2f}" for v in values) + " |")
