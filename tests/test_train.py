@@ -445,6 +445,37 @@ def test_regional_loss_asks_for_the_mean_not_the_median():
     assert reconstruction_loss(mu_law(truth, config.mu), truth, config)[1]["regional"] < 1e-3
 
 
+def test_temporal_loss_charges_a_frame_that_shows_its_neighbours_moment():
+    """A frame that repeats the previous moment (a lagging edge frame, a ghost) pays the truth's whole change; the
+    right moment pays nothing, and a uniform level error (no change) pays nothing either."""
+    from rmbvideo.mulaw import mu_law
+    from rmbvideo.train.loss import temporal_loss, tone_mapped_target
+
+    config = LossConfig()
+    before = torch.zeros(1, 8, 8)
+    before[..., :3] = 0.5
+    after = torch.roll(before, 1, dims=-1)  # an edge moved by one pixel
+    change = (tone_mapped_target(after, config) - tone_mapped_target(before, config)).abs().mean()
+    lagging = temporal_loss(mu_law(before, config.mu), mu_law(before, config.mu), after, before, config)
+    assert float(lagging) == pytest.approx(float(change)) and float(change) > 0
+    assert float(temporal_loss(mu_law(after, config.mu), mu_law(before, config.mu), after, before, config)) < 1e-6
+    level = torch.full((1, 8, 8), 0.05)
+    assert float(temporal_loss(level, level, after * 0 + 0.2, after * 0 + 0.2, config)) == 0.0
+
+
+def test_temporal_weight_adds_its_term_across_segments(tmp_path):
+    """With ``loss.temporal`` the training loss grows by that weight times the mean change error over every output
+    after the first, segment boundaries included (the previous output carried without its graph)."""
+    sample = SampleCache(tmp_path, SampleSpec(mode="binned", crop=16, frames=7, n=4, warmup_frames=1)).get(0)
+    batch = Batch.from_samples([sample], torch.device("cpu"))
+    model = _tiny_model()
+    plain = train_batch(model, batch, tbptt=2, loss_config=LossConfig())
+    model.zero_grad()
+    weighted = train_batch(model, batch, tbptt=2, loss_config=LossConfig(temporal=2.0))
+    assert plain["temporal"] == 0.0 and weighted["temporal"] > 0
+    assert weighted["loss"] == pytest.approx(plain["loss"] + 2.0 * weighted["temporal"], rel=1e-5)
+
+
 def test_display_referred_samples_weigh_their_linear_error_more():
     """The extra linear weight applies to display-referred samples only: the loss of a batch grows by
     display_linear x (that sample's relative L1) / B, and radiance samples are unchanged."""

@@ -47,13 +47,15 @@ from rmbvideo.train.checkpoint import (
 from rmbvideo.train.batch import Batch, output_range
 from rmbvideo.train.config import TrainConfig
 from rmbvideo.train.dataset import Sample, SampleCache, SamplePrefetcher
-from rmbvideo.train.loss import LossConfig, reconstruction_loss
+from rmbvideo.train.loss import LossConfig, reconstruction_loss, temporal_loss
 from rmbvideo.train.validation import validate
 
 log = logging.getLogger(__name__)
 
 LOG_COLUMNS = ("step", "elapsed_s", "lr", "loss", "l2", "ssim", "edge", "val_mu_psnr", "val_mu_ssim",
-               "val_tfw_mu_psnr", "linear", "regional")
+               "val_tfw_mu_psnr", "linear", "regional", "temporal")
+#: The training loss and its parts, as ``train_batch`` reports them.
+LOSS_PARTS = ("loss", "l2", "ssim", "edge", "linear", "regional", "temporal")
 
 
 @dataclass(frozen=True)
@@ -125,6 +127,7 @@ def segment_losses(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossCon
     supervised = output_range(count, w, edges)
     outputs = len(supervised)
     state: DecoderState | None = aged_state(model, batch, supervised, aged_passes)
+    previous: torch.Tensor | None = None  # the last output, for the temporal term (detached across segments)
     for first in range(supervised.start, supervised.stop, tbptt):
         last = min(first + tbptt, supervised.stop) - 1
         lo, hi = max(first - w, 0), min(last + w + 1, count)
@@ -132,18 +135,24 @@ def segment_losses(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossCon
         cache: dict = {}
         state_in = state
         segment_loss = torch.zeros((), device=batch.i_s.device)
-        parts = {"loss": 0.0, "l2": 0.0, "ssim": 0.0, "edge": 0.0, "linear": 0.0, "regional": 0.0}
+        parts = dict.fromkeys(LOSS_PARTS, 0.0)
         for i in range(first, last + 1):
             window = [frames[j - lo] for j in window_indices(i, w, count)]
             t, state = model.step(window, state, cache, valid=window_valid(i, w, count), convention=batch.convention,
                                   aligned=None if batch.i_a is None else batch.i_a[:, i])
             loss, step_parts = reconstruction_loss(t[:, 0], batch.gt[:, i], loss_config, batch.convention)
+            if loss_config.temporal > 0 and previous is not None:
+                change = temporal_loss(t[:, 0], previous, batch.gt[:, i], batch.gt[:, i - 1], loss_config)
+                loss = loss + loss_config.temporal * change
+                step_parts["temporal"] = float(change.detach())
+            previous = t[:, 0]
             segment_loss = segment_loss + loss
             parts["loss"] += float(loss.detach())
             for key, value in step_parts.items():
                 parts[key] += value
         yield SegmentLoss(segment_loss / outputs, parts, state_in)
         state = detach_state(state)
+        previous = previous.detach()
 
 
 def freeze_except(model: nn.Module, prefixes: tuple[str, ...]) -> list[nn.Parameter]:
@@ -175,7 +184,7 @@ def train_batch(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossConfig
     steps the optimizer). Returns the mean loss and its parts over the supervised outputs."""
     train_mode(model)
     outputs = len(output_range(batch.i_s.shape[1], model.config.w, edges))
-    totals = {"loss": 0.0, "l2": 0.0, "ssim": 0.0, "edge": 0.0, "linear": 0.0, "regional": 0.0}
+    totals = dict.fromkeys(LOSS_PARTS, 0.0)
     for segment in segment_losses(model, batch, tbptt, loss_config, edges, aged_passes):
         segment.loss.backward()
         for key, value in segment.parts.items():
@@ -367,6 +376,8 @@ class Trainer:
                            if cfg.loss.regional > 0 else "")
                         + (f" + {cfg.loss.display_linear:g} x the linear L1 again on spikezoo-convention "
                            "(display-referred) samples" if cfg.loss.display_linear > 0 else "")
+                        + (f" + {cfg.loss.temporal:g} x L1 of consecutive outputs' mu-law changes against the truth's"
+                           if cfg.loss.temporal > 0 else "")
                         + f"; ground truth clipped at {cfg.loss.saturation:g} (sensor saturation)",
                 "lpips": "not used (no downloadable weights); replaced by the gradient L1 term"
                          if cfg.loss.edge > 0 else "not used (no downloadable weights), no replacement",

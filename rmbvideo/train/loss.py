@@ -2,8 +2,9 @@
 
 L = beta_l2 L2(T(P), T(G)) + beta1 (1 - SSIM(T(P), T(G))) + beta_edge L1(grad T(P), grad T(G))
   + (beta_linear + beta_display d) |P - G|_1 / |G|_1 (per sample; d = 1 for display-referred samples)
-  + beta_regional |B(P) - B(G)| / (B(G) + eps) (B: 8x8 block
-  means), with T(G) = log(1 + mu G) / log(1 + mu), mu = 5000. LPIPS (beta2 in the paper) needs pretrained
+  + beta_regional |B(P) - B(G)| / (B(G) + eps) (B: 8x8 block means)
+  + beta_temporal L1(T(P_i) - T(P_i-1), T(G_i) - T(G_i-1)) (consecutive outputs; ``temporal_loss``),
+with T(G) = log(1 + mu G) / log(1 + mu), mu = 5000. LPIPS (beta2 in the paper) needs pretrained
 weights that cannot be downloaded here; the edge term (L1 between horizontal and vertical finite
 differences) stands in for it as a cheap sharpness prior. The ground truth is clipped at
 ``saturation`` before tone mapping: above it (1 in the project's units, a pixel firing at every
@@ -39,7 +40,7 @@ class LossConfig:
     a small share of the whole for errors of a few hundredths), ``ssim`` is beta1, ``edge`` replaces LPIPS (0: off),
     ``linear`` weighs the relative linear-domain L1 (0: off), ``regional`` the relative L1 of 8x8 block
     means in linear units (0: off), ``display_linear`` the extra weight of the linear L1 on display-referred
-    samples (0: off)."""
+    samples (0: off), ``temporal`` the L1 of consecutive frames' mu-law differences (0: off)."""
 
     mu: float = 5000.0
     l2: float = 1.0
@@ -49,6 +50,7 @@ class LossConfig:
     linear: float = 0.0
     regional: float = 0.0
     display_linear: float = 0.0
+    temporal: float = 0.0
 
 #: Block size of the regional term and the floor of its denominator (the dark end of the targets).
 REGION = 8
@@ -104,3 +106,14 @@ def reconstruction_loss(pred_t: torch.Tensor, gt: torch.Tensor, config: LossConf
     parts = {"l2": float(l2.detach()), "ssim": float(ssim_term.detach()), "edge": float(edge.detach()),
              "linear": float(linear.detach()), "regional": float(regional.detach())}
     return total, parts
+
+
+def temporal_loss(pred_t: torch.Tensor, previous_t: torch.Tensor, gt: torch.Tensor, previous_gt: torch.Tensor,
+                  config: LossConfig) -> torch.Tensor:
+    """L1 between the mu-law change from the previous output to this one and the truth's change over the same
+    frame step (B, H, W each). A frame that shows its neighbour's moment (a clip's edge frame averaged towards the
+    inside, a ghost trailing a moving edge) changes too little and pays for it; the per-frame terms cannot see that,
+    since the L2 optimum of a one-sided window is a blur towards the side that has evidence."""
+    step_p = pred_t.float() - previous_t.float()
+    step_g = tone_mapped_target(gt, config) - tone_mapped_target(previous_gt, config)
+    return F.l1_loss(step_p, step_g)
