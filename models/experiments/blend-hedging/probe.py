@@ -16,6 +16,7 @@ only, with the shipped model and no retraining. Run from the repository root (ea
     python models/experiments/blend-hedging/probe.py cost         # what the aligned mean's statistics cost per frame
     python models/experiments/blend-hedging/probe.py picture 4768347   # stage14-random-1000000.png (stage 13 at 4768347)
     python models/experiments/blend-hedging/probe.py edges prime0|noshift|symmetric   # edge frames' timing, a cause off
+    python models/experiments/blend-hedging/probe.py edge-models A.safetensors ...   # edge frames of candidate models
     python models/experiments/blend-hedging/probe.py stride       # the DIS patch stride 3, 4 (shipped), 5: scores, ms
     python models/experiments/blend-hedging/probe.py warps        # the neighbours warped bilinear (shipped) or bicubic
     python models/experiments/blend-hedging/probe.py profile      # where a frame's time goes, one thread, bf16
@@ -423,6 +424,23 @@ def edges(variant: str = "symmetric") -> None:
         print(f"| {name} | " + " | ".join(f"{v:+.2f}" for v in values) + " |")
 
 
+def edge_models(*paths: str) -> None:
+    """The development video sequences' edge frames (as ``edges``) with the shipped weights and each model file in
+    ``paths``: dB below the clip's median, the time offset each edge frame shows, the edge cost."""
+    rows = {}
+    for seq in development()[16:]:
+        for path in (str(default_model_path()), *paths):
+            r = edge_report(seq, "rmbnet", {"threads": 1, "input_mode": "binned", "model": path})
+            rows[f"{seq.name} {Path(path).parent.name}/{Path(path).stem}"] = [
+                r.first_drop_db, r.last_drop_db, r.first_offset_ms, r.last_offset_ms, r.middle_offset_ms,
+                r.first_edge_cost_db, r.last_edge_cost_db]
+    print("| sequence, model | first below median (dB) | last below median | first offset (ms) | last offset "
+          "| middle offset | edge cost, first (dB) | edge cost, last |")
+    print("|---|" + "---:|" * 7)
+    for name, values in rows.items():
+        print(f"| {name} | " + " | ".join(f"{v:+.2f}" for v in values) + " |")
+
+
 def _flow_images(count: int = 12) -> list[np.ndarray]:
     """8-bit flow images (as ``AlignedBox`` makes them) of a noisy texture panned by 1 px a frame at 200x125."""
     rng = np.random.default_rng(0)
@@ -523,4 +541,4 @@ if __name__ == "__main__":
     {"bands": bands, "bias": bias, "gates": gates, "window": window, "prime": prime, "radius": radius,
      "flip": flip, "models": models, "sharpen": sharpen,
      "learned-gate": learned_gate, "flow": flow, "car": car, "cost": cost, "picture": picture,
-     "edges": edges, "stride": stride, "warps": warps, "profile": profile}[command](*sys.argv[2:])
+     "edges": edges, "edge-models": edge_models, "stride": stride, "warps": warps, "profile": profile}[command](*sys.argv[2:])
