@@ -98,8 +98,10 @@ def test_full_resolution_frames_are_full_size_finite_and_chunk_invariant(tmp_pat
         assert a.index == b.index and a.image.shape == (48, 64) and np.isfinite(a.image).all()
         # the network batches frames by chunk: float32 sums in another order (bit-equal for tfw); the binned
         # frames agree to ~1e-6, and the detail stage and per-block rescaling amplify that rounding in dark
-        # pixels (measured up to 8e-5 on an AVX2-only CPU)
-        np.testing.assert_allclose(a.image, b.image, rtol=3e-4 if method == "rmbnet" else 0, atol=1e-7)
+        # pixels (measured up to 8e-5 relative on an AVX2-only CPU, and 3.2e-7 absolute at a level of 1.4e-4 with stage
+        # 17: a millionth of the frame's range, where a chunking fault would differ by whole levels)
+        rmbnet = method == "rmbnet"
+        np.testing.assert_allclose(a.image, b.image, rtol=3e-4 if rmbnet else 0, atol=1e-6 if rmbnet else 1e-7)
     # The stripes (one raw column wide) are there at full resolution: alternate columns differ.
     middle = runs[0][len(runs[0]) // 2].image
     left, right = middle[:, 4:28], middle[:, 36:60]
