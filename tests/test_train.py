@@ -459,13 +459,14 @@ def test_temporal_loss_charges_a_frame_that_shows_its_neighbours_moment():
     lagging = temporal_loss(mu_law(before, config.mu), mu_law(before, config.mu), after, before, config)
     assert float(lagging) == pytest.approx(float(change)) and float(change) > 0
     assert float(temporal_loss(mu_law(after, config.mu), mu_law(before, config.mu), after, before, config)) < 1e-6
-    level = torch.full((1, 8, 8), 0.05)
-    assert float(temporal_loss(level, level, after * 0 + 0.2, after * 0 + 0.2, config)) == 0.0
+    level, truth = torch.full((1, 8, 8), 0.05), torch.full((1, 8, 8), 0.2)
+    assert float(temporal_loss(level, level, truth, truth, config)) == 0.0
 
 
 def test_temporal_weight_adds_its_term_across_segments(tmp_path):
     """With ``loss.temporal`` the training loss grows by that weight times the mean change error over every output
-    after the first, segment boundaries included (the previous output carried without its graph)."""
+    after the first, segment boundaries included (the previous output carried without its graph): cut into segments
+    of 2 or run as one, the term is the same, where restarting it at each segment would drop two of its four pairs."""
     sample = SampleCache(tmp_path, SampleSpec(mode="binned", crop=16, frames=7, n=4, warmup_frames=1)).get(0)
     batch = Batch.from_samples([sample], torch.device("cpu"))
     model = _tiny_model()
@@ -474,6 +475,9 @@ def test_temporal_weight_adds_its_term_across_segments(tmp_path):
     weighted = train_batch(model, batch, tbptt=2, loss_config=LossConfig(temporal=2.0))
     assert plain["temporal"] == 0.0 and weighted["temporal"] > 0
     assert weighted["loss"] == pytest.approx(plain["loss"] + 2.0 * weighted["temporal"], rel=1e-5)
+    model.zero_grad()
+    whole = train_batch(model, batch, tbptt=5, loss_config=LossConfig(temporal=2.0))
+    assert weighted["temporal"] == pytest.approx(whole["temporal"], rel=1e-3)  # frames encoded in other batches
 
 
 def test_display_referred_samples_weigh_their_linear_error_more():

@@ -1,5 +1,8 @@
-"""Stage 17 from stage 16 and two GPU runs; run from the repository root (``avg`` after ``rmbvideo train video-pan-gpu``,
-``final`` after ``rmbvideo train video-pan-temporal-head-gpu``).
+"""Stage 17 from stage 16 and two GPU runs; run from the repository root:
+
+    python models/training/rmbnet-binned-stage17/make.py avg                      # after rmbvideo train video-pan-gpu
+    python models/training/rmbnet-binned-stage17/make.py final DIR/rmbnet-binned.safetensors   # after
+        # rmbvideo train video-pan-temporal-head-gpu --device cuda -o DIR
 
 - ``avg``: stage 16 and its GPU continuation (``video-pan-gpu``: every weight on stage 16's data, 708 steps of batch 8
   in 6.5 minutes on an H100; ``gpu-run`` here, its checkpoint with the Adam state beside it) averaged half and half
@@ -21,7 +24,9 @@ HERE = "models/training/rmbnet-binned-stage17"
 STAGE16 = "models/training/rmbnet-binned/stage16.safetensors"
 
 
-def main(step: str, head_run: str = "") -> None:
+def main(step: str, head_run: str | None = None) -> None:
+    if step not in ("avg", "final") or (step == "final") != (head_run is not None):
+        raise SystemExit("usage: make.py avg | make.py final HEAD_RUN.safetensors")
     stage16, _ = load_model(STAGE16)
     if step == "avg":
         gpu_run, card = load_model(f"{HERE}/gpu-run.safetensors")
