@@ -196,3 +196,23 @@ def test_bench_network_times_the_encoders_and_the_batched_pass_alone() -> None:
     assert table.exit_code == 0 and "| 16x16 | cpu | bf16 | 2 | no |" in table.output
     bad = runner.invoke(main, ["bench", "network", "--run", "200x125"])
     assert bad.exit_code != 0 and "WIDTHxHEIGHTxFRAMES" in bad.output
+
+
+def test_bench_profile_writes_the_engine_profile_of_a_real_run(tmp_path) -> None:
+    """The profile covers the profiled run's frames: its per-frame CPU time is the tables' total over the frames, and
+    the network's convolutions are among the operations (the run went through RMB-Net)."""
+    out = tmp_path / "profile.md"
+    result = CliRunner().invoke(main, ["bench", "profile", "--size", "32x32", "--frames", "10", "--threads", "1",
+                                       "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    text = out.read_text()
+    assert text.startswith("# Engine profile: CPU, 32x32 raw, fp32, 10 frames")
+    assert "conv" in text and "## by self cpu time total" in text
+    per_frame = float(text.split("torch's operations: ")[1].split(" ms")[0])
+    total = text.split("Self CPU time total: ")[1].split("\n")[0]
+    unit = next(u for u in ("ms", "us", "s") if total.endswith(u))
+    total_ms = float(total[: -len(unit)]) * {"ms": 1.0, "us": 1e-3, "s": 1e3}[unit]
+    assert per_frame * 10 == pytest.approx(total_ms, rel=0.02)
+    assert "end to end, unprofiled" in result.output
+    bad = CliRunner().invoke(main, ["bench", "profile", "--size", "33x32"])
+    assert bad.exit_code != 0 and "even raw size" in bad.output

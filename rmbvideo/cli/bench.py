@@ -214,6 +214,36 @@ def sizes(device: str, sizes: tuple[str, ...], frames: int, frame_batches: tuple
                else f"RMB-Net (shipped default) on {name}:\n" + sizes_table(results))
 
 
+@bench.command("profile")
+@click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True,
+              help="Device of the network.")
+@click.option("--size", "size", default="400x250", show_default=True,
+              help="Raw capture size WIDTHxHEIGHT; the network sees half of each side.")
+@click.option("--frames", type=click.IntRange(min=10), default=240, show_default=True,
+              help="Output frames per run (20 raw planes each).")
+@click.option("--precision", type=click.Choice(["fp32", "bf16"]), default="fp32", show_default=True,
+              help="Network precision.")
+@click.option("--threads", type=click.IntRange(min=1), default=None,
+              help="The engine's threads, as `reconstruct --threads` [default: the thread policy].")
+@click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("profile.md"), show_default=True,
+              help="Markdown file for the summary and the tables.")
+def profile(device: str, size: str, frames: int, precision: str, threads: int | None, output: Path) -> None:
+    """Where an end-to-end RMB-Net run's time goes, by operation (torch.profiler; on a GPU kernels and copies too)."""
+    import torch
+
+    from rmbvideo.bench.profile import profile_engine
+    from rmbvideo.errors import InputError
+    from rmbvideo.io.atomic import atomic_write_text
+
+    if device == "cuda" and not torch.cuda.is_available():
+        raise InputError("--device cuda: no CUDA device is available")
+    width, height = _size(size)
+    result = profile_engine(device, width, height, frames=frames, precision=precision, threads=threads)
+    atomic_write_text(output, result.markdown())
+    click.echo(result.markdown().split("\n\n## ")[0])
+    click.echo(f"tables: {output}")
+
+
 def _run(text: str) -> tuple[int, int, int]:
     """``WIDTHxHEIGHTxFRAMES`` (binned size, frames per batched pass) as a tuple."""
     parts = text.lower().split("x")
