@@ -4,12 +4,15 @@
     python models/training/rmbnet-binned-stage18/make.py final DIR/rmbnet-binned.safetensors   # after
         # rmbvideo train video-temporal-head-gpu --device cuda -o DIR
 
-- ``avg``: stage 17 and its GPU continuation with the temporal term (``video-temporal-gpu``: every weight; ``gpu-run``
-  here, its checkpoint with the Adam state beside it) averaged half and half (``avg`` here), as stage 17 was made
-  from stage 16, because every GPU continuation of every weight has read the dark end too dark alone.
+- ``avg``: stage 17 and its GPU continuation with the temporal term (``video-temporal-gpu``: every weight, 365 steps of
+  batch 8 in 5 minutes on an H100, copied to ``gpu-run`` here by the device call) averaged half and half (``avg``
+  here), as stage 17 was made from stage 16, because every GPU continuation of every weight has read the dark end
+  too dark alone. The run's own weights and checkpoint did not come back from the device (at most 8 files a call);
+  ``avg`` did, and the run is 2 x avg - stage 17 to float rounding.
 - ``final``: the head of that average trained on a GPU with the temporal term and 30 % flat fields
   (``video-temporal-head-gpu``; its checkpoint and ``loss.csv`` in ``head/``), written as the default
-  (``models/rmbnet-binned.*``) with its lineage in the card.
+  (``models/rmbnet-binned.*``) with its lineage in the card. Not run: on the development sets the result matched stage
+  17 (models/README, stage 18), so stage 17 stays the default.
 """
 
 import dataclasses
