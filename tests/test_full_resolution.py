@@ -277,6 +277,22 @@ def test_learned_detail_stage_starts_as_bilinear_stays_finite_and_streams(tmp_pa
             np.testing.assert_allclose(frame.image, other[index].image, rtol=1e-5, atol=1e-7)
 
 
+def test_the_detail_stage_reads_the_same_rates_stacked_on_their_device_or_from_numpy() -> None:
+    """The detail stage's (F, R, H, W) input: device tensors stacked where they are, numpy images (float32 or float64,
+    cast as ``astype`` casts) copied once; the values are the same bit for bit."""
+    import torch
+
+    from rmbvideo.recon.full_resolution import _stacked_rates
+
+    rng = np.random.default_rng(3)
+    images = [[rng.random((6, 8)) for _ in range(3)] for _ in range(4)]  # float64, as a rate may come
+    stacked = _stacked_rates(images)
+    expected = np.stack([np.stack(frame) for frame in images]).astype(np.float32)
+    assert stacked.dtype == torch.float32 and np.array_equal(stacked.numpy(), expected)
+    on_device = _stacked_rates([[torch.from_numpy(i.astype(np.float32))[:5] for i in frame] for frame in images])
+    assert on_device.shape == (4, 3, 5, 8) and np.array_equal(on_device.numpy(), expected[:, :, :5])
+
+
 def test_detail_training_writes_a_loadable_stage_and_resumes(tmp_path: Path) -> None:
     import torch
 

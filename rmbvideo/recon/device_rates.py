@@ -70,16 +70,21 @@ class _DeviceTotals:
         return [total - snap for total, snap in zip(self._total, snapshot)]
 
 
-def _image(values: torch.Tensor) -> np.ndarray:
-    return values.float().cpu().numpy()
+def _image(values: torch.Tensor, on_device: bool) -> np.ndarray | torch.Tensor:
+    """A frame's float32 image: left on the device for a consumer there (the detail stage on a GPU reads it without a
+    round trip through host memory), else a numpy array."""
+    image = values.float()
+    return image if on_device else image.cpu().numpy()
 
 
 class DeviceTfp:
-    """``Tfp`` (mean of ``window`` raw planes centred on each frame time) on ``DeviceSpikes``."""
+    """``Tfp`` (mean of ``window`` raw planes centred on each frame time) on ``DeviceSpikes``; with ``on_device`` its
+    frames' images stay device tensors."""
 
-    def __init__(self, window: int = 41, step: int = 20) -> None:
+    def __init__(self, window: int = 41, step: int = 20, on_device: bool = False) -> None:
         self._sums = _WindowSums(window, step, _DeviceTotals)
         self._rate_hz = 0.0
+        self._on_device = on_device
 
     def push(self, spikes: DeviceSpikes) -> list[Frame]:
         self._rate_hz = spikes.rate_hz
@@ -89,16 +94,20 @@ class DeviceTfp:
         return [self._frame(w) for w in self._sums.flush()]
 
     def _frame(self, total) -> Frame:
-        image = _image(total.sums[0].double() / total.count)
+        image = _image(total.sums[0].double() / total.count, self._on_device)
         return Frame(index=total.index, time_s=total.centre / self._rate_hz, image=image)
 
 
 class DeviceTfi(Tfi):
     """``Tfi`` (1 / the interval between the spikes around each frame time, searched at most ``max_reach`` planes
     either side) on ``DeviceSpikes``: the same search, its array operations torch's, a block's running max/min
-    as device scans."""
+    as device scans; with ``on_device`` its frames' images stay device tensors."""
 
     _where = staticmethod(torch.where)
+
+    def __init__(self, step: int = 20, max_reach: int = 200, on_device: bool = False) -> None:
+        super().__init__(step, max_reach)
+        self._on_device = on_device
 
     @staticmethod
     def _full_like(like: torch.Tensor, value: int) -> torch.Tensor:
@@ -108,9 +117,8 @@ class DeviceTfi(Tfi):
     def _int64(a: torch.Tensor) -> torch.Tensor:
         return a.to(torch.int64)
 
-    @staticmethod
-    def _image(interval: torch.Tensor) -> np.ndarray:
-        return _image(1.0 / interval.double())
+    def _image(self, interval: torch.Tensor) -> np.ndarray | torch.Tensor:
+        return _image(1.0 / interval.double(), self._on_device)
 
     @staticmethod
     def _scan(planes: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

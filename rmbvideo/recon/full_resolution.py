@@ -178,8 +178,10 @@ class FullResolution:
             from rmbvideo.recon.device_rates import DeviceTfi, DeviceTfp
 
             self._rates_device = torch.device(self.device if self.device is not None else "cpu")
-            self._rates: list = [DeviceTfp(window=w, step=step) for w in windows]
-            self._rates += [DeviceTfi(step=step, max_reach=reach)] if reach else []
+            # the detail stage runs on the same device: its inputs stay there (no copy to host memory and back)
+            on_device = self.detail is not None
+            self._rates: list = [DeviceTfp(window=w, step=step, on_device=on_device) for w in windows]
+            self._rates += [DeviceTfi(step=step, max_reach=reach, on_device=on_device)] if reach else []
         else:
             self._rates = [Tfp(window=w, step=step) for w in windows]
             self._rates += [Tfi(step=step, max_reach=reach)] if reach else []
@@ -265,7 +267,7 @@ class FullResolution:
         # Frames one side made and the other never will (edges of the clip) are dropped at flush.
         return [Frame(index=index, time_s=c.time_s, image=image) for index, c, image in zip(ready, coarse, images)]
 
-    def _learned(self, coarse: list[np.ndarray], rates: list[list[np.ndarray]]) -> list[np.ndarray]:
+    def _learned(self, coarse: list[np.ndarray], rates: list[list[Any]]) -> list[np.ndarray]:
         """The detail stage on the frames, ``detail_batch`` of them per call."""
         import torch
 
@@ -278,8 +280,22 @@ class FullResolution:
         with compute_threads(self.threads), torch.inference_mode(), \
                 torch.autocast(device.type, torch.bfloat16, enabled=bf16):
             for a in range(0, len(coarse), batch):
-                binned = torch.from_numpy(np.stack(coarse[a : a + batch]).astype(np.float32))[:, None]
-                raw = torch.from_numpy(np.stack([np.stack(r) for r in rates[a : a + batch]]).astype(np.float32))
-                full = self.detail(binned.to(device), raw.to(device))
+                binned = torch.from_numpy(np.stack(coarse[a : a + batch]).astype(np.float32, copy=False))[:, None]
+                full = self.detail(binned.to(device), _stacked_rates(rates[a : a + batch]).to(device))
                 out += list(full[:, 0].float().cpu().numpy())
         return out
+
+
+def _stacked_rates(rates: list[list[Any]]) -> Any:
+    """The frames' raw rates as one (F, R, H, W) float32 tensor: stacked on their device when they are device tensors
+    (``DeviceTfp(on_device=True)``), numpy images copied once into one array (not stacked twice and cast)."""
+    import torch
+
+    count, kinds = len(rates), len(rates[0])
+    if isinstance(rates[0][0], torch.Tensor):
+        return torch.stack([image for frame in rates for image in frame]).unflatten(0, (count, kinds))
+    out = np.empty((count, kinds, *np.shape(rates[0][0])), np.float32)
+    for k, frame in enumerate(rates):
+        for j, image in enumerate(frame):
+            out[k, j] = image
+    return torch.from_numpy(out)
