@@ -50,6 +50,25 @@ def test_the_networks_table_is_the_measured_response_and_inverts_it():
     assert ends.tolist() == pytest.approx([0.0, 0.0, RESET_TO_ZERO_STEP * (len(table) - 1)])
 
 
+def test_the_inverse_lookup_is_the_piecewise_linear_inverse_bit_for_bit():
+    """The uniform lookup finds every rate's segment as a search over the knots would: on each knot, the floats
+    either side of it, the ends and a dense sample, the values are the search's bit for bit (any shape)."""
+    import torch
+
+    from rmbvideo.net.blend import RESET_TO_ZERO_RATES, RESET_TO_ZERO_STEP, reset_to_zero_intensity
+
+    table = torch.tensor(RESET_TO_ZERO_RATES, dtype=torch.float32)
+    knots = torch.cat([table, torch.nextafter(table, torch.tensor(2.0)), torch.nextafter(table, torch.tensor(-1.0))])
+    rates = torch.cat([knots, torch.tensor([-1.0, 0.0, 0.9, 1.0, 5.0]),
+                       torch.rand(400_000, generator=torch.Generator().manual_seed(5)) * 0.9])
+    r = rates.clamp(0.0, RESET_TO_ZERO_RATES[-1])
+    j = (torch.searchsorted(table, r, right=True) - 1).clamp(0, len(table) - 2)
+    low, high = table[j], table[j + 1]
+    expected = (j.float() + (r - low) / (high - low)) * RESET_TO_ZERO_STEP
+    assert torch.equal(reset_to_zero_intensity(rates), expected)
+    assert torch.equal(reset_to_zero_intensity(rates[-2000:].reshape(2, 1, 20, 50)), expected[-2000:].reshape(2, 1, 20, 50))
+
+
 def test_the_shipped_model_reads_flat_fields_of_the_emission_model_within_5_percent_through_its_plateau():
     """The evaluation's dark-end check at the levels where the closed-form inverse read 8-15 % off (0.6 and 0.8 in
     the plateau, 0.9 above it): told the stream is the emission model's, the default model is within the issue's 5 %."""
