@@ -14,7 +14,8 @@ from rmbvideo.bench.memory import write_random_capture
 from rmbvideo.recon.run import run_reconstruction
 
 #: host-side CUDA runtime calls counted per frame in the summary
-HOST_CALLS = ("cudaLaunchKernel", "cudaMemcpyAsync", "cudaStreamSynchronize", "cudaGraphLaunch")
+HOST_CALLS = ("cudaLaunchKernel", "cudaLaunchKernelExC", "cudaMemcpyAsync", "cudaStreamSynchronize",
+              "cudaGraphLaunch")
 
 
 @dataclass
@@ -47,7 +48,7 @@ class EngineProfile:
 def profile_engine(device: str = "cpu", width: int = 400, height: int = 250, frames: int = 240,
                    precision: str = "fp32", threads: int | None = None, rows: int = 25) -> EngineProfile:
     """Profile the default engine on ``device`` over ``frames`` output frames of a random ``width`` x ``height``
-    capture (20 raw planes a frame), after one warm-up run (model loading, CUDA graph capture)."""
+    capture (20 raw planes a frame), after a short warm-up run."""
     import torch
     from torch.profiler import ProfilerActivity, profile
 
@@ -57,11 +58,11 @@ def profile_engine(device: str = "cpu", width: int = 400, height: int = 250, fra
         work = Path(folder)
         path = write_random_capture(work / "capture.dat", 20 * frames, width, height)
 
-        def run(name: str):
-            return run_reconstruction(path, work / name, fmt="null", capture=capture, extra_options=options,
-                                      overwrite=True)
+        def run(name: str, duration_s: float | None = None):
+            return run_reconstruction(path, work / name, fmt="null", duration_s=duration_s, capture=capture,
+                                      extra_options=options, overwrite=True)
 
-        run("warm")
+        run("warm", duration_s=0.1)  # as ``bench sizes`` warms up: the model loaded, the kernels chosen
         began = time.perf_counter()
         summary = run("plain")
         fps = summary.frames / (time.perf_counter() - began)
@@ -71,9 +72,9 @@ def profile_engine(device: str = "cpu", width: int = 400, height: int = 250, fra
     events = prof.key_averages()
     count = max(summary.frames, 1)
     cpu_us = sum(e.self_cpu_time_total for e in events)
-    device_us = sum(getattr(e, "self_device_time_total", 0.0) for e in events) if device == "cuda" else 0.0
+    device_us = sum(e.self_device_time_total for e in events) if device == "cuda" else 0.0
     host = {e.key: (e.count, e.self_cpu_time_total / 1e3) for e in events if e.key in HOST_CALLS}
-    keys = ("self_cpu_time_total",) + (("self_cuda_time_total",) if device == "cuda" else ())
+    keys = ("self_cpu_time_total",) + (("self_device_time_total",) if device == "cuda" else ())
     tables = {key: events.table(sort_by=key, row_limit=rows, max_name_column_width=45) for key in keys}
     return EngineProfile(device=torch.cuda.get_device_name(0) if device == "cuda" else "CPU",
                          raw=f"{width}x{height}", precision=precision, frames=summary.frames, fps=fps,

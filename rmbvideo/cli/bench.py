@@ -239,8 +239,9 @@ def profile(device: str, size: str, frames: int, precision: str, threads: int | 
         raise InputError("--device cuda: no CUDA device is available")
     width, height = _size(size)
     result = profile_engine(device, width, height, frames=frames, precision=precision, threads=threads)
-    atomic_write_text(output, result.markdown())
-    click.echo(result.markdown().split("\n\n## ")[0])
+    text = result.markdown()
+    atomic_write_text(output, text)
+    click.echo(text.split("\n\n## ")[0])
     click.echo(f"tables: {output}")
 
 
