@@ -129,20 +129,21 @@ def test_empty_capture_gives_no_frames():
 
 
 def test_long_run_state_does_not_grow():
-    """10,000 recurrent steps through alternating dark/bright stretches: finite, >= 0, state bounded."""
+    """3,000 recurrent steps through alternating dark/bright stretches of 100: finite, >= 0, the state no
+    larger after 3,000 steps than after 1,600."""
     torch.manual_seed(0)
     model = RmbNet(RmbNetConfig(w=1, width=0.125)).eval()
     engine = RmbNetReconstructor(model, device="cpu")
     rng = np.random.default_rng(2)
     peaks = []
-    for block in range(100):
+    for block in range(30):
         bright = 10.0 if block % 2 else 0.0
         batch = [PrelimFrame(k, k * 1e-3, np.full((16, 16), bright, np.float32),
                              (rng.random((16, 16)) * 70).astype(np.float32), np.ones(16, bool))
                  for k in range(100 * block, 100 * (block + 1))]
         for frame in engine.push(batch):
             assert np.isfinite(frame.image).all() and frame.image.min() >= 0
-        if block in (49, 99):
+        if block in (15, 29):
             peaks.append(max(float(t.abs().max()) for layer in engine._state for t in layer))
     assert engine.nonfinite_frames == 0
     assert peaks[1] <= 1.5 * peaks[0] + 1e-3
