@@ -152,8 +152,8 @@ def test_cli_help_and_decode():
 def test_bench_simulate_reports_both_rates_on_the_same_work() -> None:
     from rmbvideo.bench.simulate import bench_simulate, reference_emission, summary
 
-    result = bench_simulate("demo", 0.002)
-    assert result["readouts"] == 40 and result["width"] * result["height"] == 320 * 200
+    result = bench_simulate("demo", 0.002, repeats=2)
+    assert result["readouts"] == 40 and result["width"] * result["height"] == 320 * 200 and result["repeats"] == 2
     assert result["simulator_pixel_readouts_per_s"] > 0 and result["reference_pixel_readouts_per_s"] > 0
     assert "simulator / reference" in summary(result)
     # the reference is a real emitter: its firing rate follows the expected charge

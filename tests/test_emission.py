@@ -196,6 +196,36 @@ def test_photon_arrivals_have_the_statistics_of_per_readout_counts(effects, frac
     assert 0.8 < (fast.var() + 1e-9) / (slow.var() + 1e-9) < 1.25, (slow.var(), fast.var())
 
 
+@pytest.mark.parametrize("reset", ["zero", "subtract"])
+def test_photon_arrivals_by_flat_index_are_the_boolean_mask_form_bit_for_bit(reset: str) -> None:
+    """The arrival emitter gathers and scatters its fired pixels by flat index; the same readouts written with
+    boolean masks (its earlier form) give the same spikes from the same random stream, reset noise included."""
+    from rmbvideo.sensor.emission import ArrivalSpikeEmitter
+
+    class MaskForm(ArrivalSpikeEmitter):
+        def emit_one(self, photo_expected, row_level=1):
+            self._expected += photo_expected
+            fired = self._expected >= self._target
+            if fired.any():
+                past = self._expected[fired] - self._target[fired]
+                for effect in self._pixels._hooks["after_readout"]:
+                    effect.after_readout(fired)
+                electrons = self._electrons if self._electrons is not None else self._threshold_electrons()
+                self._target[fired] = self._rng.gamma(electrons[fired])
+                self._expected[fired] = np.minimum(past, self._target[fired]) if reset == "subtract" else 0.0
+            return fired.astype(np.uint8)
+
+    params = dataclasses.replace(SensorParams(), reset=reset)
+    light = np.random.default_rng(1).random((24, 32)) * params.q_r  # from dark to a spike every readout
+    effects = ["shot_noise", "threshold_mismatch", "reset_noise"]
+    indexed, masked = ArrivalSpikeEmitter(24, 32, params, effects, seed=5), MaskForm(24, 32, params, effects, seed=5)
+    for emitter in (indexed, masked):
+        emitter.settle(5)
+    for _ in range(200):
+        assert np.array_equal(indexed.emit_one(light), masked.emit_one(light))
+    assert np.array_equal(indexed._expected, masked._expected) and np.array_equal(indexed._target, masked._target)
+
+
 def test_the_simulator_uses_photon_arrivals_only_where_they_are_exact() -> None:
     from rmbvideo.sensor.emission import ARRIVAL_EFFECTS, arrivals_apply
     from rmbvideo.sensor.effects import REALISTIC_EFFECTS

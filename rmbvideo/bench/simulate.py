@@ -5,11 +5,13 @@ Poisson draw per pixel (``Generator.poisson``) added to the carried charge, a th
 reset, in a Python loop over readouts, on the scene's expected photo-charge of the first readout
 (no rendering, no other effects). The simulator renders the scene at every readout, runs every effect
 the scene lists and writes the capture. Both are reported as pixel-readouts per second; their ratio is
-the figure of merit (issue: >= 2x), next to the capture's real-time factor.
+the figure of merit (issue: >= 2x), next to the capture's real-time factor; each is the median of a few runs,
+alternated.
 """
 
 from __future__ import annotations
 
+import statistics
 import tempfile
 import time
 from pathlib import Path
@@ -33,25 +35,29 @@ def reference_emission(expected: np.ndarray, readouts: int, threshold: float, se
     return fired_total
 
 
-def bench_simulate(scene_name: str = "demo", duration_s: float = 0.02) -> dict:
-    """Pixel-readouts/s of ``simulate`` on ``scene_name`` and of the numpy reference, same run."""
+def bench_simulate(scene_name: str = "demo", duration_s: float = 0.02, repeats: int = 3) -> dict:
+    """Pixel-readouts/s of ``simulate`` on ``scene_name`` and of the numpy reference, same run: ``repeats`` runs of
+    each, alternated (which goes first swaps), the median of each (a shared machine's load moves single runs)."""
     scene: Scene = resolve_scene(scene_name)
     simulator = CaptureSimulator(scene, duration_s)
     readouts = simulator.total_readouts
     pixels = scene.width * scene.height
-    with tempfile.TemporaryDirectory(prefix="rmbvideo-bench-sim-") as folder:
-        began = time.perf_counter()
-        simulate_capture(scene, Path(folder) / "capture.dat", duration_s=duration_s)
-        simulated_s = time.perf_counter() - began
     expected = simulator.expected_photo(0)
-    began = time.perf_counter()
-    reference_emission(expected, readouts, scene.sensor.q_r)
-    reference_s = time.perf_counter() - began
+    times: dict[str, list[float]] = {"simulator": [], "reference": []}
+    with tempfile.TemporaryDirectory(prefix="rmbvideo-bench-sim-") as folder:
+        work = {"simulator": lambda: simulate_capture(scene, Path(folder) / "capture.dat", duration_s=duration_s),
+                "reference": lambda: reference_emission(expected, readouts, scene.sensor.q_r)}
+        for rep in range(repeats):
+            for name in (list(work) if rep % 2 == 0 else list(work)[::-1]):
+                began = time.perf_counter()
+                work[name]()
+                times[name].append(time.perf_counter() - began)
+    simulated_s, reference_s = statistics.median(times["simulator"]), statistics.median(times["reference"])
     simulator_rate = readouts * pixels / simulated_s
     reference_rate = readouts * pixels / reference_s
     return {
         "scene": scene_name, "width": scene.width, "height": scene.height, "readouts": readouts,
-        "effects": list(scene.effects), "simulator_s": simulated_s, "reference_s": reference_s,
+        "effects": list(scene.effects), "repeats": repeats, "simulator_s": simulated_s, "reference_s": reference_s,
         "simulator_pixel_readouts_per_s": simulator_rate, "reference_pixel_readouts_per_s": reference_rate,
         "ratio": simulator_rate / reference_rate,
         "real_time_factor": (readouts / scene.rate_hz) / simulated_s,
@@ -62,7 +68,7 @@ def summary(result: dict) -> str:
     """Human-readable lines of ``bench_simulate``'s result."""
     return "\n".join([
         f"simulate {result['scene']}: {result['width']}x{result['height']}, {result['readouts']} readouts, "
-        f"effects: {', '.join(result['effects']) or 'none'}",
+        f"effects: {', '.join(result['effects']) or 'none'}; medians of {result['repeats']} alternated runs",
         f"  simulator  {result['simulator_pixel_readouts_per_s'] / 1e6:8.2f} M pixel-readouts/s "
         f"({result['simulator_s']:.2f} s; {result['real_time_factor']:.4f}x real time)",
         f"  reference  {result['reference_pixel_readouts_per_s'] / 1e6:8.2f} M pixel-readouts/s "

@@ -161,12 +161,14 @@ def decode(planes: int, as_json: bool) -> None:
 @click.option("--scene", "scene_name", default="demo", show_default=True, help="Bundled scene name or TOML file.")
 @click.option("--duration", "duration_s", type=click.FloatRange(min=0, min_open=True), default=0.02,
               show_default=True, help="Seconds of the scene to simulate.")
+@click.option("--repeats", type=click.IntRange(min=1), default=3, show_default=True,
+              help="Runs of each, alternated; the medians are reported.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
-def simulate(scene_name: str, duration_s: float, as_json: bool) -> None:
+def simulate(scene_name: str, duration_s: float, repeats: int, as_json: bool) -> None:
     """Simulator pixel-readouts/s against a numpy Poisson-per-pixel-per-readout reference (one core)."""
     from rmbvideo.bench.simulate import bench_simulate, summary
 
-    result = bench_simulate(scene_name, duration_s)
+    result = bench_simulate(scene_name, duration_s, repeats)
     click.echo(json.dumps(result, indent=2) if as_json else summary(result))
 
 

@@ -192,9 +192,7 @@ class ArrivalSpikeEmitter:
         # Electrons to fire: fixed unless reset noise redraws the threshold at every reset.
         self._electrons = None if "reset_noise" in effects else self._threshold_electrons()
         self._expected = np.zeros((height, width), dtype=np.float64)
-        self._target = np.empty((height, width), dtype=np.float64)
-        everyone = np.ones((height, width), dtype=bool)
-        self._target[everyone] = self._arrival(everyone)
+        self._target = self._arrival(np.arange(height * width)).reshape(height, width)
 
     def settle(self, seed: int) -> None:
         """Start mid-cycle (``SpikeEmitter.settle``): each pixel a uniform fraction of the way to its
@@ -206,23 +204,29 @@ class ArrivalSpikeEmitter:
         return np.ceil(np.broadcast_to(self._pixels._threshold(), self._pixels.shape) - 1e-9)
 
     def _arrival(self, which: np.ndarray) -> np.ndarray:
-        """Expected charge at which the threshold's m-th photon arrives, for the pixels in ``which``."""
+        """Expected charge at which the threshold's m-th photon arrives, for the pixels at the flat indices
+        ``which`` (ascending: the order of a boolean mask, so the random stream is the mask's)."""
         electrons = self._electrons if self._electrons is not None else self._threshold_electrons()
-        return self._rng.gamma(electrons[which])
+        return self._rng.gamma(electrons.reshape(-1)[which])
 
     def emit_one(self, photo_expected: np.ndarray, row_level: np.ndarray | int = 1) -> np.ndarray:
-        """One readout of ``photo_expected`` (H, W) mean photo-electrons -> (H, W) uint8 0/1."""
+        """One readout of ``photo_expected`` (H, W) mean photo-electrons -> (H, W) uint8 0/1.
+
+        The fired pixels are gathered and scattered by their flat indices, found once (boolean-mask indexing
+        searches the mask again at every use: 2-3x slower for the same values)."""
         self._expected += photo_expected
         fired = self._expected >= self._target
-        if fired.any():
-            past = self._expected[fired] - self._target[fired]  # charge since the crossing photon
+        index = np.flatnonzero(fired)
+        if index.size:
+            expected, target = self._expected.reshape(-1), self._target.reshape(-1)
+            past = expected[index] - target[index]  # charge since the crossing photon
             for effect in self._pixels._hooks["after_readout"]:
                 effect.after_readout(fired)
-            self._target[fired] = self._arrival(fired)
+            arrival = self._arrival(index)
+            target[index] = arrival
             # reset to zero discards it; reset at the crossing keeps it, short of the next spike (one a plane)
-            subtract = self._pixels.params.reset == "subtract"
-            self._expected[fired] = np.minimum(past, self._target[fired]) if subtract else 0.0
-        return fired.astype(np.uint8)
+            expected[index] = np.minimum(past, arrival) if self._pixels.params.reset == "subtract" else 0.0
+        return fired.view(np.uint8)
 
 
 class RateIntegrateFire:
