@@ -76,15 +76,24 @@ def train(recipe: str, out_dir: Path | None, cache_dir: Path | None, resume: boo
 @click.option("--minutes", type=click.FloatRange(min=0, min_open=True), default=25.0, show_default=True,
               help="Wall-time budget (with --resume: the whole run's, including the time already spent).")
 @click.option("--resume", is_flag=True, help="Continue from the checkpoint in --output.")
+@click.option("--channels", type=click.IntRange(min=1), default=None,
+              help="Width of the stage's 3x3 convolutions [default: DetailConfig's, 16]; the same when resuming.")
+@click.option("--layers", type=click.IntRange(min=2), default=None,
+              help="Depth of the stage's 3x3 convolution stack [default: DetailConfig's, 4]; the same when resuming.")
 @quiet_option
 @verbose_option
-def train_detail(out_dir: Path, minutes: float, resume: bool, quiet: bool) -> None:
+def train_detail(out_dir: Path, minutes: float, resume: bool, channels: int | None, layers: int | None,
+                 quiet: bool) -> None:
     """Train the learned detail stage of --resolution full on simulated video scenes (CPU, one thread)."""
     import torch
 
-    from rmbvideo.train.detail import DetailTrainConfig
+    from rmbvideo.net.detail import DetailConfig
+    from rmbvideo.train.detail import INTERVAL_REACH, DetailTrainConfig
     from rmbvideo.train.detail import train_detail as run
 
     torch.set_num_threads(1)
-    weights = run(DetailTrainConfig(minutes=minutes), out_dir, resume=resume, progress=progress_enabled(quiet))
+    shape = {k: v for k, v in (("channels", channels), ("layers", layers)) if v is not None}
+    detail = DetailConfig(interval_reach=INTERVAL_REACH, **shape)
+    weights = run(DetailTrainConfig(detail=detail, minutes=minutes), out_dir, resume=resume,
+                  progress=progress_enabled(quiet))
     click.echo(f"{weights}: install it as models/detail-binned.safetensors (+ .json) to use it")
