@@ -315,6 +315,24 @@ def test_detail_training_writes_a_loadable_stage_and_resumes(tmp_path: Path) -> 
     assert any(not torch.equal(a, b) for a, b in zip(model.state_dict().values(), resumed.state_dict().values()))
 
 
+def test_train_detail_cli_builds_the_width_asked_and_refuses_to_resume_another(tmp_path: Path) -> None:
+    """``train-detail --channels/--layers`` shape the stage; resuming a checkpoint of another width is refused in
+    one line, before any scene is simulated."""
+    from click.testing import CliRunner
+
+    from rmbvideo.cli import main
+    from rmbvideo.net.detail import DetailConfig
+    from rmbvideo.train.detail import INTERVAL_REACH, DetailTrainConfig, train_detail
+
+    config = DetailTrainConfig(detail=DetailConfig(channels=4, layers=2, interval_reach=INTERVAL_REACH), crop=16,
+                               batch=2, pool=3, val_count=1, val_every=2, checkpoint_every=1, steps=2)
+    train_detail(config, tmp_path)
+    result = CliRunner().invoke(main, ["train-detail", "-o", str(tmp_path), "--resume", "--channels", "6",
+                                       "--layers", "2", "--quiet"])
+    assert result.exit_code != 0 and "does not fit" in result.output and "Traceback" not in result.output
+    assert len(result.output.strip().splitlines()) == 1
+
+
 def test_detail_sample_reads_tfi_at_the_frame_centre() -> None:
     """The TFI plane of a training sample is 1 / the interval between the spikes around the centre: a
     value in (0, 1] on every pixel, and on a bright static scene close to the 80-plane TFP rate."""

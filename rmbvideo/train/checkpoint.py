@@ -57,6 +57,22 @@ def save_checkpoint(out_dir: Path, model: torch.nn.Module, optimizer: torch.opti
     atomic_write_text(meta_path, json.dumps(meta, indent=2) + "\n")
 
 
+def _misfit(stored: dict[str, torch.Tensor], expected: dict[str, torch.Tensor]) -> str:
+    """How the tensors ``stored`` differ from a model's ``expected`` ones, on one line ("" when they fit)."""
+    parts = []
+    missing, unexpected = sorted(set(expected) - set(stored)), sorted(set(stored) - set(expected))
+    reshaped = [k for k in stored if k in expected and stored[k].shape != expected[k].shape]
+    if reshaped:
+        k = reshaped[0]
+        parts.append(f"{len(reshaped)} tensors of another shape, e.g. {k}: {list(stored[k].shape)} stored, "
+                     f"{list(expected[k].shape)} in the model")
+    if missing:
+        parts.append(f"{len(missing)} missing, e.g. {missing[0]}")
+    if unexpected:
+        parts.append(f"{len(unexpected)} not in the model, e.g. {unexpected[0]}")
+    return "; ".join(parts)
+
+
 def load_checkpoint(out_dir: Path, model: torch.nn.Module, optimizer: torch.optim.Adam) -> CheckpointState:
     """Restore model and optimizer from ``out_dir``; ``InputError`` if missing or inconsistent."""
     tensor_path, meta_path = checkpoint_paths(out_dir)
@@ -73,10 +89,10 @@ def load_checkpoint(out_dir: Path, model: torch.nn.Module, optimizer: torch.opti
         raise InputError(f"{out_dir}: checkpoint files disagree or are not rmbvideo checkpoints")
     device = next(model.parameters()).device
     model_state = {k[len("model."):]: v for k, v in tensors.items() if k.startswith("model.")}
-    try:
-        model.load_state_dict(model_state)
-    except RuntimeError as exc:
-        raise InputError(f"{tensor_path}: checkpoint does not fit this recipe's model ({exc})") from None
+    misfit = _misfit(model_state, model.state_dict())
+    if misfit:
+        raise InputError(f"{tensor_path}: checkpoint does not fit this recipe's model ({misfit})")
+    model.load_state_dict(model_state)
     params = [p for group in optimizer.param_groups for p in group["params"]]
     optimizer_state = optimizer.state_dict()
     optimizer_state["state"] = {
