@@ -117,7 +117,6 @@ def _write_plot_opencv(points: list[tuple[float, float, str, bool]], path: Path)
             cv2.putText(canvas, name, pixel(x, y), cv2.FONT_HERSHEY_SIMPLEX, 0.3, (0, 0, 0), 1)
     cv2.putText(canvas, "PSNR (dB) vs log ms/frame; red: Pareto front", (margin, height - 20),
                 cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1)
-    _, encoded = cv2.imencode(".png", canvas)
-    with atomic_path(path) as temp:
-        Path(temp).write_bytes(encoded.tobytes())
-    return path
+    from rmbvideo.io.png import write_png
+
+    return write_png(path, canvas)

@@ -34,7 +34,7 @@ def _real_video(folder: Path, model: Path, device: str, out_dir: Path, stem: str
         markdown_table,
         real_video_rows,
     )
-    from rmbvideo.evaluate.table import write_png
+    from rmbvideo.io.png import write_png
     from rmbvideo.io.atomic import atomic_write_text
 
     streams = find_streams(folder)

@@ -10,9 +10,8 @@ import numpy as np
 
 from rmbvideo.cli import verbose_option
 from rmbvideo.cli.options import capture_options
-from rmbvideo.errors import OutputError
-from rmbvideo.io.atomic import atomic_path
 from rmbvideo.io.capture import open_capture
+from rmbvideo.io.png import write_png
 from rmbvideo.mulaw import mu_law
 
 
@@ -58,9 +57,5 @@ def preview(input_path: Path, output: Path, count: int, window: int,
     """Write a contact sheet of a few time points of INPUT (TFP, mu-law tone-mapped)."""
     reader = open_capture(input_path, width, height, flip, header_cols, rate_hz)
     sheet = contact_sheet(reader, count=count, window=window)
-    ok, encoded = cv2.imencode(".png", sheet)
-    if not ok:
-        raise OutputError(f"{output}: could not encode PNG")
-    with atomic_path(output) as tmp:
-        Path(tmp).write_bytes(encoded.tobytes())
+    write_png(output, sheet)
     click.echo(f"wrote {output}")

@@ -35,6 +35,7 @@ from rmbvideo.evaluate.real_video import (
     scaled_psnr,
 )
 from rmbvideo.io.dat import DatReader
+from rmbvideo.io.png import write_png
 from rmbvideo.recon.full_resolution import FullResolution, detail_stage, upsample
 from rmbvideo.recon.methods import make_reconstructor
 from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
@@ -242,4 +243,4 @@ def comparison_picture(scores: FullScores, path: Path, rows: Seq[str]) -> None:
             cv2.putText(tile, name[:44], (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, 255, 1, cv2.LINE_AA)
             tiles.append(tile)
         strips.append(np.hstack(tiles))
-    cv2.imwrite(str(path), np.vstack(strips))
+    write_png(path, np.vstack(strips))

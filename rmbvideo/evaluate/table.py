@@ -25,7 +25,8 @@ import numpy as np
 from rmbvideo.errors import InputError
 from rmbvideo.evaluate.harness import RowResult, downsample_2x
 from rmbvideo.evaluate.metrics import robust_scale
-from rmbvideo.io.atomic import atomic_path, atomic_write_text
+from rmbvideo.io.atomic import atomic_write_text
+from rmbvideo.io.png import write_png
 from rmbvideo.mulaw import mu_law
 
 log = logging.getLogger(__name__)
@@ -177,16 +178,6 @@ def side_by_side(images: dict[str, np.ndarray], reference: np.ndarray, regions: 
     columns = [np.pad(c, ((0, height - c.shape[0]), (0, 0), (0, 0)), constant_values=255) for c in columns]
     gap = np.full((height, PANEL_GAP, 3), 255, np.uint8)
     return np.hstack([part for column in columns for part in (column, gap)][:-1])
-
-
-def write_png(path: Path, image: np.ndarray) -> Path:
-    """Encode ``image`` as PNG and write it atomically."""
-    ok, encoded = cv2.imencode(".png", image)
-    if not ok:
-        raise RuntimeError(f"{path}: PNG encoding failed")
-    with atomic_path(Path(path)) as temp:
-        temp.write_bytes(encoded.tobytes())
-    return Path(path)
 
 
 def write_comparison_png(rows: Seq[RowResult], gt: np.ndarray, frame_index: int, path: Path,

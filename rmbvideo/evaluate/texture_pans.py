@@ -18,9 +18,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from rmbvideo.errors import OutputError
-from rmbvideo.io.atomic import atomic_path, atomic_write_bytes
+from rmbvideo.io.atomic import atomic_path
 from rmbvideo.io.dat import DatGeometry, DatWriter
+from rmbvideo.io.png import write_png
 from rmbvideo.scenes.random_scenes import EVAL_SEED_START
 from rmbvideo.scenes.video import VideoSceneRanges, dead_leaves
 from rmbvideo.sensor.emission import RateIntegrateFire
@@ -78,10 +78,7 @@ def write_texture_pan(pan: TexturePan, folder: Path, geometry: DatGeometry = Dat
             warp = np.float32([[1, 0, _PAD - shift_x], [0, 1, _PAD - shift_y]])  # output px -> texture px
             frame = cv2.warpAffine(big, warp, (width, height), flags=cv2.INTER_LANCZOS4 | cv2.WARP_INVERSE_MAP)
             writer.write(emitter.emit_one(SPIKEZOO_RATE * np.clip(frame, 0.0, 1.0))[None])
-    ok, png = cv2.imencode(".png", np.round(255 * reference).astype(np.uint8))
-    if not ok:
-        raise OutputError(f"{stem}.png: cannot encode the reference image")
-    atomic_write_bytes(stem.with_suffix(".png"), png.tobytes())
+    write_png(stem.with_suffix(".png"), np.round(255 * reference).astype(np.uint8))
     return capture
 
 

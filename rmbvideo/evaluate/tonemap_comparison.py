@@ -15,6 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from rmbvideo.io.png import write_png
 from rmbvideo.io.tonemap import TONE_METHODS, ToneMapConfig, ToneMapper
 from rmbvideo.recon.run import reconstruct_frames
 from rmbvideo.scenes.scene import resolve_scene
@@ -60,7 +61,7 @@ def main(argv: list[str] | None = None) -> None:
         captures = {f"{p.name} (real)": p for p in args.capture}
         captures["demo pan (synthetic)"] = demo
         image, report = compare(captures)
-    cv2.imwrite(str(args.out), image)
+    write_png(args.out, image)
     print("\n".join(report))
 
 
