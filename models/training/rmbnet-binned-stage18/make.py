@@ -6,7 +6,7 @@ has written its weights to ``gpu-run.*`` here:
 Stage 17 and its GPU continuation with the temporal term (``video-temporal-gpu``: every weight, 365 steps of batch 8
 in 5 minutes on an H100) averaged half and half (``avg`` here), as stage 17 was made from stage 16, because every GPU
 continuation of every weight has read the dark end too dark alone. The head of ``avg`` was then trained with
-``video-temporal-head-gpu`` (its checkpoint and ``loss.csv`` in ``head/``). On the development sets the result
+``video-temporal-head-gpu`` (``loss.csv`` in ``head/``, its checkpoint in the history at 0488360). On the development sets the result
 matched stage 17 (models/README, stage 18), so nothing was written as the default. The run's own weights and
 checkpoint did not come back from the device (at most 8 files a call); ``avg`` did, and the run is 2 x avg - stage 17
 to float rounding.
