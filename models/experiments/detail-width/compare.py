@@ -1,8 +1,12 @@
 """Detail stages of different widths side by side: their accuracy at full resolution on the development sequences
 and the real-video streams (RMB-Net's binned frames, the same for each), and the detail network's own time at one
-thread, alternated in one process. Never the held-out tables. Run from the repository root:
+thread, alternated in one process. Run from the repository root:
 
     python models/experiments/detail-width/compare.py models/detail-binned.safetensors OTHER.safetensors ...
+    python models/experiments/detail-width/compare.py --heldout A.safetensors B.safetensors   # once, to ship
+
+``--heldout`` scores the evaluation's held-out sequences instead of the development ones (the learned row of
+``rmbvideo evaluate --full-resolution``), for the one candidate chosen on the development sets.
 
 The real-video streams are read from ``../shared/data/spikezoo-base`` when it is there.
 """
@@ -17,7 +21,7 @@ import torch
 
 from rmbvideo.evaluate.full_resolution import full_ground_truth
 from rmbvideo.evaluate.harness import SATURATION, SIMULATED_RESPONSE, rate_as_light, sequence_convention
-from rmbvideo.evaluate.heldout import load_development
+from rmbvideo.evaluate.heldout import load_development, load_heldout, load_video_heldout
 from rmbvideo.evaluate.metrics import mu_law_psnr
 from rmbvideo.evaluate.real_video import CONVENTION, RAW_STEP, find_streams, scaled_psnr
 from rmbvideo.io.dat import DatReader
@@ -42,13 +46,13 @@ def full_frames(detail, source, convention: str, keep=None) -> dict[int, np.ndar
     return {i: rate_as_light("rmbnet", f.image, convention) for i, f in sink.frames.items()}
 
 
-def accuracy(paths: list[Path]) -> dict[str, dict[str, float]]:
-    """Per detail file: development sequence or stream -> PSNR (mu-law on sequences, linear with gain on streams)."""
+def accuracy(paths: list[Path], sequences: list) -> dict[str, dict[str, float]]:
+    """Per detail file: sequence or stream -> PSNR (mu-law on sequences, linear with gain on streams)."""
     import cv2
 
     details = {p.name: load_detail_model(p)[0] for p in paths}
     scores: dict[str, dict[str, float]] = {name: {} for name in details}
-    for seq in load_development():
+    for seq in sequences:
         truth = {i: np.minimum(gt, SATURATION) for i, gt in full_ground_truth(seq).items()}
         for name, detail in details.items():
             frames = full_frames(detail, seq, sequence_convention(seq))
@@ -85,11 +89,16 @@ def timing(paths: list[Path], size: tuple[int, int], pairs: int = 15) -> dict[st
 
 
 def main() -> None:
-    paths = [Path(p) for p in sys.argv[1:]]
-    for size in ((125, 200), (250, 250)):
-        print(f"detail network at {size[1]}x{size[0]} binned, one thread, median ms:",
-              {k: round(v, 2) for k, v in timing(paths, size).items()}, flush=True)
-    scores = accuracy(paths)
+    heldout = "--heldout" in sys.argv[1:]
+    paths = [Path(p) for p in sys.argv[1:] if p != "--heldout"]
+    if heldout:
+        sequences = load_heldout(False) + load_video_heldout(False)
+    else:
+        sequences = load_development()
+        for size in ((125, 200), (250, 250)):
+            print(f"detail network at {size[1]}x{size[0]} binned, one thread, median ms:",
+                  {k: round(v, 2) for k, v in timing(paths, size).items()}, flush=True)
+    scores = accuracy(paths, sequences)
     names = list(scores)
     print("| set | " + " | ".join(names) + " |")
     print("|---|" + "---:|" * len(names))
@@ -97,7 +106,7 @@ def main() -> None:
         print(f"| {key} | " + " | ".join(f"{scores[n][key]:.2f}" for n in names) + " |")
     synthetic = [k for k in scores[names[0]] if k not in {s.name for s in find_streams(STREAMS)}] \
         if STREAMS.is_dir() else list(scores[names[0]])
-    print("| mean of the development sequences | "
+    print(f"| mean of the {'held-out' if heldout else 'development'} sequences | "
           + " | ".join(f"{np.mean([scores[n][k] for k in synthetic]):.2f}" for n in names) + " |")
 
 
