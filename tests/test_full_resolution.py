@@ -315,9 +315,9 @@ def test_detail_training_writes_a_loadable_stage_and_resumes(tmp_path: Path) -> 
     assert any(not torch.equal(a, b) for a, b in zip(model.state_dict().values(), resumed.state_dict().values()))
 
 
-def test_train_detail_cli_builds_the_width_asked_and_refuses_to_resume_another(tmp_path: Path) -> None:
-    """``train-detail --channels/--layers`` shape the stage; resuming a checkpoint of another width is refused in
-    one line, before any scene is simulated."""
+def test_train_detail_cli_refuses_to_resume_a_checkpoint_of_another_width(tmp_path: Path) -> None:
+    """``train-detail --resume --channels 6`` on a 4-channel checkpoint: refused in one line naming the mismatch,
+    before any scene is simulated."""
     from click.testing import CliRunner
 
     from rmbvideo.cli import main

@@ -1,0 +1,65 @@
+"""The one-core figures of README "Where the time goes on an AVX2-only host", measured again. Run from the repository
+root (each well under a minute):
+
+    python models/experiments/avx2-profile/measure.py convs   # GFLOP/s of the network's convolution shapes, one thread
+    python models/experiments/avx2-profile/measure.py tfp     # TFP on a random 1 s 400x250 capture, in this process
+"""
+
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+
+from rmbvideo.bench.memory import write_random_capture
+from rmbvideo.io.dat import DatGeometry, DatReader
+from rmbvideo.recon.classical import Tfp
+from rmbvideo.recon.run import run_reconstruction
+
+#: (in, out, kernel, height, width, batch): the encoders' 5x5 levels (8 frames a call) and the head's first 3x3
+SHAPES = [(12, 12, 5, 128, 200, 8), (16, 16, 5, 64, 100, 8), (27, 12, 3, 128, 200, 1), (24, 48, 3, 64, 100, 1)]
+
+
+def best_ms(work, runs: int = 8) -> float:
+    work()
+    times = []
+    for _ in range(runs):
+        began = time.perf_counter()
+        work()
+        times.append(time.perf_counter() - began)
+    return 1e3 * min(times)
+
+
+def convs() -> None:
+    torch.set_num_threads(1)
+    for cin, cout, k, h, w, b in SHAPES:
+        x = torch.randn(b, cin, h, w).contiguous(memory_format=torch.channels_last)
+        weight = torch.randn(cout, cin, k, k).contiguous(memory_format=torch.channels_last)
+        ms = best_ms(lambda: F.conv2d(x, weight, padding=k // 2))
+        gflop = 2 * b * h * w * cin * cout * k * k / 1e9
+        print(f"{cin:3d} -> {cout:3d} {k}x{k} at {w}x{h}, batch {b}: {ms:7.2f} ms, {gflop / ms * 1e3:5.1f} GFLOP/s")
+
+
+def tfp() -> None:
+    with tempfile.TemporaryDirectory() as folder:
+        path = write_random_capture(Path(folder) / "c.dat", 20000, 400, 250)
+        chunks = list(DatReader(path, DatGeometry(400, 250)).packed_chunks(1024))
+
+        def method_alone() -> None:
+            method = Tfp(41, 20)
+            for chunk in chunks:
+                method.push(chunk)
+            method.flush()
+
+        def end_to_end() -> None:
+            run_reconstruction(path, Path(folder) / "out", method="tfp", fmt="null", extra_options={"threads": 1})
+
+        for name, work in (("TFP alone, chunks in memory", method_alone), ("reconstruct --format null", end_to_end)):
+            ms = best_ms(work, runs=3)
+            print(f"{name}: {ms / 1e3:.2f} s for 1 s of capture ({1e3 / ms:.2f}x real time)")
+
+
+if __name__ == "__main__":
+    {"convs": convs, "tfp": tfp}[sys.argv[1]]()
