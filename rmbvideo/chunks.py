@@ -83,13 +83,19 @@ class Frame:
     image: np.ndarray
 
 
+_INF_BITS = int(np.array(np.inf, np.float32).view(np.uint32))
+
+
 def clean_image(image: np.ndarray) -> tuple[np.ndarray, int]:
     """``image`` as a ``Frame`` must be (float32, finite, >= 0): NaN/Inf become 0, negatives 0;
     also returns how many pixels were not finite. Returns the input itself when it is clean."""
     image = np.asarray(image, dtype=np.float32)
-    # Fast path, two reductions and no temporaries: max and min propagate NaN, so a finite max and a
-    # min >= 0 mean every value is finite and >= 0.
-    if image.size == 0 or (math.isfinite(float(image.max())) and float(image.min()) >= 0):
+    # Fast path, one reduction and no temporaries: as unsigned integers, the float32 values that are finite and
+    # >= 0 (but -0.0) are exactly those below +Inf's bits; negatives have the sign bit set, NaNs lie above +Inf.
+    if image.size == 0 or int(image.view(np.uint32).max()) < _INF_BITS:
+        return image, 0
+    # Then two: max and min propagate NaN, so a finite max and a min >= 0 mean every value is finite and >= 0.
+    if math.isfinite(float(image.max())) and float(image.min()) >= 0:
         return image, 0
     bad = ~np.isfinite(image)
     count = int(bad.sum())

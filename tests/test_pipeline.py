@@ -103,3 +103,23 @@ def test_every_run_is_timed_by_stage(reader):
     assert summary.frames > 0
     inner = summary.stages["preliminary frames"] + summary.stages["network"]
     assert 0 < summary.stages["network"] and inner <= summary.stages["method"] + 1e-6
+
+
+@pytest.mark.parametrize("special", [np.nan, -np.nan, np.inf, -np.inf, -1.0, -1e-45, np.float32(3.4e38), 0.0, -0.0, 1e-45])
+def test_clean_image_on_every_kind_of_value(special):
+    """Clean images come back as they are (the same object, -0.0 included); anything else is finite and >= 0,
+    with the non-finite pixels counted."""
+    from rmbvideo.chunks import clean_image
+
+    image = np.linspace(0.0, 2.0, 24, dtype=np.float32).reshape(4, 6)[:, ::2]  # a strided view
+    image[1, 2] = special
+    cleaned, bad = clean_image(image)
+    value = np.float32(special)
+    if np.isfinite(value) and value >= 0:
+        assert cleaned is image and bad == 0
+    else:
+        assert bad == int(not np.isfinite(value))
+        assert np.isfinite(cleaned).all() and (cleaned >= 0).all() and cleaned[1, 2] == 0.0
+        mask = np.ones(image.shape, bool)
+        mask[1, 2] = False
+        assert np.array_equal(cleaned[mask], image[mask])

@@ -176,6 +176,7 @@ def iter_frames(
             out = method.push(chunk)
             stages["method"] += time.perf_counter() - tick
             yield from cleaned(out)
+            del out  # the frames go with their consumer: a method may reuse their memory (``ImagePool``)
             stats.planes += advanced
             if not by_frames:
                 bar.update(advanced)

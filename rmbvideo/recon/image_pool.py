@@ -1,0 +1,46 @@
+"""Output images reused once nothing else holds them.
+
+A fresh float32 frame costs its page faults every time: glibc gives freed frames back to the system between
+chunks, so a method making 51 frames of 400x250 a chunk faults in 20 MB a chunk. At TFP's rate that was most of a
+frame's time on this project's hosts (README, "Where the time goes on an AVX2-only host").
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+#: references to an image that only the pool holds: its list slot, the caller's name, getrefcount's argument
+_ONLY_THE_POOL = 3
+
+
+class ImagePool:
+    """float32 images of one shape: ``take`` returns one that no frame, view or sink references any more, else a new one.
+
+    An image handed out is not written again while anything outside the pool refers to it or to a view of it, so
+    frames a caller keeps stay as they were. Images are released in about the order they were taken, so the search
+    starts after the last one taken. The pool grows only while every image in it is held, so it never holds more
+    than were alive at once, and at most ``max_bytes`` of them; beyond that ``take`` allocates.
+    """
+
+    def __init__(self, shape: tuple[int, ...], max_bytes: int = 128 << 20) -> None:
+        self.shape = shape
+        self.size = max(1, max_bytes // (4 * int(np.prod(shape))))
+        self._images: list[np.ndarray] = []
+        self._next = 0  # where the search for a released image starts
+
+    def take(self) -> np.ndarray:
+        """An image of ``shape`` (contents undefined) for the caller to overwrite completely."""
+        n = len(self._images)
+        for k in range(n):
+            i = (self._next + k) % n
+            image = self._images[i]
+            if sys.getrefcount(image) == _ONLY_THE_POOL:
+                self._next = i + 1
+                return image
+        image = np.empty(self.shape, np.float32)
+        if n < self.size:
+            self._images.append(image)
+            self._next = 0
+        return image
