@@ -25,7 +25,7 @@ from rmbvideo.evaluate.harness import (
 )
 from rmbvideo.evaluate.heldout import HeldoutConfig, load_heldout_config
 from rmbvideo.evaluate.metrics import PSNR_CAP_DB
-from rmbvideo.evaluate.table import csv_table, pick_regions, write_comparison_png, write_tables
+from rmbvideo.evaluate.table import csv_table, pick_moving_region, pick_regions, write_comparison_png, write_tables
 from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.model import RmbNet
 from rmbvideo.net.weights import ModelCard, save_model
@@ -268,3 +268,30 @@ def test_rate_methods_are_scored_as_light_on_a_camera_stream_only():
     np.testing.assert_allclose(light, reset_to_zero_intensity(torch.from_numpy(rate)).numpy())
     assert light[0, 0] == 0 and 0.1 < light[0, 1] < 0.11 and 0.6 < light[1, 0] < 0.8 and light[1, 1] > 1.0
     assert rate_as_light("tfi", rate, "spikezoo") is rate and rate_as_light("mg20", rate, "physical") is rate
+
+
+def test_moving_region_is_where_the_frames_differ():
+    rng = np.random.default_rng(2)
+    before = (1.0 + rng.uniform(0, 0.2, (64, 96))).astype(np.float32)
+    after = before.copy()
+    after[40:56, 60:80] = 20.0  # a bright object arrived here
+    moving = pick_moving_region(before, after)
+    assert moving.size == 16 and moving.crop(after).mean() > 10.0
+
+
+def test_real_capture_comparison_at_the_first_and_last_frame(tmp_path):
+    """The real-capture figure: RMB-Net, TFP and TFI side by side at a clip's edge frames, three regions zoomed."""
+    import cv2
+
+    from rmbvideo.bench.memory import write_random_capture
+    from rmbvideo.errors import InputError
+    from rmbvideo.evaluate.table import real_capture_comparison
+
+    capture = write_random_capture(tmp_path / "c.dat", 200, 400, 250, seed=4)
+    for frame in ("first", "last"):
+        png = real_capture_comparison(capture, tmp_path / f"{frame}.png", device="cpu", frame=frame)
+        image = cv2.imread(str(png))
+        assert image.shape[1] >= 3 * 200 and image.shape[0] >= 125 + 3 * 160  # 3 binned columns: frame, 3 zooms
+    with pytest.raises(InputError, match="no frame 99"):
+        real_capture_comparison(capture, tmp_path / "x.png", device="cpu", frame=99)
+    assert not (tmp_path / "x.png").exists()

@@ -38,6 +38,7 @@ ZOOM_SIZE = 160  # displayed side of a zoomed region (px)
 ZOOM_MU = 64.0  # milder curve for zooms: a re-exposed patch spans a small range
 DARK_COLOUR = (255, 160, 0)  # BGR
 BRIGHT_COLOUR = (0, 200, 255)
+MOVING_COLOUR = (80, 80, 255)
 
 
 def _format(value: float, digits: int) -> str:
@@ -128,6 +129,20 @@ def pick_regions(gt: np.ndarray) -> tuple[Region, Region]:
     return dark, bright
 
 
+def pick_moving_region(before: np.ndarray, after: np.ndarray) -> Region:
+    """The square patch (the size ``pick_regions`` uses) where the tone-mapped frames ``before`` and ``after`` of one
+    method differ most on average: the moving edges, where a window's frames disagree and ghosts or blur show."""
+    height, width = after.shape
+    size = max(4, min(height, width) // 4)
+    stride = max(1, size // 4)
+    scale = robust_scale(after)
+    change = np.abs(to_display(after, scale).astype(np.float32) - to_display(before, scale).astype(np.float32))
+    candidates = [(float(Region(y, x, size).crop(change).mean()), y, x)
+                  for y in range(0, height - size + 1, stride) for x in range(0, width - size + 1, stride)]
+    _, y, x = max(candidates)
+    return Region(y, x, size)
+
+
 def _label(panel: np.ndarray, text: str) -> np.ndarray:
     """``panel`` (grey or BGR) in BGR with a label bar above it."""
     bgr = cv2.cvtColor(panel, cv2.COLOR_GRAY2BGR) if panel.ndim == 2 else panel
@@ -171,8 +186,8 @@ def _pad_width(panel: np.ndarray, width: int) -> np.ndarray:
 
 def side_by_side(images: dict[str, np.ndarray], reference: np.ndarray, regions: Seq[Region]) -> np.ndarray:
     """A BGR figure: one labelled column per entry of ``images`` (first the reference, if included),
-    all tone-mapped against ``reference``; dark/bright ``regions`` outlined and zoomed below."""
-    coloured = list(zip(regions, (DARK_COLOUR, BRIGHT_COLOUR)))
+    all tone-mapped against ``reference``; the dark, bright (and moving) ``regions`` outlined and zoomed below."""
+    coloured = list(zip(regions, (DARK_COLOUR, BRIGHT_COLOUR, MOVING_COLOUR)))
     columns = [_column(name, image, reference, coloured) for name, image in images.items()]
     height = max(c.shape[0] for c in columns)
     columns = [np.pad(c, ((0, height - c.shape[0]), (0, 0), (0, 0)), constant_values=255) for c in columns]
@@ -190,15 +205,17 @@ def write_comparison_png(rows: Seq[RowResult], gt: np.ndarray, frame_index: int,
 
 
 def real_capture_comparison(path: Path, out_png: Path, model: Path | None = None, device: str = "auto",
-                            frame: int | None = None) -> Path:
+                            frame: int | str = "middle") -> Path:
     """Side-by-side of a real capture: RMB-Net (shipped binned model, or ``model``) vs TFP vs TFI.
 
     The capture's geometry comes from its sidecar, else the 400x250 defaults; RMB-Net reads it in the convention
     and response ``reconstruct`` would (``--convention auto``, ``--response auto``). RMB-Net runs on the
     2x2x2-binned stream through the readout its model was trained on; TFP (41 planes) and TFI run on the raw planes, and their
-    frames are 2x2 area-averaged to RMB-Net's size. ``frame`` defaults to the middle frame all three
-    produce. Regions are picked on the TFP frame; each column is tone-mapped to its own robust maximum
-    (there is no ground truth, and the methods' linear units agree only roughly).
+    frames are 2x2 area-averaged to RMB-Net's size. ``frame``: a frame index, or ``"first"``, ``"middle"`` or
+    ``"last"`` of the frames all three produce (a clip's edges are where a window is cut short). The dark and bright
+    regions are picked on the TFP frame, the moving one where TFP's frames before and after it differ most; each
+    column is tone-mapped to its own robust maximum (there is no ground truth, and the methods' linear units agree
+    only roughly).
     """
     from rmbvideo.io.capture import open_capture
     from rmbvideo.recon.methods import make_reconstructor
@@ -224,13 +241,20 @@ def real_capture_comparison(path: Path, out_png: Path, model: Path | None = None
         reconstruct_stream(reader, recon, sink, readout=readout)
         frames[name] = sink.images
     common = sorted(set.intersection(*(set(images) for images in frames.values())))
-    if not common:
-        raise InputError(f"{path}: too short for a comparison (no frame produced by every method)")
-    index = frame if frame in common else common[len(common) // 2]
+    if len(common) < 2:
+        raise InputError(f"{path}: too short for a comparison (fewer than 2 frames produced by every method)")
+    named = {"first": common[0], "middle": common[len(common) // 2], "last": common[-1]}
+    if frame not in named and frame not in common:
+        raise InputError(f"{path}: no frame {frame} made by every method (frames {common[0]}..{common[-1]})")
+    index = named.get(frame, frame)
     shape = frames["RMB-Net"][index].shape
-    images = {name: images[index] if images[index].shape == shape else downsample_2x(images[index], shape)
-              for name, images in frames.items()}
-    regions = pick_regions(images["TFP"])
+
+    def binned(image: np.ndarray) -> np.ndarray:
+        return image if image.shape == shape else downsample_2x(image, shape)
+
+    images = {name: binned(images[index]) for name, images in frames.items()}
+    neighbour = common[common.index(index) + (1 if index == common[0] else -1)]
+    regions = (*pick_regions(images["TFP"]), pick_moving_region(binned(frames["TFP"][neighbour]), images["TFP"]))
     columns = [side_by_side({f"{name}, frame {index}": image}, image, regions) for name, image in images.items()]
     gap = np.full((columns[0].shape[0], PANEL_GAP, 3), 255, np.uint8)
     log.info("%s: comparison of frame %d written to %s", path, index, out_png)
@@ -238,15 +262,18 @@ def real_capture_comparison(path: Path, out_png: Path, model: Path | None = None
 
 
 def main(argv: list[str] | None = None) -> None:
-    """``python -m rmbvideo.evaluate.table --real CAPTURE.dat [-o PNG] [--model M] [--device D]``."""
+    """``python -m rmbvideo.evaluate.table --real CAPTURE.dat [-o PNG] [--model M] [--device D] [--frame F]``."""
     parser = argparse.ArgumentParser(description="Comparison figure of a real capture: RMB-Net vs TFP vs TFI.")
     parser.add_argument("--real", type=Path, required=True, help="a 400x250 .dat capture")
     parser.add_argument("-o", "--output", type=Path, default=Path("real_comparison.png"))
     parser.add_argument("--model", type=Path, default=None, help="RMB-Net weights (default: shipped binned model)")
     parser.add_argument("--device", default="auto")
+    parser.add_argument("--frame", default="middle",
+                        help="a frame index, or first, middle or last of the frames every method makes")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="rmbvideo: %(message)s")
-    real_capture_comparison(args.real, args.output, args.model, args.device)
+    frame = int(args.frame) if args.frame.lstrip("-").isdigit() else args.frame
+    real_capture_comparison(args.real, args.output, args.model, args.device, frame)
 
 
 if __name__ == "__main__":
