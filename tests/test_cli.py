@@ -107,6 +107,24 @@ def test_info_json_and_preview(tmp_path: Path) -> None:
     assert sheet.shape == (2 * 48, 3 * 64)
 
 
+def test_preview_is_exposed_as_the_video_is(tmp_path: Path) -> None:
+    """A uniform scene at a middle level previews as a middle grey (reconstruct's exposure), not as white, and a
+    scene that brightens tenfold shows it: the tiles share one exposure."""
+    rng = np.random.default_rng(1)
+    for name, rate in (("uniform", np.full((400, 1, 1), 0.18)),
+                       ("steps", np.where(np.arange(400)[:, None, None] < 200, 0.02, 0.2))):
+        dat = tmp_path / f"{name}.dat"
+        write_dat(dat, (rng.random((400, 48, 64)) < rate).astype(np.uint8), DatGeometry(width=64, height=48))
+        png = tmp_path / f"{name}.png"
+        assert run("preview", dat, "-o", png, *GEOM, "--count", "2", "--window", "100").exit_code == 0
+        sheet = iio.imread(png)[20:]  # below the labels
+        first, second = np.median(sheet[:, :64]), np.median(sheet[:, 64:])
+        if name == "uniform":
+            assert 60 < first < 160 and 60 < second < 160  # the exposure's middle grey is about 100 of 255
+        else:
+            assert first < 0.6 * second
+
+
 def test_sidecar_sets_geometry_and_options_override(tmp_path: Path) -> None:
     dat = small_capture(tmp_path / "cap.dat", planes=30)
     (tmp_path / "cap.capture.json").write_text(json.dumps({"width": 64, "height": 48, "rate_hz": 1000}))

@@ -12,13 +12,16 @@ from rmbvideo.cli import verbose_option
 from rmbvideo.cli.options import capture_options
 from rmbvideo.io.capture import open_capture
 from rmbvideo.io.png import write_png
-from rmbvideo.mulaw import mu_law
+from rmbvideo.io.tonemap import TONE_METHODS, ToneMapConfig, ToneMapper
 
 
-def contact_sheet(reader, count: int = 6, window: int = 41, columns: int = 3) -> np.ndarray:
+def contact_sheet(reader, count: int = 6, window: int = 41, columns: int = 3,
+                  tonemap: ToneMapConfig = ToneMapConfig()) -> np.ndarray:
     """Tile TFP reconstructions at ``count`` evenly spaced times into one labelled 8-bit image.
 
-    Only ``count * window`` planes are read, so this is fast on captures of any length.
+    The tiles are tone-mapped as one image, with ``reconstruct``'s operator (default: its exposure), so the sheet
+    looks as the video will and its tiles compare. Only ``count * window`` planes are read, so this is fast on
+    captures of any length.
     """
     n = reader.n_planes
     window = min(window, n)
@@ -26,19 +29,17 @@ def contact_sheet(reader, count: int = 6, window: int = 41, columns: int = 3) ->
     tiles = []
     for centre in centres.astype(int):
         start = max(0, centre - window // 2)
-        image = reader.read(start, min(n, start + window)).mean(axis=0, dtype=np.float32)
-        tiles.append((centre, image))
-    scale = max(float(np.percentile(np.concatenate([t.ravel() for _, t in tiles]), 99.5)), 1e-6)
-    blank = np.zeros(tiles[0][1].shape, np.uint8)
+        tiles.append(reader.read(start, min(n, start + window)).mean(axis=0, dtype=np.float32))
+    mapped = ToneMapper(tonemap)(np.hstack(tiles))  # one exposure for every tile
     cells = []
-    for centre, image in tiles:
-        cell = (mu_law(image / scale) * 255.0).clip(0, 255).astype(np.uint8)
+    for centre, cell in zip(centres.astype(int), np.hsplit(mapped, len(tiles))):
+        cell = np.ascontiguousarray(cell)
         label = f"{centre / reader.rate_hz * 1e3:.2f} ms"
         cv2.putText(cell, label, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, 255, 1, cv2.LINE_AA)
         cells.append(cell)
     columns = min(columns, len(cells))
     while len(cells) % columns:
-        cells.append(blank)
+        cells.append(np.zeros_like(cells[0]))
     return np.vstack([np.hstack(cells[r:r + columns]) for r in range(0, len(cells), columns)])
 
 
@@ -51,11 +52,13 @@ def contact_sheet(reader, count: int = 6, window: int = 41, columns: int = 3) ->
               help="Number of time points.")
 @click.option("--window", type=click.IntRange(1, 10000), default=41, show_default=True,
               help="Planes averaged per time point (TFP).")
+@click.option("--tonemap", type=click.Choice(TONE_METHODS), default="exposure", show_default=True,
+              help="Tone mapping, as reconstruct's for mp4/png.")
 @capture_options
-def preview(input_path: Path, output: Path, count: int, window: int,
+def preview(input_path: Path, output: Path, count: int, window: int, tonemap: str,
             width, height, flip, header_cols, rate_hz) -> None:
-    """Write a contact sheet of a few time points of INPUT (TFP, mu-law tone-mapped)."""
+    """Write a contact sheet of a few time points of INPUT (TFP, tone-mapped as reconstruct's video)."""
     reader = open_capture(input_path, width, height, flip, header_cols, rate_hz)
-    sheet = contact_sheet(reader, count=count, window=window)
+    sheet = contact_sheet(reader, count=count, window=window, tonemap=ToneMapConfig(method=tonemap))
     write_png(output, sheet)
     click.echo(f"wrote {output}")
