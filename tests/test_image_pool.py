@@ -12,21 +12,22 @@ from rmbvideo.recon.image_pool import ImagePool
 
 
 def test_held_images_are_not_reused_and_released_ones_are():
-    pool = ImagePool((4, 6))
-    first, second = pool.take(), pool.take()
+    pool = ImagePool()
+    first, second = pool.take((4, 6)), pool.take((4, 6))
     assert first is not second and first.shape == (4, 6) and first.dtype == np.float32
     view = second[1:3]
     del second
-    third = pool.take()
+    third = pool.take((4, 6))
     assert third is not first and third.base is None and view.base is not third  # the view still holds the second
     first_id = id(first)
     del first
-    assert id(pool.take()) == first_id  # released, so reused
+    assert id(pool.take((4, 6))) == first_id  # released, so reused
+    assert pool.take((2, 2)).shape == (2, 2) and len(pool._images) == 1  # another shape: a fresh pool
 
 
 def test_the_pool_is_bounded_in_bytes():
-    pool = ImagePool((10, 10), max_bytes=3 * 4 * 100)
-    held = [pool.take() for _ in range(5)]
+    pool = ImagePool(max_bytes=3 * 4 * 100)
+    held = [pool.take((10, 10)) for _ in range(5)]
     assert len({id(image) for image in held}) == 5
     assert len(pool._images) == 3  # the others were allocated outside the pool
 

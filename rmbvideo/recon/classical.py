@@ -318,7 +318,7 @@ class Tfp:
         self._packed: bool | None = None  # set by the first chunk: which kind of totals
         self._geometry: DatGeometry | None = None  # layout of packed chunks
         self._bit_totals: _BitSlicedTotals | None = None  # the totals of packed chunks, to decode sums
-        self._images: ImagePool | None = None  # the frames' images, reused once released
+        self._images = ImagePool()  # the frames' images, reused once released
         self._rate_hz = 0.0
 
     def _make_totals(self, channels: Sequence[np.ndarray]) -> _Totals:
@@ -353,20 +353,15 @@ class Tfp:
             if total.count < _EXACT_FLOAT32_INTEGERS:
                 # Integers exact in float32: their float32 quotient is the correctly rounded one, the
                 # same value as rounding the float64 quotient of the unpacked path (53 >= 2 * 24 + 2).
-                image = np.divide(counts, np.float32(total.count), out=self._image(counts.shape), dtype=np.float32)
+                image = np.divide(counts, np.float32(total.count), out=self._images.take(counts.shape),
+                                  dtype=np.float32)
             else:
                 image = (counts / total.count).astype(np.float32)
         else:
             # float64 quotients rounded to float32 on the way out, as ``(sums / count).astype(np.float32)``
             sums = total.sums[0]
-            image = np.divide(sums, total.count, out=self._image(sums.shape), casting="unsafe")
+            image = np.divide(sums, total.count, out=self._images.take(sums.shape), casting="unsafe")
         return Frame(index=total.index, time_s=total.centre / self._rate_hz, image=image)
-
-    def _image(self, shape: tuple[int, ...]) -> np.ndarray:
-        """A float32 image for the next frame, reused from frames no longer held (``ImagePool``)."""
-        if self._images is None or self._images.shape != shape:
-            self._images = ImagePool(shape)
-        return self._images.take()
 
 
 class Tfi:

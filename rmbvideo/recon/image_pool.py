@@ -21,17 +21,21 @@ class ImagePool:
     An image handed out is not written again while anything outside the pool refers to it or to a view of it, so
     frames a caller keeps stay as they were. Images are released in about the order they were taken, so the search
     starts after the last one taken. The pool grows only while every image in it is held, so it never holds more
-    than were alive at once, and at most ``max_bytes`` of them; beyond that ``take`` allocates.
+    than were alive at once, and at most ``max_bytes`` of them; beyond that ``take`` allocates. A request for another
+    shape starts the pool afresh.
     """
 
-    def __init__(self, shape: tuple[int, ...], max_bytes: int = 128 << 20) -> None:
-        self.shape = shape
-        self.size = max(1, max_bytes // (4 * int(np.prod(shape))))
+    def __init__(self, max_bytes: int = 128 << 20) -> None:
+        self.max_bytes = max_bytes
+        self.shape: tuple[int, ...] | None = None
         self._images: list[np.ndarray] = []
         self._next = 0  # where the search for a released image starts
 
-    def take(self) -> np.ndarray:
+    def take(self, shape: tuple[int, ...]) -> np.ndarray:
         """An image of ``shape`` (contents undefined) for the caller to overwrite completely."""
+        shape = tuple(shape)
+        if shape != self.shape:
+            self.shape, self._images, self._next = shape, [], 0
         n = len(self._images)
         for k in range(n):
             i = (self._next + k) % n
@@ -39,8 +43,8 @@ class ImagePool:
             if sys.getrefcount(image) == _ONLY_THE_POOL:
                 self._next = i + 1
                 return image
-        image = np.empty(self.shape, np.float32)
-        if n < self.size:
+        image = np.empty(shape, np.float32)
+        if (n + 1) * image.nbytes <= self.max_bytes:
             self._images.append(image)
             self._next = 0
         return image
