@@ -11,8 +11,12 @@ import sys
 
 import numpy as np
 
-#: references to an image that only the pool holds: its list slot, the caller's name, getrefcount's argument
-_ONLY_THE_POOL = 3
+
+def _references(images: list[np.ndarray], i: int) -> int:
+    """``sys.getrefcount`` of ``images[i]``, counted the same way for every list, so that the count of an image only
+    a list holds (which interpreters may differ in) can be measured on a probe rather than assumed."""
+    image = images[i]
+    return sys.getrefcount(image)
 
 
 class ImagePool:
@@ -30,6 +34,7 @@ class ImagePool:
         self.shape: tuple[int, ...] | None = None
         self._images: list[np.ndarray] = []
         self._next = 0  # where the search for a released image starts
+        self._probe = [np.empty(0, np.float32)]  # an array only the pool holds: its count means "released"
 
     def take(self, shape: tuple[int, ...]) -> np.ndarray:
         """An image of ``shape`` (contents undefined) for the caller to overwrite completely."""
@@ -37,12 +42,12 @@ class ImagePool:
         if shape != self.shape:
             self.shape, self._images, self._next = shape, [], 0
         n = len(self._images)
+        released = _references(self._probe, 0)
         for k in range(n):
             i = (self._next + k) % n
-            image = self._images[i]
-            if sys.getrefcount(image) == _ONLY_THE_POOL:
+            if _references(self._images, i) == released:
                 self._next = i + 1
-                return image
+                return self._images[i]
         image = np.empty(shape, np.float32)
         if (n + 1) * image.nbytes <= self.max_bytes:
             self._images.append(image)
