@@ -2,7 +2,8 @@
 
 ``python -m rmbvideo.bench.decode [--planes N] [--json]`` writes a random 400x250 capture
 (firing rate 0.3) to a temporary folder and reports planes/s of each path, single-threaded
-(numpy ufuncs use one core), and whether the fused path reaches ``TARGET_PLANES_PER_S``.
+(numpy ufuncs use one core), and whether the fused path keeps up with a 20 kHz camera (``TARGET_PLANES_PER_S``) and
+reaches the speed issue's goal (``GOAL_PLANES_PER_S``).
 """
 
 from __future__ import annotations
@@ -20,6 +21,8 @@ from rmbvideo.io.dat import DatGeometry, DatReader, DatWriter
 from rmbvideo.sensor.binning import bin_2x2x2
 
 TARGET_PLANES_PER_S = 20000.0
+#: the speed issue's goal on one core: five times a 20 kHz camera, so a method has the rest of the core
+GOAL_PLANES_PER_S = 100000.0
 FIRING_RATE = 0.3
 CHUNK_PLANES = 1024  # the fused path reads in the pipeline's default chunk
 PLAIN_CHUNK_PLANES = 32  # the plain path's best: unpacked chunks that stay in cache (1024 is ~7x slower)
@@ -109,6 +112,8 @@ def bench_decode(n_planes: int = 20000, seed: int = 0) -> dict:
         "fused_vs_loop": fused["planes_per_s"] / loop["planes_per_s"],
         "target_planes_per_s": TARGET_PLANES_PER_S,
         "meets_target": fused["planes_per_s"] >= TARGET_PLANES_PER_S,
+        "goal_planes_per_s": GOAL_PLANES_PER_S,
+        "meets_goal": fused["planes_per_s"] >= GOAL_PLANES_PER_S,
         "bit_exact": bit_exact,
     }
 
@@ -122,8 +127,10 @@ def _summary(result: dict) -> str:
             f"{r['planes']} planes in {r['wall_s']:.2f} s)"
         )
     lines.append(f"  fused is {result['fused_vs_plain']:.1f}x plain and {result['fused_vs_loop']:.1f}x the per-plane loop")
-    verdict = "meets" if result["meets_target"] else "MISSES"
-    lines.append(f"  {verdict} the {result['target_planes_per_s']:,.0f} planes/s target; bit-exact: {result['bit_exact']}")
+    verdict = "keeps" if result["meets_target"] else "does NOT keep"
+    goal = "reaches" if result["meets_goal"] else "MISSES"
+    lines.append(f"  {verdict} up with a 20 kHz camera ({result['target_planes_per_s']:,.0f} planes/s); {goal} the "
+                 f"{result['goal_planes_per_s']:,.0f} planes/s goal; bit-exact: {result['bit_exact']}")
     return "\n".join(lines)
 
 
