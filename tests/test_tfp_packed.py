@@ -12,8 +12,8 @@ import pytest
 
 from rmbvideo.bench.memory import write_random_capture
 from rmbvideo.io.dat import DatGeometry, DatReader, PackedChunk, write_dat
-from rmbvideo.recon.classical import Tfp
-from rmbvideo.recon.pipeline import reconstruct_stream
+from rmbvideo.recon.classical import Tfp, _bit_sliced_sum
+from rmbvideo.recon.pipeline import PUSH_PLANES, reconstruct_stream
 
 RATE = 20000.0
 
@@ -72,6 +72,19 @@ def test_packed_values_are_the_window_means(tmp_path):
         assert f.time_s == centre2 / 2 / RATE
         assert np.array_equal(f.image, planes[lo:hi].mean(axis=0, dtype=np.float64).astype(np.float32))
     assert frames[5].image[0, 0] == 0.0 and frames[5].image[0, 1] == 1.0  # the dark and the saturated pixel
+
+
+@pytest.mark.parametrize("word", [np.uint8, np.uint32])
+def test_bit_sliced_sum_counts_every_plane(word):
+    """The carry-save tree's bit k, for every count of planes it meets (segments of 1 to a chunk): each
+    pixel's count, in exactly ``m.bit_length()`` rows."""
+    rng = np.random.default_rng(3)
+    for m in [*range(1, 70), 255, 256, 1000]:
+        planes = rng.integers(0, 256, (m, 8), dtype=np.uint8)
+        bits = _bit_sliced_sum(planes.view(word))
+        assert len(bits) == m.bit_length()
+        counts = sum(np.unpackbits(b.view(np.uint8), bitorder="little").astype(np.int64) << k for k, b in enumerate(bits))
+        assert np.array_equal(counts, np.unpackbits(planes, axis=1, bitorder="little").sum(axis=0)), m
 
 
 def test_float32_quotient_matches_float64_rounding():
@@ -134,6 +147,31 @@ def test_pipeline_feeds_packed_chunks(tmp_path):
     summary = reconstruct_stream(reader, spy, sink, chunk_planes=25)
     assert spy.kinds == {"PackedChunk"} and summary.planes == 120 and summary.frames == len(expected)
     _assert_same(expected, sink.frames)
+
+
+def test_pipeline_pushes_at_most_push_planes(tmp_path):
+    """A read of many planes reaches the method in consecutive pushes of at most ``PUSH_PLANES`` (so a push's
+    frames stay few), with the same frames as one push of everything."""
+    reader = _capture(tmp_path, DatGeometry(16, 4), planes=3 * PUSH_PLANES + 37)
+    spans: list[tuple[int, int]] = []
+
+    class Spy(Tfp):
+        def push(self, chunk):
+            spans.append((chunk.start, chunk.stop))
+            return super().push(chunk)
+
+    class Collect:
+        def __init__(self) -> None:
+            self.frames: list = []
+
+        def write(self, frame) -> None:
+            self.frames.append(frame)
+
+    sink = Collect()
+    reconstruct_stream(reader, Spy(), sink, start=5, chunk_planes=2 * PUSH_PLANES + 1)
+    assert spans[0][0] == 5 and spans[-1][1] == reader.n_planes
+    assert all(a == b for (_, a), (b, _) in zip(spans, spans[1:])) and max(b - a for a, b in spans) == PUSH_PLANES
+    _assert_same(_run(Tfp(), reader.chunks(reader.n_planes, 5)), sink.frames)
 
 
 # Runs ``rmbvideo reconstruct`` in-process and prints the sampled peak of its total RSS (file pages of

@@ -113,116 +113,87 @@ def _word_dtype(plane_bytes: int) -> np.dtype:
                 if plane_bytes % np.dtype(t).itemsize == 0)
 
 
-def _ripple_add(a: list[np.ndarray], b: list[np.ndarray]) -> list[np.ndarray]:
-    """Bit-sliced ``a + b`` (LSB first, any widths; the result is one bit wider than the wider)."""
-    out, carry = [], None
-    for k in range(max(len(a), len(b))):
-        x = a[k] if k < len(a) else None
-        y = b[k] if k < len(b) else None
-        if x is None or y is None:
-            z = x if x is not None else y
-            out.append(z if carry is None else z ^ carry)
-            carry = None if carry is None else z & carry
-            continue
-        partial = x ^ y
-        out.append(partial if carry is None else partial ^ carry)
-        carry = x & y if carry is None else (x & y) | (carry & partial)
-    if carry is not None:
-        out.append(carry)
+def _bit_sliced_sum(planes: np.ndarray) -> list[np.ndarray]:
+    """Bit-sliced count (LSB first, ``m.bit_length()`` words arrays) of the packed planes ``(m, words)``.
+
+    A carry-save (Wallace) tree: full adders turn three rows of one weight into a sum row of that
+    weight and a carry row of the next, vectorised over every group of three, until each weight has
+    one row (about five bitwise operations per plane, a third fewer than a tree of ripple adders).
+    """
+    columns: list[list[np.ndarray]] = [[planes]]  # rows of weight 2**k, in blocks
+    out: list[np.ndarray] = []
+    while len(out) < len(columns):
+        blocks = columns[len(out)]
+        rows = blocks[0] if len(blocks) == 1 else np.concatenate(blocks)
+        carries = []
+        while len(rows) >= 3:
+            g = len(rows) // 3
+            a, b, c = rows[:g], rows[g:2 * g], rows[2 * g:3 * g]
+            partial = a ^ b
+            carry = a & b
+            carry |= partial & c
+            partial ^= c
+            carries.append(carry)
+            rows = partial if len(rows) == 3 * g else np.concatenate((partial, rows[3 * g:]))
+        if len(rows) == 2:
+            carries.append(rows[:1] & rows[1:])
+            rows = rows[:1] ^ rows[1:]
+        out.append(rows[0])
+        if carries:
+            if len(out) == len(columns):
+                columns.append([])
+            columns[len(out)].extend(carries)
     return out
 
 
-def _bit_sliced_sum(planes: np.ndarray) -> list[np.ndarray]:
-    """Bit-sliced count (LSB first) of the packed planes ``(m, words)``: a tree of adders over
-    contiguous halves, each level adding many pairs of counts in one vectorised operation per bit."""
-    bits, leftovers = [planes], []
-    while len(bits[0]) > 1:
-        n = len(bits[0])
-        half = n // 2
-        if n % 2:
-            leftovers.append([bit[n - 1:] for bit in bits])
-        bits = _ripple_add([bit[:half] for bit in bits], [bit[half:2 * half] for bit in bits])
-    for extra in leftovers:
-        bits = _ripple_add(bits, extra)
-    return [bit[0] for bit in bits]
+class _PackedTotals:
+    """Running per-pixel totals of packed 1-bit planes, modulo ``2**(8 * itemsize)`` > ``window``.
 
-
-class _BitSlicedTotals:
-    """Running total of packed 1-bit planes as a bit-sliced ("vertical") counter modulo ``2**bits``.
-
-    Counter bit ``k`` of every pixel sits in word array ``k`` at the pixel's stored bit position, so
-    adding planes is AND/XOR over ``plane_bytes`` and nothing is unpacked per plane. With
-    ``2**bits > window`` every window difference is exact. The planes between two window events are
-    counted together (``_bit_sliced_sum``) and added to the total with one ripple-carry adder.
-    Differences stay bit-sliced (small) until :meth:`decode` turns one into counts per pixel.
+    The planes between two window events are counted bit-sliced (``_bit_sliced_sum``: AND/XOR over
+    the stored words, nothing unpacked per plane), that count is unpacked once into one integer per
+    pixel and added to the total, so a window's sum is the wrapped difference of two totals, exact.
+    Totals stay in the stored bit order until :meth:`image` views one in image orientation.
     """
 
     def __init__(self, window: int, geometry: DatGeometry) -> None:
         self._geometry = geometry
         self._word = _word_dtype(geometry.plane_bytes)
-        self._bits = window.bit_length()
-        words = geometry.plane_bytes // self._word.itemsize
-        self._total = np.zeros((self._bits, words), dtype=self._word)
-        self._count_dtype = next(np.dtype(t) for t in (np.uint8, np.uint16, np.uint32, np.uint64)
-                                 if self._bits <= 8 * np.dtype(t).itemsize)
+        total_dtype = _uint_holding(window)
+        self._total = np.zeros(geometry.plane_bytes * 8, dtype=total_dtype)
 
     def add(self, channels: Sequence[np.ndarray], a: int, b: int) -> None:
         if b > a:
-            self._add_count(_bit_sliced_sum(channels[0][a:b].view(self._word))[: self._bits])
-
-    def _add_count(self, addends: list[np.ndarray]) -> None:
-        """Add a bit-sliced count into the total (a ripple-carry adder, modulo ``2**bits``)."""
-        carry: np.ndarray | None = None
-        for k in range(self._bits):
-            bit = self._total[k]
-            addend = addends[k] if k < len(addends) else None
-            if addend is None and carry is None:
-                break
-            last = k == self._bits - 1
-            if addend is not None and carry is not None:
-                partial = addend ^ carry
-                next_carry = None if last else (addend & carry) | (bit & partial)
-                addend = partial
-            else:
-                addend = addend if addend is not None else carry
-                next_carry = None if last else bit & addend
-            np.bitwise_xor(bit, addend, out=bit)
-            carry = next_carry
+            counts = _unpack_count(_bit_sliced_sum(channels[0][a:b].view(self._word)))
+            np.add(self._total, counts, out=self._total, casting="unsafe")  # modulo: differences stay exact
 
     def snapshot(self) -> np.ndarray:
         return self._total.copy()
 
     def since(self, snapshot: np.ndarray) -> list[np.ndarray]:
-        return [self._subtract(self._total, snapshot)]
+        return [np.subtract(self._total, snapshot)]
 
-    def _subtract(self, minuend: np.ndarray, subtrahend: np.ndarray) -> np.ndarray:
-        """Bit-sliced ``minuend - subtrahend`` modulo ``2**bits`` (a ripple-borrow subtractor)."""
-        out = np.empty_like(minuend)
-        borrow: np.ndarray | None = None
-        for k in range(self._bits):
-            a, b = minuend[k], subtrahend[k]
-            differ = a ^ b
-            if borrow is None:
-                out[k] = differ
-                next_borrow = b & ~a
-            else:
-                np.bitwise_xor(differ, borrow, out=out[k])
-                next_borrow = (b & ~a) | (borrow & ~differ)
-            borrow = next_borrow
-        return out
-
-    def decode(self, counter: np.ndarray) -> np.ndarray:
-        """Bit-sliced counter -> (H, image_width) counts in image orientation (a strided view)."""
+    def image(self, counts: np.ndarray) -> np.ndarray:
+        """Per-pixel counts in stored order -> (H, image_width) in image orientation (a strided view)."""
         g = self._geometry
-        bits = np.unpackbits(counter.view(np.uint8), axis=1, bitorder="little")
-        counts = bits[-1] if self._count_dtype == bits.dtype else bits[-1].astype(self._count_dtype)
-        for k in range(self._bits - 2, -1, -1):
-            np.add(counts, counts, out=counts)
-            np.add(counts, bits[k], out=counts)
         image = counts.reshape(g.height, g.width)
         if g.flip:
             image = image[::-1]
         return image[:, : g.image_width]
+
+
+def _uint_holding(value: int) -> np.dtype:
+    """The narrowest unsigned integer type whose range exceeds ``value``."""
+    return next(np.dtype(t) for t in (np.uint8, np.uint16, np.uint32, np.uint64) if value < 2 ** (8 * np.dtype(t).itemsize))
+
+
+def _unpack_count(bits: list[np.ndarray]) -> np.ndarray:
+    """Bit-sliced count (LSB first, packed words) -> one integer per stored bit position."""
+    unpacked = [np.unpackbits(bit.view(np.uint8), bitorder="little") for bit in reversed(bits)]
+    counts = unpacked[0].astype(_uint_holding(2 ** len(bits) - 1), copy=False)
+    for bit in unpacked[1:]:
+        np.add(counts, counts, out=counts)
+        np.add(counts, bit, out=counts)
+    return counts
 
 
 class _WindowSums:
@@ -306,8 +277,9 @@ class Tfp:
     """Texture from playback: mean of ``window`` raw 1-bit planes centred on each frame time.
 
     Running sums: each plane is added once, whatever the window overlap. Fed :class:`PackedChunk`s
-    (``accepts_packed``), it sums the stored bits with a bit-sliced counter and decodes once per
-    frame, never unpacking a plane; the frames are identical to those from unpacked planes.
+    (``accepts_packed``), it counts the stored bits between two window events bit-sliced and
+    unpacks only that count (``_PackedTotals``), never a plane; the frames are identical to those
+    from unpacked planes.
     """
 
     input_kind: ClassVar[InputKind] = "spikes"
@@ -317,15 +289,15 @@ class Tfp:
         self._sums = _WindowSums(window, step, self._make_totals)
         self._packed: bool | None = None  # set by the first chunk: which kind of totals
         self._geometry: DatGeometry | None = None  # layout of packed chunks
-        self._bit_totals: _BitSlicedTotals | None = None  # the totals of packed chunks, to decode sums
+        self._packed_totals: _PackedTotals | None = None  # the totals of packed chunks, to orient sums
         self._images = ImagePool()  # the frames' images, reused once released
         self._rate_hz = 0.0
 
     def _make_totals(self, channels: Sequence[np.ndarray]) -> _Totals:
         if not self._packed:
             return _DenseTotals(channels)
-        self._bit_totals = _BitSlicedTotals(self._sums.window, self._geometry)
-        return self._bit_totals
+        self._packed_totals = _PackedTotals(self._sums.window, self._geometry)
+        return self._packed_totals
 
     def push(self, chunk: SpikeChunk | PackedChunk) -> list[Frame]:
         """Consume raw planes (unpacked or packed); return the frames whose window is complete."""
@@ -348,8 +320,7 @@ class Tfp:
 
     def _frame(self, total: _WindowTotal) -> Frame:
         if self._packed:
-            # Decoded here, one frame at a time, so the unpacked temporaries never pile up.
-            counts = self._bit_totals.decode(total.sums[0])
+            counts = self._packed_totals.image(total.sums[0])
             if total.count < _EXACT_FLOAT32_INTEGERS:
                 # Integers exact in float32: their float32 quotient is the correctly rounded one, the
                 # same value as rounding the float64 quotient of the unpacked path (53 >= 2 * 24 + 2).
