@@ -1,7 +1,8 @@
 """The one-core figures of README "Where the time goes on an AVX2-only host", measured again. Run from the repository
 root (each well under a minute):
 
-    python models/experiments/avx2-profile/measure.py convs   # GFLOP/s of the network's convolution shapes, one thread
+    python models/experiments/avx2-profile/measure.py convs   # the network's convolution shapes, one thread: fp32 GFLOP/s,
+                                                              # and int8 (fbgemm, quantised input and output) beside it
     python models/experiments/avx2-profile/measure.py tfp     # TFP on a random 1 s 400x250 capture, in this process
 """
 
@@ -34,12 +35,19 @@ def best_ms(work, runs: int = 8) -> float:
 
 def convs() -> None:
     torch.set_num_threads(1)
+    torch.backends.quantized.engine = "fbgemm"
     for cin, cout, k, h, w, b in SHAPES:
         x = torch.randn(b, cin, h, w).contiguous(memory_format=torch.channels_last)
         weight = torch.randn(cout, cin, k, k).contiguous(memory_format=torch.channels_last)
         ms = best_ms(lambda: F.conv2d(x, weight, padding=k // 2))
         gflop = 2 * b * h * w * cin * cout * k * k / 1e9
-        print(f"{cin:3d} -> {cout:3d} {k}x{k} at {w}x{h}, batch {b}: {ms:7.2f} ms, {gflop / ms * 1e3:5.1f} GFLOP/s")
+        int8 = torch.ao.nn.quantized.Conv2d(cin, cout, k, padding=k // 2)
+        int8.set_weight_bias(torch.quantize_per_channel(weight, torch.full((cout,), 0.05), torch.zeros(cout, dtype=torch.long),
+                                                        0, torch.qint8), None)
+        qx = torch.quantize_per_tensor(x, 0.05, 64, torch.quint8)
+        int8_ms = best_ms(lambda: int8(qx))
+        print(f"{cin:3d} -> {cout:3d} {k}x{k} at {w}x{h}, batch {b}: {ms:7.2f} ms, {gflop / ms * 1e3:5.1f} GFLOP/s; "
+              f"int8 {int8_ms:7.2f} ms")
 
 
 def tfp() -> None:
