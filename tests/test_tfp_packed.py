@@ -13,7 +13,7 @@ import pytest
 from rmbvideo.bench.memory import write_random_capture
 from rmbvideo.io.dat import DatGeometry, DatReader, PackedChunk, write_dat
 from rmbvideo.recon.classical import Tfp, _bit_sliced_sum
-from rmbvideo.recon.pipeline import PUSH_PLANES, reconstruct_stream
+from rmbvideo.recon.pipeline import reconstruct_stream
 
 RATE = 20000.0
 
@@ -149,10 +149,11 @@ def test_pipeline_feeds_packed_chunks(tmp_path):
     _assert_same(expected, sink.frames)
 
 
-def test_pipeline_pushes_at_most_push_planes(tmp_path):
-    """A read of many planes reaches the method in consecutive pushes of at most ``PUSH_PLANES`` (so a push's
+def test_pipeline_pushes_at_most_max_push_planes(tmp_path):
+    """A read of many planes reaches TFP in consecutive pushes of at most its ``max_push_planes`` (so a push's
     frames stay few), with the same frames as one push of everything."""
-    reader = _capture(tmp_path, DatGeometry(16, 4), planes=3 * PUSH_PLANES + 37)
+    most = Tfp.max_push_planes
+    reader = _capture(tmp_path, DatGeometry(16, 4), planes=3 * most + 37)
     spans: list[tuple[int, int]] = []
 
     class Spy(Tfp):
@@ -168,9 +169,9 @@ def test_pipeline_pushes_at_most_push_planes(tmp_path):
             self.frames.append(frame)
 
     sink = Collect()
-    reconstruct_stream(reader, Spy(), sink, start=5, chunk_planes=2 * PUSH_PLANES + 1)
+    reconstruct_stream(reader, Spy(), sink, start=5, chunk_planes=2 * most + 1)
     assert spans[0][0] == 5 and spans[-1][1] == reader.n_planes
-    assert all(a == b for (_, a), (b, _) in zip(spans, spans[1:])) and max(b - a for a, b in spans) == PUSH_PLANES
+    assert all(a == b for (_, a), (b, _) in zip(spans, spans[1:])) and max(b - a for a, b in spans) == most
     _assert_same(_run(Tfp(), reader.chunks(reader.n_planes, 5)), sink.frames)
 
 

@@ -284,6 +284,9 @@ class Tfp:
 
     input_kind: ClassVar[InputKind] = "spikes"
     accepts_packed: ClassVar[bool] = True
+    #: The frames a push returns are alive together: the dozen of a 256-plane push stay in cache where a 1,024-plane
+    #: chunk's 51 (20 MB at 400x250) do not, and the run is about 15 % faster (README, "What accuracy costs in time").
+    max_push_planes: ClassVar[int] = 256
 
     def __init__(self, window: int = 41, step: int = 20) -> None:
         self._sums = _WindowSums(window, step, self._make_totals)

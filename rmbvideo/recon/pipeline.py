@@ -60,21 +60,16 @@ class RunSummary:
 #: the method (push/flush), and the sink (finite check, tone map, encoding, writing).
 STAGES = ("read", "readout", "method", "sink")
 
-#: Most raw planes one push hands a method on raw spikes. The frames a push returns are alive together, and the
-#: dozen of TFP's at its step of 20 stay in cache where a 1,024-plane chunk's 51 (20 MB at 400x250) do not: its run
-#: is about 15 % faster (README, "What accuracy costs in time"). Reads keep the caller's chunk size.
-PUSH_PLANES = 256
 
-
-def _pushes(chunk: SpikeChunk | PackedChunk) -> Iterator[SpikeChunk | PackedChunk]:
-    """``chunk`` in consecutive pieces of at most ``PUSH_PLANES`` raw planes (views, no copies)."""
+def _pushes(chunk: SpikeChunk | PackedChunk, most: int) -> Iterator[SpikeChunk | PackedChunk]:
+    """``chunk`` in consecutive pieces of at most ``most`` raw planes (views, no copies)."""
     if isinstance(chunk, PackedChunk):
-        for a in range(0, len(chunk.data), PUSH_PLANES):
-            yield PackedChunk(data=chunk.data[a:a + PUSH_PLANES], start=chunk.start + a, rate_hz=chunk.rate_hz,
+        for a in range(0, len(chunk.data), most):
+            yield PackedChunk(data=chunk.data[a:a + most], start=chunk.start + a, rate_hz=chunk.rate_hz,
                               geometry=chunk.geometry)
     else:
-        for a in range(0, len(chunk.planes), PUSH_PLANES):
-            yield SpikeChunk(planes=chunk.planes[a:a + PUSH_PLANES], start=chunk.start + a, rate_hz=chunk.rate_hz)
+        for a in range(0, len(chunk.planes), most):
+            yield SpikeChunk(planes=chunk.planes[a:a + most], start=chunk.start + a, rate_hz=chunk.rate_hz)
 
 
 def finite_frame(frame: Frame) -> tuple[Frame, int]:
@@ -134,13 +129,15 @@ def iter_frames(
     ``readout`` when given (default: the binned pure-M stream as is); binning needs an even start and
     chunk size, so odd values are rounded up. ``readout`` is an error for methods on raw spikes.
     Methods on raw spikes that declare ``accepts_packed`` get the stored bits undecoded
-    (``reader.packed_chunks``) when the reader offers them. Memory is bounded by ``chunk_planes``
+    (``reader.packed_chunks``) when the reader offers them, and those that declare ``max_push_planes``
+    get each chunk in pushes of at most that many planes. Memory is bounded by ``chunk_planes``
     and the method's own look-ahead. ``stats`` (optional) is filled in while the frames flow.
     ``progress``: a progress bar on stderr counting output frames (of ``expected_frames``, with
     frames/s and time left) or, without that number, raw planes read.
     """
     stats = stats if stats is not None else StreamStats()
     stages = stats.stages
+    most = getattr(method, "max_push_planes", None)  # a method on raw planes may want them a few at a time
     stop = reader.n_planes if stop is None else stop
     if method.input_kind == "rmb":
         if start % 2 or chunk_planes % 2:
@@ -183,10 +180,10 @@ def iter_frames(
                 advanced = len(chunk.single) * chunk.raw_per_readout
                 if readout is not None:
                     chunk = readout.apply(chunk)
-                pushes: Iterator[SpikeChunk | RmbChunk | PackedChunk] = iter((chunk,))  # whole: the network batches frames
+                pushes: Iterator[SpikeChunk | RmbChunk | PackedChunk] = iter((chunk,))
             else:
                 advanced = chunk.stop - chunk.start
-                pushes = _pushes(chunk)
+                pushes = _pushes(chunk, most) if most else iter((chunk,))
             stages["readout"] += time.perf_counter() - tock
             for piece in pushes:
                 tick = time.perf_counter()
