@@ -158,8 +158,7 @@ class _PackedTotals:
     def __init__(self, window: int, geometry: DatGeometry) -> None:
         self._geometry = geometry
         self._word = _word_dtype(geometry.plane_bytes)
-        total_dtype = _uint_holding(window)
-        self._total = np.zeros(geometry.plane_bytes * 8, dtype=total_dtype)
+        self._total = np.zeros(geometry.plane_bytes * 8, dtype=_uint_holding(window))
 
     def add(self, channels: Sequence[np.ndarray], a: int, b: int) -> None:
         if b > a:
