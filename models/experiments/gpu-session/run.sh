@@ -13,13 +13,16 @@
 #       --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 -d .whl OpenEXR==3.5.3
 # The call: command "bash models/experiments/gpu-session/run.sh" (with RECIPE=... MINUTES=... before it for a run),
 # carry [".whl"], timeout_s 590.
-# DEVICE and FRAMES override the device and the bench length (a dry run on a CPU:
-#   OUT=/tmp/gpu-dry DEVICE=cpu FRAMES=10 RECIPE=video-temporal-decoder-gpu MINUTES=0.3 bash models/experiments/gpu-session/run.sh).
+# DEVICE, FRAMES, SIZES and NETWORK_RUNS override the device, the bench length, its sizes and the network bench's
+# runs (a dry run on a CPU, a minute: OUT=/tmp/gpu-dry DEVICE=cpu FRAMES=10 SIZES="--size 64x64"
+#   NETWORK_RUNS="--run 32x32x4 --precision fp32" RECIPE=video-temporal-decoder-gpu MINUTES=0.2 bash THIS).
 set -uo pipefail
 RECIPE=${RECIPE:-}
 MINUTES=${MINUTES:-6}
 DEVICE=${DEVICE:-cuda}
 FRAMES=${FRAMES:-480}
+SIZES=${SIZES:-"--size 400x250 --size 1000x1000"}
+NETWORK_RUNS=${NETWORK_RUNS:-}
 if compgen -G ".whl/*.whl" > /dev/null; then
     python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl \
         || exit 1
@@ -38,9 +41,10 @@ if [ -n "$RECIPE" ]; then
         --quiet 2>&1 | tail -20 > "$work/train.log"
     rm -rf "$work/train/cache"  # simulated samples: large, and made again from the seed
 fi
-python3 -m rmbvideo bench sizes --device "$DEVICE" --size 400x250 --size 1000x1000 --frames "$FRAMES" \
-    --precision fp32 --precision bf16 > "$work/bench-sizes.txt" 2>&1
-python3 -m rmbvideo bench network --device "$DEVICE" > "$work/bench-network.txt" 2>&1
+# shellcheck disable=SC2086  # SIZES and NETWORK_RUNS are lists of options
+python3 -m rmbvideo bench sizes --device "$DEVICE" $SIZES --frames "$FRAMES" --precision fp32 --precision bf16 \
+    > "$work/bench-sizes.txt" 2>&1
+python3 -m rmbvideo bench network --device "$DEVICE" $NETWORK_RUNS > "$work/bench-network.txt" 2>&1
 cat "$work"/*.txt "$work"/*.log 2>/dev/null
 tar -cf "$OUT/all.tar" -C "$work" .
 rm -rf "$work"
