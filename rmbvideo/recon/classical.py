@@ -158,7 +158,7 @@ class _PackedTotals:
     def __init__(self, window: int, geometry: DatGeometry) -> None:
         self._geometry = geometry
         self._word = _word_dtype(geometry.plane_bytes)
-        self._total = np.zeros(geometry.plane_bytes * 8, dtype=_uint_holding(window))
+        self._total = np.zeros(geometry.plane_bytes * 8, dtype=np.min_scalar_type(window))
 
     def add(self, channels: Sequence[np.ndarray], a: int, b: int) -> None:
         if b > a:
@@ -180,15 +180,10 @@ class _PackedTotals:
         return image[:, : g.image_width]
 
 
-def _uint_holding(value: int) -> np.dtype:
-    """The narrowest unsigned integer type whose range exceeds ``value``."""
-    return next(np.dtype(t) for t in (np.uint8, np.uint16, np.uint32, np.uint64) if value < 2 ** (8 * np.dtype(t).itemsize))
-
-
 def _unpack_count(bits: list[np.ndarray]) -> np.ndarray:
     """Bit-sliced count (LSB first, packed words) -> one integer per stored bit position."""
     unpacked = [np.unpackbits(bit.view(np.uint8), bitorder="little") for bit in reversed(bits)]
-    counts = unpacked[0].astype(_uint_holding(2 ** len(bits) - 1), copy=False)
+    counts = unpacked[0].astype(np.min_scalar_type(2 ** len(bits) - 1), copy=False)
     for bit in unpacked[1:]:
         np.add(counts, counts, out=counts)
         np.add(counts, bit, out=counts)

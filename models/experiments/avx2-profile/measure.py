@@ -4,8 +4,14 @@ root (each well under a minute):
     python models/experiments/avx2-profile/measure.py convs   # the network's convolution shapes, one thread: fp32 GFLOP/s,
                                                               # and int8 (fbgemm, quantised input and output) beside it
     python models/experiments/avx2-profile/measure.py tfp     # TFP on a random 1 s 400x250 capture, in this process
+    python models/experiments/avx2-profile/measure.py tfp-against REV [ROUNDS]   # `tfp` of the code at git REV and of
+                                                              # this checkout, alternated in fresh processes; medians
 """
 
+import os
+import re
+import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -69,5 +75,27 @@ def tfp() -> None:
             print(f"{name}: {ms / 1e3:.2f} s for 1 s of capture ({1e3 / ms:.2f}x real time)")
 
 
+def tfp_against(rev: str, rounds: str = "5") -> None:
+    """``tfp`` of the code at ``rev`` (a temporary git worktree) and of this checkout, in alternated fresh processes, so
+    both meet the same drift of a shared host; prints each round and the medians of the real-time factors."""
+    root = Path(__file__).resolve().parents[3]
+    factors: dict[str, list[list[float]]] = {rev: [], "this checkout": []}
+    with tempfile.TemporaryDirectory() as folder:
+        old = Path(folder) / "old"
+        subprocess.run(["git", "-C", str(root), "worktree", "add", "--detach", "-q", str(old), rev], check=True)
+        try:
+            for r in range(int(rounds)):
+                for name, tree in ((rev, old), ("this checkout", root)):
+                    run = subprocess.run([sys.executable, __file__, "tfp"], env={**os.environ, "PYTHONPATH": str(tree)},
+                                         capture_output=True, text=True, check=True)
+                    factors[name].append([float(x) for x in re.findall(r"\(([0-9.]+)x real time\)", run.stdout)])
+                    print(f"round {r + 1}, {name}: {run.stdout.strip()}")
+        finally:
+            subprocess.run(["git", "-C", str(root), "worktree", "remove", "--force", str(old)], check=True)
+    for name, rows in factors.items():
+        alone, end_to_end = (statistics.median(column) for column in zip(*rows))
+        print(f"{name}: medians TFP alone {alone:.2f}x, reconstruct --format null {end_to_end:.2f}x real time")
+
+
 if __name__ == "__main__":
-    {"convs": convs, "tfp": tfp}[sys.argv[1]]()
+    {"convs": convs, "tfp": tfp, "tfp-against": tfp_against}[sys.argv[1]](*sys.argv[2:])
