@@ -495,3 +495,81 @@ def test_display_referred_samples_weigh_their_linear_error_more():
     assert float(reconstruction_loss(pred, truth, weighted, torch.tensor([0.0, 0.0]))[0]) == pytest.approx(plain)
     one = float(reconstruction_loss(pred, truth, weighted, torch.tensor([1.0, 0.0]))[0])
     assert one - plain == pytest.approx(3.0 * 0.1 / 2, rel=1e-3)
+
+
+def _per_frame_loss(model: RmbNet, batch: Batch, prime: int) -> torch.Tensor:
+    """The mean reconstruction loss over every frame of the engine's run of the batch (``forward_sequence``)."""
+    from rmbvideo.train.loss import reconstruction_loss
+
+    with torch.no_grad():
+        out, _ = model.forward_sequence(batch.i_s, batch.i_m, linear=False, prime=prime)
+    return torch.stack([reconstruction_loss(out[:, i], batch.gt[:, i], LossConfig())[0]
+                        for i in range(out.shape[1])]).mean()
+
+
+def test_edge_frames_train_from_the_state_the_engine_primes_a_clip_with(tmp_path):
+    """With ``prime``, a sample supervised from its first frame starts from the state the engine gives a clip's first
+    frame (backwards over ``prime`` frames): the training losses are those of ``forward_sequence(prime=...)``'s frames,
+    and differ from a fresh state's."""
+    sample = SampleCache(tmp_path, SampleSpec(mode="binned", crop=16, frames=6, n=4, warmup_frames=1)).get(0)
+    batch = Batch.from_samples([sample], torch.device("cpu"))
+    model = _tiny_model().eval()
+    with torch.no_grad():
+        for prime in (0, 1, 3):
+            losses = list(segment_losses(model, batch, tbptt=2, loss_config=LossConfig(), edges=True, prime=prime))
+            assert (losses[0].state_in is None) == (prime == 0)
+            trained = sum(segment.loss for segment in losses)
+            torch.testing.assert_close(trained, _per_frame_loss(model, batch, prime), rtol=1e-5, atol=1e-6)
+        primed = sum(s.loss for s in segment_losses(model, batch, 2, LossConfig(), edges=True, prime=1))
+        assert not torch.isclose(primed, _per_frame_loss(model, batch, 0))
+        inner = next(segment_losses(model, batch, 2, LossConfig(), edges=False, prime=1))
+        assert inner.state_in is None  # a sample supervised from frame w is a piece of mid-clip, not a clip's start
+
+
+def test_held_targets_keep_the_truth_at_the_edges_and_the_teachers_output_inside(tmp_path):
+    """``held_targets``: the first and last w frames keep the truth, every frame with a whole window gets the
+    teacher's linear output of the engine's run (primed as the sample is trained)."""
+    from rmbvideo.train.loop import held_targets
+
+    sample = SampleCache(tmp_path, SampleSpec(mode="binned", crop=16, frames=6, n=4, warmup_frames=1)).get(1)
+    batch = Batch.from_samples([sample], torch.device("cpu"))
+    teacher = _tiny_model().eval()
+    targets = held_targets(teacher, batch, edges=True, prime=1)
+    with torch.no_grad():
+        engine, _ = teacher.forward_sequence(batch.i_s, batch.i_m, prime=1)
+    w = teacher.config.w
+    torch.testing.assert_close(targets[:, :w], batch.gt[:, :w], rtol=0, atol=0)
+    torch.testing.assert_close(targets[:, -w:], batch.gt[:, -w:], rtol=0, atol=0)
+    torch.testing.assert_close(targets[:, w:-w], engine[:, w:-w], rtol=1e-5, atol=1e-6)
+    assert not torch.allclose(targets[:, w:-w], batch.gt[:, w:-w])
+    inner = held_targets(teacher, batch, edges=False, prime=1)  # no edge frames: the teacher's run from frame w
+    with torch.no_grad():
+        fresh, _ = teacher.forward_sequence(batch.i_s, batch.i_m, prime=0)
+    assert not torch.allclose(inner[:, w:-w], fresh[:, w:-w])  # started at frame w, not at frame 0
+
+
+def test_held_whole_windows_train_against_the_init_model_also_after_resume(tmp_path):
+    """``hold_whole_windows`` holds whole-window outputs to the ``init`` weights (frozen, rebuilt from the file on
+    resume, not from the checkpoint) and is refused without init or edge frames."""
+    from rmbvideo.net.weights import ModelCard, save_model
+
+    torch.manual_seed(5)
+    source = save_model(tmp_path / "init.safetensors", RmbNet(RmbNetConfig(w=1, width=0.25, n=4)), ModelCard("init"))
+    recipe = tmp_path / "tiny.toml"
+    text = TINY_RECIPE.format(steps=2).replace("minutes = 5", f'minutes = 5\ninit = "{source}"')
+    recipe.write_text(text.replace("threads = 1", "threads = 1\nedges = 1.0\nprime = 1\nhold_whole_windows = true"))
+    trainer = Trainer(load_recipe(recipe), tmp_path / "out", cache_dir=tmp_path / "cache")
+    init = trainer.teacher.state_dict()
+    trainer.run()
+    resumed = Trainer(load_recipe(recipe).with_steps(4), tmp_path / "out", cache_dir=tmp_path / "cache", resume=True)
+    assert not resumed.teacher.training and not any(p.requires_grad for p in resumed.teacher.parameters())
+    assert all(torch.equal(init[k], v) for k, v in resumed.teacher.state_dict().items())
+    resumed.run()
+    assert any(not torch.equal(init[k], v) for k, v in resumed.model.state_dict().items())
+    card = json.loads((tmp_path / "out" / "tiny.json").read_text())
+    assert "held" in card["training"]["tbptt"] and "primed backwards over 1" in card["training"]["tbptt"]
+    no_init = text.replace(f'init = "{source}"\n', "").replace("threads = 1", "threads = 1\nedges = 1.0")
+    for bad in (no_init, text):  # without init; with init but no edge frames
+        recipe.write_text(bad.replace("threads = 1", "threads = 1\nhold_whole_windows = true"))
+        with pytest.raises(InputError, match="hold_whole_windows"):
+            load_recipe(recipe)

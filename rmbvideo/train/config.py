@@ -81,6 +81,12 @@ class OptimConfig:
     # first, before the supervised run: its state is then as old as a long capture's (passes x outputs steps; one pass
     # is how the engine primes a clip's first frame)
     aged_passes: int = 0
+    # frames a sample's state is primed over backwards when its first frame is supervised as a clip's first, as the
+    # engine primes a clip (its default: w); 0: a fresh state, as the recipes before the stop of 2026-11-27 (c) had
+    prime: int = 0
+    # outputs whose window lies whole inside the sample are trained against the ``init`` model's outputs instead of
+    # the truth, so a run on the edge frames holds the rest of a clip where that model had it (needs init and edges)
+    hold_whole_windows: bool = False
     trainable: tuple[str, ...] = ()
 
 
@@ -223,8 +229,10 @@ def _check_ranges(config: TrainConfig, path: Path) -> None:
         problems.append("data.count, data.val_count, data.steps, data.reuse and data.workers must be >= 1")
     if not 0 < d.exposure[0] <= d.exposure[1]:
         problems.append("data.exposure must be [low, high] with 0 < low <= high")
-    if o.aged_passes < 0:
-        problems.append("optim.aged_passes must be >= 0")
+    if o.aged_passes < 0 or o.prime < 0:
+        problems.append("optim.aged_passes and optim.prime must be >= 0")
+    if o.hold_whole_windows and not (config.init and o.edges > 0):
+        problems.append("optim.hold_whole_windows needs init (the model it holds to) and edges > 0")
     if o.lr <= 0 or o.lr_final <= 0 or o.steps < 1 or o.batch < 1 or o.tbptt < 1:
         problems.append("optim.lr, lr_final, steps, batch and tbptt must be positive")
     if not 0.0 <= o.edges <= 1.0:

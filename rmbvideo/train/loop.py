@@ -19,7 +19,7 @@ import os
 import platform
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +29,7 @@ from tqdm import tqdm
 
 from rmbvideo.errors import InputError
 from rmbvideo.net.decoder import DecoderState
-from rmbvideo.net.model import RmbNet, window_indices, window_valid
+from rmbvideo.net.model import RmbNet, priming_frames, window_indices, window_valid
 from rmbvideo.net.weights import ModelCard, default_model_path, load_model, save_model, widen_model
 from rmbvideo.scenes.random_scenes import (
     EVAL_SEED_START,
@@ -116,17 +116,60 @@ def aged_state(model: RmbNet, batch: Batch, outputs: range, passes: int) -> Deco
     return detach_state(state)
 
 
+def primed_state(model: RmbNet, batch: Batch, prime: int) -> DecoderState | None:
+    """The state a sample's first frame starts from as a clip's first: the network run backwards over frames
+    ``prime`` .. 1 without gradients, as the engine primes a clip (``priming_frames``; None when ``prime`` is 0)."""
+    w, count = model.config.w, batch.i_s.shape[1]
+    state: DecoderState | None = None
+    with torch.no_grad():
+        frames = _encode_all(model, batch, 0, min(prime + w + 1, count))
+        for i in priming_frames(prime, count):
+            state = model.step_backward([frames[j] for j in window_indices(i, w, count)], state,
+                                        window_valid(i, w, count), batch.convention,
+                                        None if batch.i_a is None else batch.i_a[:, i])
+    return detach_state(state)
+
+
+def start_state(model: RmbNet, batch: Batch, outputs: range, edges: bool, aged_passes: int,
+                prime: int) -> DecoderState | None:
+    """The state a sample's supervised run starts from: aged (``aged_passes``), primed as a clip's first frame's
+    (its first frame supervised as a clip's, ``prime``), or fresh."""
+    if aged_passes:
+        return aged_state(model, batch, outputs, aged_passes)
+    if edges and prime:
+        return primed_state(model, batch, prime)
+    return None
+
+
+def held_targets(teacher: RmbNet, batch: Batch, edges: bool, prime: int) -> torch.Tensor:
+    """The batch's ground truth with each supervised output whose window lies whole inside the sample replaced by
+    ``teacher``'s linear output (started as the trained model's run is): trained on these, a run moves the edge
+    frames towards the truth and holds the rest of a clip where the teacher had it."""
+    w, count = teacher.config.w, batch.i_s.shape[1]
+    outputs = output_range(count, w, edges)
+    targets = batch.gt.clone()
+    with torch.no_grad():
+        state = start_state(teacher, batch, outputs, edges, 0, prime)
+        frames = _encode_all(teacher, batch, 0, count)
+        for i in outputs:
+            t, state = teacher.step([frames[j] for j in window_indices(i, w, count)], state,
+                                    valid=window_valid(i, w, count), convention=batch.convention,
+                                    aligned=None if batch.i_a is None else batch.i_a[:, i])
+            if all(window_valid(i, w, count)):
+                targets[:, i] = teacher.to_linear(t[:, 0])
+    return targets
+
+
 def segment_losses(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossConfig,
-                   edges: bool = False, aged_passes: int = 0) -> Iterator[SegmentLoss]:
+                   edges: bool = False, aged_passes: int = 0, prime: int = 0) -> Iterator[SegmentLoss]:
     """Yield the TBPTT segments of one batch in order; the caller back-propagates each before
     asking for the next, so only one segment's graph exists at a time. The sample's first frame
-    starts the recurrent state, as a clip's first frame does, or, with ``aged_passes``, the state
-    those passes leave (``aged_state``)."""
+    starts the recurrent state (``start_state``): fresh, primed as the engine primes a clip's first frame, or aged."""
     w = model.config.w
     count = batch.i_s.shape[1]
     supervised = output_range(count, w, edges)
     outputs = len(supervised)
-    state: DecoderState | None = aged_state(model, batch, supervised, aged_passes)
+    state: DecoderState | None = start_state(model, batch, supervised, edges, aged_passes, prime)
     previous: torch.Tensor | None = None  # the last output, for the temporal term (detached across segments)
     for first in range(supervised.start, supervised.stop, tbptt):
         last = min(first + tbptt, supervised.stop) - 1
@@ -179,13 +222,17 @@ def train_mode(model: nn.Module) -> None:
 
 
 def train_batch(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossConfig,
-                edges: bool = False, aged_passes: int = 0) -> dict[str, float]:
+                edges: bool = False, aged_passes: int = 0, prime: int = 0,
+                teacher: RmbNet | None = None) -> dict[str, float]:
     """Forward and backward one batch with TBPTT (gradients accumulate in ``.grad``; the caller
-    steps the optimizer). Returns the mean loss and its parts over the supervised outputs."""
+    steps the optimizer). Returns the mean loss and its parts over the supervised outputs. With a ``teacher``
+    the outputs whose window is whole are trained against its outputs (``held_targets``)."""
+    if teacher is not None:
+        batch = replace(batch, gt=held_targets(teacher, batch, edges, prime))
     train_mode(model)
     outputs = len(output_range(batch.i_s.shape[1], model.config.w, edges))
     totals = dict.fromkeys(LOSS_PARTS, 0.0)
-    for segment in segment_losses(model, batch, tbptt, loss_config, edges, aged_passes):
+    for segment in segment_losses(model, batch, tbptt, loss_config, edges, aged_passes, prime):
         segment.loss.backward()
         for key, value in segment.parts.items():
             totals[key] += value
@@ -245,14 +292,14 @@ class Trainer:
         if config.init and not resume:
             self.warm_start(config.init)
         self.optimizer = torch.optim.Adam(freeze_except(self.model, config.optim.trainable), lr=config.optim.lr)
+        self.teacher = self.held_teacher()
         self._prefetcher = (SamplePrefetcher(config.sample_spec(), self.step_seeds, depth=max(3, config.data.workers),
                                              workers=config.data.workers)
                             if config.data.scenes == "video" else None)
 
-    def warm_start(self, source: str) -> None:
-        """Start from the weights of model ``source`` (a file or a shipped model's name), widened to this
-        recipe's network (``widen_model``; new blend logits at the recipe's ``init_new_logit``), so the run
-        starts from (close to) the old model's function."""
+    def initial_model(self, source: str) -> RmbNet:
+        """The weights of model ``source`` (a file or a shipped model's name) as this recipe's network, widened where
+        it gained inputs or candidates (``widen_model``; new blend logits at the recipe's ``init_new_logit``)."""
         path = Path(source)
         if not path.suffix:
             path = default_model_path(self.config.model.input_mode).with_name(f"{source}.safetensors")
@@ -261,8 +308,23 @@ class Trainer:
             widened = widen_model(old, self.config.model, self.config.init_new_logit)
         except ValueError as error:
             raise InputError(f"{self.config.source}: init {path}: {error}") from None
-        self.model.load_state_dict(widened.state_dict())
-        log.info("warm start from %s (widened to this recipe's network where it gained inputs or candidates)", path)
+        model = RmbNet(self.config.model).to(self.device)
+        model.load_state_dict(widened.state_dict())
+        return model
+
+    def warm_start(self, source: str) -> None:
+        """Start from ``initial_model(source)``, so the run starts from (close to) the old model's function."""
+        self.model.load_state_dict(self.initial_model(source).state_dict())
+        log.info("warm start from %s (widened to this recipe's network where it gained inputs or candidates)", source)
+
+    def held_teacher(self) -> RmbNet | None:
+        """The model whole-window outputs are held to (``optim.hold_whole_windows``): the ``init`` weights, frozen,
+        also on a resumed run."""
+        if not self.config.optim.hold_whole_windows:
+            return None
+        teacher = self.initial_model(self.config.init).eval()
+        teacher.requires_grad_(False)
+        return teacher
 
     def step_seeds(self, step: int) -> list[int]:
         """The scene seeds of ``step``: video scenes (``video_seeds``) or cached panorama scenes."""
@@ -313,7 +375,8 @@ class Trainer:
                     group["lr"] = lr
                 self.optimizer.zero_grad(set_to_none=True)
                 edges = bool(np.random.default_rng([cfg.seed, step, 2]).random() < cfg.optim.edges)
-                losses = train_batch(self.model, batch, cfg.optim.tbptt, cfg.loss, edges, cfg.optim.aged_passes)
+                losses = train_batch(self.model, batch, cfg.optim.tbptt, cfg.loss, edges, cfg.optim.aged_passes,
+                                     cfg.optim.prime, self.teacher)
                 if not all(math.isfinite(v) for v in losses.values()):
                     raise FloatingPointError(f"step {step}: non-finite loss {losses} (seeds {self.step_seeds(step)})")
                 torch.nn.utils.clip_grad_norm_(self.model.parameters(), cfg.optim.grad_clip)
@@ -368,7 +431,11 @@ class Trainer:
                              + (f"; trained only {', '.join(cfg.optim.trainable)} (the rest frozen)" if cfg.optim.trainable else ""),
                 "tbptt": f"{cfg.data.steps} consecutive outputs per sample, back-propagated in segments of "
                          f"{cfg.optim.tbptt}" + (f", from a state aged by {cfg.optim.aged_passes} passes over the "
-                                                 "outputs without gradients" if cfg.optim.aged_passes else ""),
+                                                 "outputs without gradients" if cfg.optim.aged_passes else "")
+                         + (f"; a sample supervised from its first frame primed backwards over {cfg.optim.prime} "
+                            "frames, as the engine primes a clip" if cfg.optim.prime else "")
+                         + ("; outputs whose window is whole trained against the init model's outputs (held), "
+                            "the edge frames against the truth" if cfg.optim.hold_whole_windows else ""),
                 "loss": (f"{cfg.loss.l2:g} x " if cfg.loss.l2 != 1 else "") + f"mu-law (mu={cfg.loss.mu:g}) L2 + {cfg.loss.ssim:g} x (1 - SSIM) + {cfg.loss.edge:g} x "
                         f"gradient L1" + (f" + {cfg.loss.linear:g} x linear L1 relative to the sample's mean"
                                           if cfg.loss.linear > 0 else "")
