@@ -211,9 +211,13 @@ def test_development_sequences_use_other_seeds_than_the_validation_set():
 
 def test_development_scores_candidates_on_the_given_sets(sequence, models_dir, tmp_path):
     """Each candidate gets finite scores on every development sequence, edge-frame deltas, a dark-end
-    bias, and one table row; two different models score differently."""
-    from rmbvideo.evaluate.development import LONG_SEED, markdown, score_candidates
+    bias, and one table row; two different models score differently. The pictured frames and each real stream's
+    scored frame are kept, and the figure sets every model beside the truth and the reference."""
+    from rmbvideo.evaluate.development import LONG_SEED, development_figure, markdown, score_candidates
+    from rmbvideo.evaluate.real_video import find_streams
+    from rmbvideo.evaluate.texture_pans import TEXTURE_PANS, write_texture_pan
     from rmbvideo.evaluate.video_checks import band_sequence
+    from rmbvideo.io.dat import DatGeometry
 
     torch.set_num_threads(1)
     (tmp_path / "other").mkdir()
@@ -224,19 +228,33 @@ def test_development_scores_candidates_on_the_given_sets(sequence, models_dir, t
     done = []
     still = band_sequence(32, 24, 12, static=True, seed=LONG_SEED, convention="spikezoo")
     camera = load_heldout_config(replace(TINY, reset="subtract"), tmp_path / "cache")[0]
-    scores = score_candidates(models, [sequence], clips=[], real=[], done=lambda: done.append(1), long=[still],
-                              camera=[camera])
+    geometry = DatGeometry(64, 40)
+    (tmp_path / "real").mkdir()
+    write_texture_pan(TEXTURE_PANS[-1], tmp_path / "real", geometry)
+    (stream,) = find_streams(tmp_path / "real", geometry)
+    kind = sequence.name.rsplit("-", 1)[0]
+    scores = score_candidates(models, [sequence], clips=[], real=[stream], done=lambda: done.append(1), long=[still],
+                              camera=[camera], pictured={kind: ("first", "last")})
     assert len(done) == 2 and [s.name for s in scores] == [f"{models_dir.name}/rmbnet-binned", "other/rmbnet-binned"]
     for s in scores:
         assert list(s.sequences) == [sequence.name] and math.isfinite(s.sequence_mean)
         assert list(s.camera) == [f"{camera.name}/subtract"] and math.isfinite(s.camera[f"{camera.name}/subtract"])
         assert s.camera[f"{camera.name}/subtract"] != s.sequences[sequence.name]  # another pixel, another stream
         assert math.isfinite(s.first_frame_db) and math.isfinite(s.last_frame_db) and math.isfinite(s.dark_bias)
-        assert not s.clips and not s.real
+        assert not s.clips and list(s.real) == [stream.name] and s.real[stream.name] == s.real_frames[stream.name].psnr
+        assert s.real_frames[stream.name].image.shape == (20, 32)
         assert list(s.state_age) == [still.name] and math.isfinite(s.state_age[still.name])
+        assert list(s.pictures) == [(sequence.name, 0), (sequence.name, len(sequence.gt) - 1)]
+        assert all(image.shape == sequence.shape and np.isfinite(image).all() for image in s.pictures.values())
     assert scores[0].sequences != scores[1].sequences
+    assert not np.array_equal(scores[0].pictures[sequence.name, 0], scores[1].pictures[sequence.name, 0])
     table = markdown(scores, models)
     assert table.count("| other/rmbnet-binned |") == 2 and "—" in table and f"{camera.name}/subtract" in table
+    one, both = development_figure(scores[:1], [sequence], [stream]), development_figure(scores, [sequence], [stream])
+    assert one.ndim == 3 and one.dtype == np.uint8 and both.shape[0] == one.shape[0] and both.shape[1] > one.shape[1]
+    rows = development_figure(scores, [sequence])  # two pictured frames, no real stream: a shorter figure
+    assert rows.shape[0] < both.shape[0]
+    assert development_figure([replace(s, pictures={}) for s in scores], [sequence]) is None
 
 
 def test_candidate_needs_development(models_dir, tmp_path):

@@ -50,15 +50,17 @@ def _real_video(folder: Path, model: Path, device: str, out_dir: Path, stem: str
 
 
 def _development(out_dir: Path, models: list[Path], cache_dir: Path | None, real_video: Path | None, device: str,
-                 progress: bool) -> Path:
-    """Score ``models`` on the development sets; write ``development.md``."""
+                 progress: bool) -> list[Path]:
+    """Score ``models`` on the development sets; write ``development.md`` and the pictured frames,
+    ``development.png``."""
     from tqdm import tqdm
 
-    from rmbvideo.evaluate.development import long_clips, markdown, score_candidates
+    from rmbvideo.evaluate.development import development_figure, long_clips, markdown, score_candidates
     from rmbvideo.evaluate.heldout import default_cache_dir, load_development
     from rmbvideo.evaluate.real_video import find_streams
     from rmbvideo.evaluate.texture_pans import texture_pan_folder
     from rmbvideo.io.atomic import atomic_write_text
+    from rmbvideo.io.png import write_png
     from rmbvideo.net.weights import load_model
 
     for model in models:  # a bad file fails here, in one line, before any simulation
@@ -71,7 +73,8 @@ def _development(out_dir: Path, models: list[Path], cache_dir: Path | None, real
                                   camera=camera)
     path = out_dir / "development.md"
     atomic_write_text(path, markdown(scores, models))
-    return path
+    figure = development_figure(scores, sequences, real)
+    return [path] + ([] if figure is None else [write_png(out_dir / "development.png", figure)])
 
 
 def _notes(sequences: list, quick: bool, device: str, figure: tuple[str, int], reset: str = "zero") -> str:
@@ -199,9 +202,9 @@ def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Pat
     if candidates and not development:
         raise click.UsageError("--candidate needs --development")
     if development:
-        path = _development(out_dir, [models_dir / "rmbnet-binned.safetensors", *candidates], cache_dir, real_video,
-                            resolved, progress_enabled(quiet))
-        log.info("wrote %s", path)
+        paths = _development(out_dir, [models_dir / "rmbnet-binned.safetensors", *candidates], cache_dir, real_video,
+                             resolved, progress_enabled(quiet))
+        log.info("wrote %s", ", ".join(map(str, paths)))
         return
     sequences = load_heldout(quick, cache_dir, reset) + load_video_heldout(quick, cache_dir, reset=reset)
     rows = with_best_raw(evaluate_rows(table2_specs(models_dir, resolved), sequences,

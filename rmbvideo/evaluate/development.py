@@ -7,7 +7,9 @@ frames against their clip's median (dB), the development clips (texture pans in 
 the real-video streams when given, the development sequences again as a real camera's pixel makes them (reset by
 subtraction, like ``car.dat``'s: the rate convention with the camera's noise), the dark-end bias at 1e-3 on a flat field of seed 1 (the
 evaluation's own dark check uses seed 0), and how a long still clip's quality changes as the recurrent
-state ages (late minus early, in both conventions; other seeds than the evaluation's long captures).
+state ages (late minus early, in both conventions; other seeds than the evaluation's long captures). Beside the
+table, ``development_figure`` shows the frames where the default's misses are (``PICTURED``) and the real-video
+reference frames, every candidate beside the truth: a candidate is looked at before it ships.
 """
 
 from __future__ import annotations
@@ -21,7 +23,9 @@ import numpy as np
 from rmbvideo.evaluate.harness import MethodSpec, run_frames, score_frames
 from rmbvideo.evaluate.heldout import Sequence
 from rmbvideo.evaluate.metrics import mu_law_psnr
-from rmbvideo.evaluate.real_video import CONVENTION, RealRow, RealStream, score_stream
+from rmbvideo.evaluate.real_video import (CONVENTION, RealRow, RealScore, RealStream, binned_reference,
+                                          comparison_image, score_stream)
+from rmbvideo.evaluate.table import pick_moving_region, pick_regions, side_by_side
 from rmbvideo.evaluate.video_checks import band_sequence, dark_bias, state_age_report
 from rmbvideo.net.weights import load_model
 
@@ -34,6 +38,12 @@ LONG_SIZE = (112, 64)
 LONG_FRAMES = 60
 #: marks a development sequence made by a pixel reset by subtraction in the per-set table
 CAMERA_SUFFIX = "/subtract"
+#: Frames pictured per development sequence kind (its name without the seed): where the default's misses are (the
+#: dark clip's first frame, the fast-dark clip's last), a dark and a fast moving frame mid-clip, a textured first frame
+PICTURED: dict[str, tuple[str, ...]] = {"dark": ("first", "middle"), "fast": ("middle",), "fast-dark": ("last",),
+                                        "low-contrast": ("first",)}
+#: (sequence name, frame index) -> the frame a model made there
+Pictures = dict[tuple[str, int], np.ndarray]
 
 
 @dataclass(frozen=True)
@@ -49,6 +59,8 @@ class DevelopmentScore:
     dark_bias: float  # relative bias of the mean output at DARK_LEVEL
     state_age: dict[str, float]  # long still clip -> late minus early mean (dB)
     camera: dict[str, float] = field(default_factory=dict)  # the sequences from a pixel reset by subtraction
+    pictures: Pictures = field(default_factory=dict)  # the frames ``PICTURED`` names
+    real_frames: dict[str, RealScore] = field(default_factory=dict)  # each real stream's scored frame
 
     @property
     def sequence_mean(self) -> float:
@@ -64,11 +76,19 @@ def _readout(model: Path) -> str:
     return load_model(model)[0].config.readout
 
 
-def score_sequences(model: Path, sequences: Seq[Sequence], device: str = "cpu") -> tuple[dict[str, float], float, float]:
-    """Mean mu-law PSNR of each sequence's scored frames, and the mean drop of its first and last frame
-    below the median of all its frames."""
+def pictured_frames(name: str, frames: Seq[int], pictured: dict[str, tuple[str, ...]]) -> list[int]:
+    """The indices among ``frames`` (sorted) that ``pictured`` names for a sequence called ``name``."""
+    positions = {"first": frames[0], "middle": frames[len(frames) // 2], "last": frames[-1]}
+    return [positions[p] for p in pictured.get(name.rsplit("-", 1)[0], ())]
+
+
+def score_sequences(model: Path, sequences: Seq[Sequence], device: str = "cpu",
+                    pictured: dict[str, tuple[str, ...]] | None = None
+                    ) -> tuple[dict[str, float], float, float, Pictures]:
+    """Mean mu-law PSNR of each sequence's scored frames, the mean drop of its first and last frame
+    below the median of all its frames, and the frames ``pictured`` names (``PICTURED`` when None)."""
     spec = MethodSpec("candidate", "rmbnet", _options(model, device), _readout(model))
-    scores, first, last = {}, [], []
+    scores, first, last, pictures = {}, [], [], {}
     for seq in sequences:
         frames, _, _ = run_frames(spec, seq)
         images = {f.index: f.image for f in frames}
@@ -77,13 +97,16 @@ def score_sequences(model: Path, sequences: Seq[Sequence], device: str = "cpu") 
         median = float(np.median(list(per_frame.values())))
         first.append(per_frame[min(per_frame)] - median)
         last.append(per_frame[max(per_frame)] - median)
-    return scores, float(np.mean(first)), float(np.mean(last))
+        for i in pictured_frames(seq.name, sorted(images), PICTURED if pictured is None else pictured):
+            pictures[seq.name, i] = images[i]
+    return scores, float(np.mean(first)), float(np.mean(last)), pictures
 
 
-def score_streams(model: Path, streams: Seq[RealStream], device: str = "cpu") -> dict[str, float]:
-    """Linear PSNR at each stream's reference frame (the real-video scorer, spikezoo's convention)."""
+def score_streams(model: Path, streams: Seq[RealStream], device: str = "cpu") -> dict[str, RealScore]:
+    """The frame at each stream's reference plane, gain-scaled, and its linear PSNR (the real-video scorer,
+    spikezoo's convention)."""
     row = RealRow("candidate", "rmbnet", {**_options(model, device), "convention": CONVENTION}, readout=_readout(model))
-    return {s.name: score_stream(s, [row])["candidate"].psnr for s in streams}
+    return {s.name: score_stream(s, [row])["candidate"] for s in streams}
 
 
 def long_clips() -> list[Sequence]:
@@ -94,25 +117,30 @@ def long_clips() -> list[Sequence]:
 
 def score_candidate(model: Path, sequences: Seq[Sequence], clips: Seq[RealStream], real: Seq[RealStream],
                     device: str = "cpu", name: str | None = None, long: Seq[Sequence] = (),
-                    camera: Seq[Sequence] = ()) -> DevelopmentScore:
+                    camera: Seq[Sequence] = (), pictured: dict[str, tuple[str, ...]] | None = None) -> DevelopmentScore:
     """Every development figure of one model file (``long``: still clips for the state's age; ``camera``: sequences
-    a pixel reset by subtraction made, scored apart)."""
-    seq_scores, first, last = score_sequences(model, sequences, device)
-    camera_scores = {f"{seq}{CAMERA_SUFFIX}": value for seq, value in score_sequences(model, camera, device)[0].items()}
+    a pixel reset by subtraction made, scored apart; ``pictured``: the frames kept for the figure)."""
+    seq_scores, first, last, pictures = score_sequences(model, sequences, device, pictured)
+    camera_scores = {f"{seq}{CAMERA_SUFFIX}": value for seq, value in score_sequences(model, camera, device, {})[0].items()}
     options = {"model": Path(model), "device": device, "threads": 1}
     bias = dark_bias("rmbnet", options, levels=(DARK_LEVEL,), seed=DARK_SEED)[DARK_LEVEL][0]
     ages = {a.sequence: a.late_db - a.early_db for a in (state_age_report("rmbnet", options, seq) for seq in long)}
-    return DevelopmentScore(name or f"{Path(model).parent.name}/{Path(model).stem}", seq_scores, first, last, score_streams(model, clips, device),
-                            score_streams(model, real, device), bias, ages, camera_scores)
+    real_frames = score_streams(model, real, device)
+    return DevelopmentScore(name or f"{Path(model).parent.name}/{Path(model).stem}", seq_scores, first, last,
+                            {k: v.psnr for k, v in score_streams(model, clips, device).items()},
+                            {k: v.psnr for k, v in real_frames.items()}, bias, ages, camera_scores, pictures,
+                            real_frames)
 
 
 def score_candidates(models: Seq[Path], sequences: Seq[Sequence], clips: Seq[RealStream], real: Seq[RealStream],
                      device: str = "cpu", done: Callable[[], None] | None = None,
-                     long: Seq[Sequence] = (), camera: Seq[Sequence] = ()) -> list[DevelopmentScore]:
+                     long: Seq[Sequence] = (), camera: Seq[Sequence] = (),
+                     pictured: dict[str, tuple[str, ...]] | None = None) -> list[DevelopmentScore]:
     """``score_candidate`` for each model; ``done`` is called after each (a progress bar)."""
     scores = []
     for model in models:
-        scores.append(score_candidate(model, sequences, clips, real, device, long=long, camera=camera))
+        scores.append(score_candidate(model, sequences, clips, real, device, long=long, camera=camera,
+                                      pictured=pictured))
         if done is not None:
             done()
     return scores
@@ -146,3 +174,30 @@ def markdown(scores: Seq[DevelopmentScore], models: Seq[Path]) -> str:
               "of a still scene, what the recurrent state's age alone does.",
               "", "Models: " + ", ".join(f"`{m}`" for m in models), ""]
     return "\n".join(lines)
+
+
+def development_figure(scores: Seq[DevelopmentScore], sequences: Seq[Sequence],
+                       streams: Seq[RealStream] = ()) -> np.ndarray | None:
+    """One row per pictured frame: the truth and every model's frame beside it (mu-law PSNR of the frame in the
+    label), the dark, bright and moving regions zoomed below, all tone-mapped against the truth; then each real
+    stream's reference frame and every model's gain-scaled frame. None when nothing was pictured."""
+    by_name = {seq.name: seq for seq in sequences}
+    rows = []
+    for name, i in scores[0].pictures if scores else ():
+        gt = by_name[name].gt
+        neighbour = gt[i + 1] if i + 1 < len(gt) else gt[i - 1]
+        regions = (*pick_regions(gt[i]), pick_moving_region(neighbour, gt[i]))
+        images = {f"truth: {name}, frame {i}": gt[i]}
+        images.update({f"{s.name} {mu_law_psnr(s.pictures[name, i], gt[i]):.2f} dB": s.pictures[name, i]
+                       for s in scores})
+        rows.append(side_by_side(images, gt[i], regions))
+    real = {stream.name: {s.name: s.real_frames[stream.name] for s in scores} for stream in streams}
+    if real:
+        rows.append(comparison_image(real, {stream.name: binned_reference(stream) for stream in streams},
+                                     [s.name for s in scores]))
+    if not rows:
+        return None
+    width = max(row.shape[1] for row in rows)
+    gap = np.full((8, width, 3), 255, np.uint8)
+    padded = [np.pad(row, ((0, 0), (0, width - row.shape[1]), (0, 0)), constant_values=255) for row in rows]
+    return np.vstack([part for row in padded for part in (row, gap)][:-1])
