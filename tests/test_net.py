@@ -590,3 +590,32 @@ def test_cell_decay_scales_the_carried_cell_state_and_round_trips():
     for bad in (0.0, 1.5):
         with pytest.raises(ValueError, match="cell_decay"):
             RmbNetConfig(cell_decay=bad)
+
+
+def test_edge_input_reads_where_the_clip_cuts_the_window_and_leaves_the_rest_of_a_clip_alone():
+    """``edge_input``: two planes, the fractions of the past and future window positions outside the clip; a model
+    widened to read them computes its old function, and weights on them change only the edge frames."""
+    from rmbvideo.net.weights import widen_model
+
+    assert "edge_input" not in RmbNetConfig().to_dict()  # older cards stay as they were written
+    with pytest.raises(ValueError, match="edge_input"):
+        RmbNetConfig(w=0, edge_input=True)
+    cfg = RmbNetConfig(w=2, width=0.25, edge_input=True)
+    assert RmbNetConfig.from_dict(cfg.to_dict()) == cfg
+    torch.manual_seed(0)
+    old = RmbNet(replace(cfg, edge_input=False)).eval()
+    model = widen_model(old, cfg)
+    assert model.decoder.head[0][0].in_channels == old.decoder.head[0][0].in_channels + 2
+    i_s, i_m = torch.rand(1, 7, 16, 16) * 10, torch.rand(1, 7, 16, 16) * 70
+    with torch.inference_mode():
+        frames = model.encode(i_s[0], i_m[0], range(7))
+        for i, expected in ((0, (1.0, 0.0)), (1, (0.5, 0.0)), (3, (0.0, 0.0)), (5, (0.0, 0.5)), (6, (0.0, 1.0))):
+            planes = model._head_inputs([frames[j] for j in window_indices(i, 2, 7)], window_valid(i, 2, 7), 0.0)[:, -2:]
+            assert torch.equal(planes, torch.tensor(expected).reshape(1, 2, 1, 1).expand_as(planes))
+        before, _ = old.forward_sequence(i_s, i_m, prime=2)
+        widened, _ = model.forward_sequence(i_s, i_m, prime=2)
+        torch.testing.assert_close(widened, before, rtol=0, atol=0)
+        model.decoder.head[0][0].weight[:, -2:].normal_(std=0.5)
+        edged, _ = model.forward_sequence(i_s, i_m, prime=2)
+    torch.testing.assert_close(edged[:, 2:5], before[:, 2:5], rtol=0, atol=0)  # whole windows: unchanged
+    assert all(not torch.allclose(edged[:, i], before[:, i]) for i in (0, 1, 5, 6))

@@ -54,6 +54,9 @@ class RmbNetConfig:
     where the aligned mean is nearly exact, from a scene of independent movers (models/experiments/blend-hedging).
     ``cell_decay``: each ConvLSTM's cell state is scaled by it before each step (``ConvLSTMCell``): 1 keeps the
     state as trained; below 1 it forgets old evidence it would otherwise carry through a long still capture.
+    ``edge_input``: the head also sees where the clip's edges cut the window (two constant planes, the fractions of
+    its w past and w future positions that lie outside the clip; both 0 mid-clip), last of its inputs, so a clip's
+    edge frames can be read differently from the rest without changing it.
     """
 
     w: int = 3
@@ -82,6 +85,7 @@ class RmbNetConfig:
     aligned_centre: int = 0
     aligned_evidence: bool = False
     cell_decay: float = 1.0
+    edge_input: bool = False
 
     def __post_init__(self) -> None:
         if not 0 <= self.w <= 3:
@@ -116,6 +120,8 @@ class RmbNetConfig:
             raise ValueError(f"aligned_centre must be a length in 1..{self.n - 1} of the parity of n, got {self.aligned_centre}")
         if self.aligned_radius is not None and not 0 <= self.aligned_radius <= MAX_ALIGNED_RADIUS:
             raise ValueError(f"aligned_radius must be in 0..{MAX_ALIGNED_RADIUS}, got {self.aligned_radius}")
+        if self.edge_input and self.w < 1:
+            raise ValueError("edge_input needs a window (w >= 1)")
         if not 0.0 < self.cell_decay <= 1.0:
             raise ValueError(f"cell_decay must be in (0, 1], got {self.cell_decay}")
         if self.blend and (self.input_mode != "binned" or self.readout != "pure-m"):
@@ -149,7 +155,8 @@ class RmbNetConfig:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary (tuples become lists; no ``pooled_windows`` key when there are none, no
         ``convention_input`` key when it is off, no ``readout`` key for the RMB design, no ``blend`` key
-        when it is off, no ``centre_windows`` key when there are none, no ``aligned*`` key when off or unset)."""
+        when it is off, no ``centre_windows`` key when there are none, no ``aligned*`` key when off or unset, no ``edge_input``
+        or ``cell_decay`` key at their defaults)."""
         out = asdict(self)
         out["base_channels"] = list(self.base_channels)
         out["pooled_windows"] = list(self.pooled_windows)
@@ -171,6 +178,8 @@ class RmbNetConfig:
             del out["aligned_radius"]
         if self.cell_decay == 1.0:
             del out["cell_decay"]
+        if not self.edge_input:
+            del out["edge_input"]
         return out
 
     @classmethod

@@ -33,6 +33,8 @@ Choices where the paper and supplement are silent:
   the neighbours warped onto it by optical flow and merged where they agree (computed outside the
   network, ``rmbvideo.recon.aligned_box``; ``step(aligned=...)``) joins the head inputs (mu-law
   compressed) and the blend candidates (last of each).
+- Edge input (``config.edge_input``): two constant head planes, the fractions of the window's past and future
+  positions outside the clip (``edge_planes``; 0 mid-clip), after every other input.
 - Aligned evidence (``config.aligned_evidence``): the aligned mean's per-pixel statistics (``config.EVIDENCE``), given
   after the means in ``step(aligned=...)``, join the head inputs last, each squashed to [0, 1) (``evidence_inputs``),
   so the head can tell where the aligned mean is nearly exact; they are not blend candidates.
@@ -106,6 +108,14 @@ def priming_frames(prime: int, count: int | None) -> range:
     """The frames a clip's first state is primed over, in the order the backward run takes them: ``prime`` .. 1,
     those inside a clip of ``count`` frames (None: not known, all)."""
     return range(prime if count is None else min(prime, count - 1), 0, -1)
+
+
+def edge_planes(valid: Sequence[bool], w: int, like: torch.Tensor) -> torch.Tensor:
+    """(B, 2, H, W) like ``like``: the fractions of the window's w past and w future positions outside the clip
+    (``valid`` False), constant over the frame; both 0 for a window inside the clip."""
+    missing = (sum(not v for v in valid[:w]) / w, sum(not v for v in valid[w + 1:]) / w)
+    planes = torch.tensor(missing, dtype=like.dtype, device=like.device).reshape(1, 2, 1, 1)
+    return planes.expand(like.shape[0], 2, *like.shape[2:])
 
 
 def canonical_batch(t: torch.Tensor) -> torch.Tensor:
@@ -190,7 +200,7 @@ class RmbNet(nn.Module):
         outputs = (2 + candidate_count(config.pooled_windows, config.centre_windows, config.aligned_channels)
                    if config.blend else 1)
         head_inputs = (2 + 2 * len(config.pooled_windows) + int(config.convention_input) + len(config.centre_windows)
-                       + config.aligned_channels + config.evidence_channels)
+                       + config.aligned_channels + config.evidence_channels + 2 * int(config.edge_input))
         self.decoder = Decoder(channels, config.lstm_kernel, input_channels=head_inputs, outputs=outputs,
                                cell_decay=config.cell_decay)
         if config.blend:  # start from the network's own estimate (weight ~0.98), whatever the input
@@ -359,8 +369,8 @@ class RmbNet(nn.Module):
         frames only; ``pooled``, from ``_pooled_rates`` when None), mu-law compressed, plus the
         convention plane when the config has it: then the reference's central rates (mu-law
         compressed) when the config has centre windows, then the aligned mean rates (mu-law compressed)
-        and the aligned mean's evidence inputs when given:
-        (B, 2 + 2 len(pooled_windows) [+ 1] + len(centre_windows) [+ A] [+ E], Hp, Wp)."""
+        and the aligned mean's evidence inputs when given, then the edge planes when the config has them:
+        (B, 2 + 2 len(pooled_windows) [+ 1] + len(centre_windows) [+ A] [+ E] [+ 2], Hp, Wp)."""
         w = self.config.w
         inputs = window[w].inputs
         pooled = self._pooled_rates(window, valid) if pooled is None else pooled
@@ -374,6 +384,8 @@ class RmbNet(nn.Module):
             parts.append(mu_law(aligned, self.config.input_mu).to(inputs.dtype))
         if evidence is not None:
             parts.append(evidence.to(inputs.dtype))
+        if self.config.edge_input:
+            parts.append(edge_planes(valid, w, inputs))
         return torch.cat(parts, dim=1) if len(parts) > 1 else parts[0]
 
     def step(
