@@ -241,7 +241,7 @@ def test_development_scores_candidates_on_the_given_sets(sequence, models_dir, t
         assert list(s.camera) == [f"{camera.name}/subtract"] and math.isfinite(s.camera[f"{camera.name}/subtract"])
         assert s.camera[f"{camera.name}/subtract"] != s.sequences[sequence.name]  # another pixel, another stream
         assert math.isfinite(s.first_frame_db) and math.isfinite(s.last_frame_db) and math.isfinite(s.dark_bias)
-        assert not s.clips and list(s.real) == [stream.name] and s.real[stream.name] == s.real_frames[stream.name].psnr
+        assert not s.clips and list(s.real) == [stream.name] and math.isfinite(s.real[stream.name])
         assert s.real_frames[stream.name].image.shape == (20, 32)
         assert list(s.state_age) == [still.name] and math.isfinite(s.state_age[still.name])
         assert list(s.pictures) == [(sequence.name, 0), (sequence.name, len(sequence.gt) - 1)]

@@ -614,8 +614,8 @@ def test_edge_input_reads_where_the_clip_cuts_the_window_and_leaves_the_rest_of_
             assert torch.equal(planes, torch.tensor(expected).reshape(1, 2, 1, 1).expand_as(planes))
         before, _ = old.forward_sequence(i_s, i_m, prime=2)
         widened, _ = model.forward_sequence(i_s, i_m, prime=2)
-        torch.testing.assert_close(widened, before, rtol=0, atol=0)
+        torch.testing.assert_close(widened, before, rtol=1e-5, atol=1e-6)  # other channel counts, other rounding
         model.decoder.head[0][0].weight[:, -2:].normal_(std=0.5)
         edged, _ = model.forward_sequence(i_s, i_m, prime=2)
-    torch.testing.assert_close(edged[:, 2:5], before[:, 2:5], rtol=0, atol=0)  # whole windows: unchanged
-    assert all(not torch.allclose(edged[:, i], before[:, i]) for i in (0, 1, 5, 6))
+    torch.testing.assert_close(edged[:, 2:5], widened[:, 2:5], rtol=0, atol=0)  # whole windows: unchanged
+    assert all(not torch.allclose(edged[:, i], widened[:, i]) for i in (0, 1, 5, 6))

@@ -569,7 +569,8 @@ def test_held_whole_windows_train_against_the_init_model_also_after_resume(tmp_p
     card = json.loads((tmp_path / "out" / "tiny.json").read_text())
     assert "held" in card["training"]["tbptt"] and "primed backwards over 1" in card["training"]["tbptt"]
     no_init = text.replace(f'init = "{source}"\n', "").replace("threads = 1", "threads = 1\nedges = 1.0")
-    for bad in (no_init, text):  # without init; with init but no edge frames
+    aged = text.replace("threads = 1", "threads = 1\nedges = 1.0\naged_passes = 2")
+    for bad in (no_init, text, aged):  # without init; with init but no edge frames; from an aged state
         recipe.write_text(bad.replace("threads = 1", "threads = 1\nhold_whole_windows = true"))
         with pytest.raises(InputError, match="hold_whole_windows"):
             load_recipe(recipe)

@@ -55,12 +55,16 @@ class DevelopmentScore:
     first_frame_db: float  # mean over sequences of (first frame - median frame)
     last_frame_db: float
     clips: dict[str, float]
-    real: dict[str, float]
+    real_frames: dict[str, RealScore]  # each real-video stream's scored frame (gain-scaled) and its PSNR
     dark_bias: float  # relative bias of the mean output at DARK_LEVEL
     state_age: dict[str, float]  # long still clip -> late minus early mean (dB)
     camera: dict[str, float] = field(default_factory=dict)  # the sequences from a pixel reset by subtraction
     pictures: Pictures = field(default_factory=dict)  # the frames ``PICTURED`` names
-    real_frames: dict[str, RealScore] = field(default_factory=dict)  # each real stream's scored frame
+
+    @property
+    def real(self) -> dict[str, float]:
+        """Linear PSNR on each real-video stream."""
+        return {name: score.psnr for name, score in self.real_frames.items()}
 
     @property
     def sequence_mean(self) -> float:
@@ -125,11 +129,9 @@ def score_candidate(model: Path, sequences: Seq[Sequence], clips: Seq[RealStream
     options = {"model": Path(model), "device": device, "threads": 1}
     bias = dark_bias("rmbnet", options, levels=(DARK_LEVEL,), seed=DARK_SEED)[DARK_LEVEL][0]
     ages = {a.sequence: a.late_db - a.early_db for a in (state_age_report("rmbnet", options, seq) for seq in long)}
-    real_frames = score_streams(model, real, device)
     return DevelopmentScore(name or f"{Path(model).parent.name}/{Path(model).stem}", seq_scores, first, last,
                             {k: v.psnr for k, v in score_streams(model, clips, device).items()},
-                            {k: v.psnr for k, v in real_frames.items()}, bias, ages, camera_scores, pictures,
-                            real_frames)
+                            score_streams(model, real, device), bias, ages, camera_scores, pictures)
 
 
 def score_candidates(models: Seq[Path], sequences: Seq[Sequence], clips: Seq[RealStream], real: Seq[RealStream],

@@ -116,13 +116,14 @@ def aged_state(model: RmbNet, batch: Batch, outputs: range, passes: int) -> Deco
     return detach_state(state)
 
 
-def primed_state(model: RmbNet, batch: Batch, prime: int) -> DecoderState | None:
+def primed_state(model: RmbNet, batch: Batch, prime: int, frames: list | None = None) -> DecoderState | None:
     """The state a sample's first frame starts from as a clip's first: the network run backwards over frames
-    ``prime`` .. 1 without gradients, as the engine primes a clip (``priming_frames``; None when ``prime`` is 0)."""
+    ``prime`` .. 1 without gradients, as the engine primes a clip (``priming_frames``; None when ``prime`` is 0).
+    ``frames``: the sample's encodings from frame 0 when the caller has them (else encoded here)."""
     w, count = model.config.w, batch.i_s.shape[1]
     state: DecoderState | None = None
     with torch.no_grad():
-        frames = _encode_all(model, batch, 0, min(prime + w + 1, count))
+        frames = _encode_all(model, batch, 0, min(prime + w + 1, count)) if frames is None else frames
         for i in priming_frames(prime, count):
             state = model.step_backward([frames[j] for j in window_indices(i, w, count)], state,
                                         window_valid(i, w, count), batch.convention,
@@ -149,8 +150,8 @@ def held_targets(teacher: RmbNet, batch: Batch, edges: bool, prime: int) -> torc
     outputs = output_range(count, w, edges)
     targets = batch.gt.clone()
     with torch.no_grad():
-        state = start_state(teacher, batch, outputs, edges, 0, prime)
         frames = _encode_all(teacher, batch, 0, count)
+        state = primed_state(teacher, batch, prime, frames) if edges and prime else None
         for i in outputs:
             t, state = teacher.step([frames[j] for j in window_indices(i, w, count)], state,
                                     valid=window_valid(i, w, count), convention=batch.convention,
