@@ -7,22 +7,25 @@
 # (video-temporal-decoder-gpu, the run this script was first written for, has since been run on the CPU at its batch
 # and cost what the batch-4 runs did: models/README, "After stage 17".)
 #
-# Before the call, here (the device image lacks OpenEXR; everything else rmbvideo needs is there):
+# The call: command "bash models/experiments/gpu-session/run.sh" (with RECIPE=... MINUTES=... before it for a run),
+# timeout_s 590. The device image has everything rmbvideo needs but OpenEXR, which nothing here writes; for a run that
+# does (the CUDA tests' EXR cases), bring its wheel first and carry [".whl"]:
 #   echo /.whl/ >> .git/info/exclude
 #   python3 -m pip download --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
 #       --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 -d .whl OpenEXR==3.5.3
-# The call: command "bash models/experiments/gpu-session/run.sh" (with RECIPE=... MINUTES=... before it for a run),
-# carry [".whl"], timeout_s 590.
-# DEVICE, FRAMES, SIZES and NETWORK_RUNS override the device, the bench length, its sizes and the network bench's
-# runs (a dry run on a CPU, a minute: OUT=/tmp/gpu-dry DEVICE=cpu FRAMES=10 SIZES="--size 64x64"
-#   NETWORK_RUNS="--run 32x32x4 --precision fp32" RECIPE=video-temporal-decoder-gpu MINUTES=0.2 bash THIS).
+# DEVICE, FRAMES, SIZES, PRECISIONS and NETWORK_RUNS override the device, the bench length, its sizes, its precisions
+# and the network bench's runs (NETWORK_RUNS=skip leaves that bench out); PROFILE_FRAMES=N adds `bench profile` of N
+# frames at 400x250 (`profile.md` in the tar). A dry run on a CPU, a minute: OUT=/tmp/gpu-dry DEVICE=cpu FRAMES=10
+#   SIZES="--size 64x64" NETWORK_RUNS="--run 32x32x4 --precision fp32" RECIPE=video-edge-input-gpu MINUTES=0.2 bash THIS.
 set -uo pipefail
 RECIPE=${RECIPE:-}
 MINUTES=${MINUTES:-6}
 DEVICE=${DEVICE:-cuda}
 FRAMES=${FRAMES:-480}
 SIZES=${SIZES:-"--size 400x250 --size 1000x1000"}
+PRECISIONS=${PRECISIONS:-"--precision fp32 --precision bf16"}
 NETWORK_RUNS=${NETWORK_RUNS:-}
+PROFILE_FRAMES=${PROFILE_FRAMES:-0}
 if compgen -G ".whl/*.whl" > /dev/null; then
     python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl \
         || exit 1
@@ -41,10 +44,15 @@ if [ -n "$RECIPE" ]; then
         --quiet 2>&1 | tail -20 > "$work/train.log"
     rm -rf "$work/train/cache"  # simulated samples: large, and made again from the seed
 fi
-# shellcheck disable=SC2086  # SIZES and NETWORK_RUNS are lists of options
-python3 -m rmbvideo bench sizes --device "$DEVICE" $SIZES --frames "$FRAMES" --precision fp32 --precision bf16 \
-    > "$work/bench-sizes.txt" 2>&1
-python3 -m rmbvideo bench network --device "$DEVICE" $NETWORK_RUNS > "$work/bench-network.txt" 2>&1
+# shellcheck disable=SC2086  # SIZES, PRECISIONS and NETWORK_RUNS are lists of options
+python3 -m rmbvideo bench sizes --device "$DEVICE" $SIZES --frames "$FRAMES" $PRECISIONS > "$work/bench-sizes.txt" 2>&1
+if [ "$NETWORK_RUNS" != skip ]; then
+    python3 -m rmbvideo bench network --device "$DEVICE" $NETWORK_RUNS > "$work/bench-network.txt" 2>&1
+fi
+if [ "$PROFILE_FRAMES" -gt 0 ]; then
+    python3 -m rmbvideo bench profile --device "$DEVICE" --frames "$PROFILE_FRAMES" -o "$work/profile.md" \
+        > "$work/bench-profile.txt" 2>&1
+fi
 cat "$work"/*.txt "$work"/*.log 2>/dev/null
 tar -cf "$OUT/all.tar" -C "$work" .
 rm -rf "$work"
