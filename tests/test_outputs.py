@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import errno
 import logging
+import sys
 from pathlib import Path
 
 import cv2
@@ -14,7 +15,7 @@ import OpenEXR
 import pytest
 
 from rmbvideo.chunks import Frame
-from rmbvideo.errors import InputError, OutputError
+from rmbvideo.errors import InputError, OutputError, RmbvideoError
 from rmbvideo.io.atomic import atomic_path, atomic_write_text
 from rmbvideo.io.exr import HALF_MAX, read_exr, read_exr_rgb, write_exr
 from rmbvideo.io.sinks import make_sink
@@ -159,6 +160,18 @@ def test_reading_bad_exr_files_raises_input_error(tmp_path: Path) -> None:
     write_exr(tmp_path / "y.exr", np.zeros((2, 2), np.float32), time_s=0.0)
     with pytest.raises(InputError, match="not an RGB EXR"):
         read_exr_rgb(tmp_path / "y.exr")
+
+
+def test_exr_without_openexr_installed_is_a_one_line_error_naming_the_file(tmp_path: Path,
+                                                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    """A partial install (the GPU image lacked the wheel) reads and writes no EXR, with an error, not a traceback."""
+    monkeypatch.setitem(sys.modules, "OpenEXR", None)  # what `import OpenEXR` meets where it is not installed
+    out = tmp_path / "frame.exr"
+    with pytest.raises(RmbvideoError, match=r"frame\.exr: OpenEXR is not installed"):
+        write_exr(out, np.zeros((2, 2), np.float32), time_s=0.0)
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(RmbvideoError, match=r"frame\.exr: OpenEXR is not installed"):
+        read_exr(out)
 
 
 # ---- sinks --------------------------------------------------------------------------------------

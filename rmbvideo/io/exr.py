@@ -15,7 +15,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from rmbvideo.errors import InputError, OutputError
+from rmbvideo.errors import InputError, OutputError, RmbvideoError
 from rmbvideo.io.atomic import atomic_path
 
 log = logging.getLogger(__name__)
@@ -52,16 +52,16 @@ def write_exr(
         pixels = np.where(finite, pixels, np.float32(0.0))
     if dtype == "half":
         pixels = np.clip(pixels, -HALF_MAX, HALF_MAX).astype(np.float16)
-    import OpenEXR
+    openexr = _openexr(path)
 
     header: dict[str, Any] = {
-        "compression": OpenEXR.ZIP_COMPRESSION,
-        "type": OpenEXR.scanlineimage,
+        "compression": openexr.ZIP_COMPRESSION,
+        "type": openexr.scanlineimage,
         CAPTURE_TIME_ATTRIBUTE: float(time_s),
         TIME_ATTRIBUTE: repr(float(time_s)),
     }
     header.update(attrs or {})
-    exr = OpenEXR.File(header, {"Y": np.ascontiguousarray(pixels)})
+    exr = openexr.File(header, {"Y": np.ascontiguousarray(pixels)})
     with atomic_path(path) as temp:
         try:
             exr.write(str(temp))
@@ -70,15 +70,25 @@ def write_exr(
     return nonfinite
 
 
+def _openexr(path: Path) -> Any:
+    """The OpenEXR module, imported when an EXR is first read or written; a one-line error naming ``path`` where the
+    environment lacks it (a dependency, so only a broken or partial install does)."""
+    try:
+        import OpenEXR
+    except ImportError as exc:
+        raise RmbvideoError(f"{path}: OpenEXR is not installed (pip install OpenEXR): {exc}") from None
+    return OpenEXR
+
+
 def _open_exr(path: Path) -> Any:
     """Open an EXR file for reading, turning failures into ``InputError``."""
-    import OpenEXR
+    openexr = _openexr(path)
 
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     try:
-        return OpenEXR.File(str(path), separate_channels=True)
+        return openexr.File(str(path), separate_channels=True)
     except RuntimeError as exc:
         raise InputError(f"{path}: not a readable OpenEXR file ({exc})") from exc
 
