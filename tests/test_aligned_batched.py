@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from rmbvideo.recon.aligned_batched import BatchedAlignedWorker, _reflect_101, warp
-from rmbvideo.recon.aligned_box import STATISTICS, AlignedBox, AlignedBoxConfig, aligned_window
+from rmbvideo.recon.aligned_batched import BatchedAlignedWorker, _reflect_101, network_input_on_device, warp
+from rmbvideo.recon.aligned_box import STATISTICS, AlignedBox, AlignedBoxConfig, aligned_window, network_input
 from tests.test_aligned_box import noisy, texture
 
 
@@ -27,13 +27,22 @@ def test_warp_is_bilinear_sampling_with_the_border_replicated():
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 
 
+def host(value):
+    """A result kept on the device (``on_device``) as numpy, checking it is a tensor there."""
+    if isinstance(value, tuple):
+        return tuple(host(v) for v in value)
+    assert isinstance(value, torch.Tensor)
+    return value.cpu().numpy()
+
+
 @pytest.mark.parametrize("device", DEVICES)
-@pytest.mark.parametrize("sharp, statistics", [(False, False), (True, False), (True, True)])
-def test_batched_means_are_the_opencv_means_streamed_with_evictions(sharp, statistics, device):
+@pytest.mark.parametrize("sharp, statistics, on_device", [(False, False, False), (True, False, False),
+                                                          (True, True, False), (True, True, True)])
+def test_batched_means_are_the_opencv_means_streamed_with_evictions(sharp, statistics, on_device, device):
     """A texture panned 2 px a frame (and a still stretch), its frames added one at a time and its means asked for in
     runs as the engine does, windows slid inwards at both ends; old frames evicted after each run. With
     ``statistics`` also each mean's ``STATISTICS``: the flow's to float (the same DIS flows), the merge's support and
-    spread to the means' precision."""
+    spread to the means' precision. ``on_device``: the same, kept as tensors on the device."""
     rng = np.random.default_rng(3)
     scene = texture(4, (48, 64 + 40))
     count, radius = 17, 3
@@ -46,14 +55,14 @@ def test_batched_means_are_the_opencv_means_streamed_with_evictions(sharp, stati
         box.add(k, frames[k], sharps[k])
     expected = [box.mean(i, aligned_window(i, radius, count, shift=True), statistics) for i in range(count)]
 
-    worker = BatchedAlignedWorker(config, device, workers=2)
+    worker = BatchedAlignedWorker(config, device, workers=2, on_device=on_device)
     got, added = {}, 0
     for run in ([0, 1, 2, 3], [4, 5, 6, 7, 8, 9], [10, 11, 12, 13, 14, 15, 16]):
         while added < min(count, run[-1] + 2 * radius + 1):
             worker.add(added, frames[added], sharps[added])
             added += 1
         handles = {i: worker.mean(i, aligned_window(i, radius, count, shift=True), statistics) for i in run}
-        got.update({i: h.result() for i, h in handles.items()})
+        got.update({i: host(h.result()) if on_device else h.result() for i, h in handles.items()})
         worker.evict(run[-1] + 1 - 2 * radius)
     worker.close()
     assert sorted(got) == list(range(count))
@@ -98,19 +107,21 @@ def test_black_and_saturated_frames_stay_finite():
     assert np.array_equal(alone, np.ones((16, 24), np.float32))
 
 
-@pytest.mark.parametrize("evidence", [False, True])
-def test_the_engine_with_batched_means_gives_the_frames_of_the_opencv_means(monkeypatch, evidence):
+@pytest.mark.parametrize("evidence, on_device", [(False, False), (True, False), (True, True)])
+def test_the_engine_with_batched_means_gives_the_frames_of_the_opencv_means(monkeypatch, evidence, on_device):
     """What a GPU runs, forced onto the CPU: batched aligned means (with their statistics for a model that reads
-    them) and batched passes of the network give the frames of the plain run to the means' precision."""
+    them; kept on the device, as a GPU run keeps them, with ``on_device``) and batched passes of the network give
+    the frames of the plain run to the means' precision."""
     import rmbvideo.recon.rmbnet as engine_module
     from tests.test_rmbnet_stream import aligned_model_and_stream, split, stream
 
     model, data = aligned_model_and_stream(8, evidence)
     plain, _ = stream(model, [data], threads=1)
     monkeypatch.setattr(engine_module, "aligned_worker_for",
-                        lambda device, config, workers: BatchedAlignedWorker(config, device, 2))
+                        lambda device, config, workers: BatchedAlignedWorker(config, device, 2, on_device))
     batched, engine = stream(model, split(data, 45), threads=1, frame_batch=8)
     assert isinstance(engine._aligned_box, BatchedAlignedWorker) and engine.stage_seconds["aligned mean"] > 0
+    assert engine._aligned_box.on_device == on_device
     assert [f.index for f in batched] == [f.index for f in plain]
     images, reference = np.stack([f.image for f in batched]), np.stack([f.image for f in plain])
     assert np.isfinite(images).all()
@@ -121,8 +132,20 @@ def test_the_engine_with_batched_means_gives_the_frames_of_the_opencv_means(monk
     monkeypatch.undo()
     two, _ = stream(model, [short], threads=1)  # a clip of two frames, shorter than any window
     monkeypatch.setattr(engine_module, "aligned_worker_for",
-                        lambda device, config, workers: BatchedAlignedWorker(config, device, 2))
+                        lambda device, config, workers: BatchedAlignedWorker(config, device, 2, on_device))
     batched_two, _ = stream(model, [short], threads=1, frame_batch=8)
     assert [f.index for f in batched_two] == [f.index for f in two] == [0, 1]
     np.testing.assert_allclose(np.stack([f.image for f in batched_two]), np.stack([f.image for f in two]),
                                rtol=5e-3, atol=1e-4)
+
+
+def test_means_kept_on_the_device_are_read_as_the_host_means_are():
+    """``network_input_on_device`` is ``network_input`` on tensors, bit for bit: one mean or two, statistics or none."""
+    rng = np.random.default_rng(5)
+    statistics = rng.random((len(STATISTICS), 6, 7), dtype=np.float32)
+    for mean in (rng.random((6, 7), dtype=np.float32), rng.random((2, 6, 7), dtype=np.float32)):
+        for stats in (None, statistics):
+            expected = network_input(mean, stats, 160.0)
+            got = network_input_on_device(torch.from_numpy(mean), None if stats is None else torch.from_numpy(stats),
+                                          160.0)
+            assert got.dtype == torch.float32 and np.array_equal(got.numpy(), expected)

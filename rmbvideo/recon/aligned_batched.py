@@ -26,6 +26,16 @@ from rmbvideo.recon.aligned_box import INVERSION_ITERATIONS, STATISTICS_SIGMA, A
 from rmbvideo.recon.aligned_worker import BusyClock
 
 Request = tuple[int, tuple[int, ...], bool]  # frame, its window, whether its statistics are wanted
+# a mean (H,W) or means (A,H,W), with their statistics (4,H,W) where wanted: numpy, or tensors with ``on_device``
+Means = np.ndarray | tuple[np.ndarray, np.ndarray] | torch.Tensor | tuple[torch.Tensor, torch.Tensor]
+
+
+def network_input_on_device(mean: torch.Tensor, statistics: torch.Tensor | None, scale: float) -> torch.Tensor:
+    """``aligned_box.network_input`` for means kept on the device (``on_device``): the sums, then the statistics."""
+    sums = mean.float() * scale
+    if statistics is None:
+        return sums
+    return torch.cat([sums.reshape(-1, *sums.shape[-2:]), statistics.float()])
 
 
 def warp(image: torch.Tensor, flow: torch.Tensor) -> torch.Tensor:
@@ -137,21 +147,25 @@ class BatchedAlignedMean:
     def __init__(self, worker: "BatchedAlignedWorker", request: Request) -> None:
         self._worker, self._request = worker, request
 
-    def result(self) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+    def result(self) -> Means:
         return self._worker._result(self._request)
 
 
 class BatchedAlignedWorker:
     """``AlignedWorker``'s interface (``add``, ``mean``, ``evict``, ``close``, ``busy_seconds``, ``waited_seconds``)
     with the means computed in batches on ``device``: each queued mean is made, with every other queued one,
-    when the first of them is asked for. ``workers``: CPU threads for the DIS flows (at least 1)."""
+    when the first of them is asked for. ``workers``: CPU threads for the DIS flows (at least 1). ``on_device``: the
+    means and their statistics come as tensors on ``device`` (for the network there, which would otherwise copy
+    them to the host and back), else as numpy arrays like ``AlignedBox``'s."""
 
     pooled = True
     concurrent = True
 
-    def __init__(self, config: AlignedBoxConfig, device: torch.device | str, workers: int) -> None:
+    def __init__(self, config: AlignedBoxConfig, device: torch.device | str, workers: int,
+                 on_device: bool = False) -> None:
         self.config = config
         self.device = torch.device(device)
+        self.on_device = on_device
         self._box = AlignedBox(config)  # the frames' flow images and the DIS flows between neighbours
         self._executor = ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="aligned-flow")
         self._cv_threads = cv2.getNumThreads()
@@ -162,7 +176,7 @@ class BatchedAlignedWorker:
         self._flows: dict[int, Future] = {}  # DIS flow from frame k - 1 to k, by k
         self._steps: dict[tuple[int, int], torch.Tensor] = {}  # one-step flows (2,H,W) on the device
         self._queued: list[Request] = []
-        self._done: dict[Request, np.ndarray | tuple[np.ndarray, np.ndarray]] = {}
+        self._done: dict[Request, Means] = {}
         self.waited_seconds = 0.0
 
     def add(self, index: int, rate: np.ndarray, sharp: np.ndarray | None = None) -> None:
@@ -217,7 +231,7 @@ class BatchedAlignedWorker:
             cv2.setNumThreads(self._cv_threads)
             self._cv_threads = None
 
-    def _result(self, request: Request) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+    def _result(self, request: Request) -> Means:
         if request not in self._done:
             self._compute()
         return self._done.pop(request)
@@ -271,7 +285,7 @@ class BatchedAlignedWorker:
                     images = torch.stack([self._images[requests[rows[k]][0] + d * s] for k in reached])
                     merge.add(torch.tensor([rows[k] for k in reached], device=self.device), warp(images, picked),
                               _inside(picked))
-        means = merge.result().cpu().numpy()
+        means = merge.result() if self.on_device else merge.result().cpu().numpy()
         statistics = dict(zip(wanted, self._statistics([requests[r] for r in wanted], merge, wanted)))
         for r, (request, mean) in enumerate(zip(requests, means)):
             mean = mean[0] if mean.shape[0] == 1 else mean
@@ -280,7 +294,8 @@ class BatchedAlignedWorker:
         self._busy.add(ended - began)  # the batch's own time is the stage's work, and the caller's wait like the flows'
         self.waited_seconds += ended - waited
 
-    def _statistics(self, requests: Sequence[Request], merge: _BatchedMerge, rows: Sequence[int]) -> list[np.ndarray]:
+    def _statistics(self, requests: Sequence[Request], merge: _BatchedMerge,
+                    rows: Sequence[int]) -> list[np.ndarray] | list[torch.Tensor]:
         """``STATISTICS`` (4,H,W) of each request's mean (rows ``rows`` of ``merge``), as ``AlignedBox._statistics``:
         the flow gradient (the larger of the DIS flows from frame i to the next and from the previous one to i, where
         the window has those frames), the magnitude of the first of them, the merge's support and spread."""
@@ -300,5 +315,5 @@ class BatchedAlignedWorker:
         for r, ks in enumerate(steps):
             rough = torch.stack([gradient[place[k]] for k in ks]).amax(dim=0) if ks else zero  # type: ignore[index]
             moved = magnitude[place[ks[0]]] if ks else zero  # type: ignore[index]
-            out.append(torch.cat([rough, moved, support[r], spread[r]]).float().cpu().numpy())
-        return out
+            out.append(torch.cat([rough, moved, support[r], spread[r]]).float())
+        return out if self.on_device else [o.cpu().numpy() for o in out]

@@ -46,7 +46,7 @@ from rmbvideo.net.model import (
     window_valid,
 )
 from rmbvideo.recon.aligned_box import AlignedBoxConfig, aligned_window, network_input
-from rmbvideo.recon.aligned_batched import BatchedAlignedMean, BatchedAlignedWorker
+from rmbvideo.recon.aligned_batched import BatchedAlignedMean, BatchedAlignedWorker, Means, network_input_on_device
 from rmbvideo.recon.aligned_worker import AlignedMean, AlignedWorker, Ready
 from rmbvideo.recon.precision import PRECISIONS, uses_bf16
 from rmbvideo.recon.prelim import MultiUpsampler, PreliminaryFrames, select_centre
@@ -147,7 +147,7 @@ def aligned_worker_for(device: torch.device, config: AlignedBoxConfig,
     ``workers`` CPU threads, the warps and merges batched on the GPU, which a pool of CPU threads could not keep up
     with); elsewhere OpenCV's inline or on ``workers`` threads (``AlignedWorker``; bit for bit the same)."""
     if device.type == "cuda":
-        return BatchedAlignedWorker(config, device, workers)
+        return BatchedAlignedWorker(config, device, workers, on_device=True)
     return AlignedWorker(config, workers)
 
 
@@ -458,17 +458,21 @@ class RmbNetReconstructor:
         return self._aligned_box.mean(i, aligned_window(i, config.aligned_half_width, count, config.aligned_shift),
                                       config.aligned_evidence)
 
-    def _aligned_array(self, value: np.ndarray | tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-        """An aligned mean's result ((H,W) or (2,H,W) rates; with their statistics, a pair) as the network reads it
-        (``aligned_box.network_input``: sums, then the statistics)."""
-        mean, statistics = value if isinstance(value, tuple) else (value, None)
-        return network_input(mean, statistics, BIN_TRIALS * self.n)
+    def _aligned_inputs(self, values: list[Means]) -> torch.Tensor:
+        """Aligned means' results ((H,W) or (2,H,W) rates; with their statistics, a pair) as the network reads them
+        (``aligned_box.network_input``: sums, then the statistics), (F,...) on the device; means already there
+        (``BatchedAlignedWorker.on_device``) are stacked there."""
+        scale = BIN_TRIALS * self.n
+        pairs = [value if isinstance(value, tuple) else (value, None) for value in values]
+        if isinstance(pairs[0][0], torch.Tensor):
+            return torch.stack([network_input_on_device(m, s, scale) for m, s in pairs])  # type: ignore[arg-type]
+        return torch.from_numpy(np.stack([network_input(m, s, scale) for m, s in pairs])).to(self.device)
 
     def _aligned_input(self, mean: AlignedMean | Ready | None) -> torch.Tensor | None:
-        """A queued aligned mean as the network's input (``_aligned_array``), (1,...) on the device."""
+        """A queued aligned mean as the network's input (``_aligned_inputs``), (1,...) on the device."""
         if mean is None:
             return None
-        return torch.from_numpy(self._aligned_array(mean.result())).unsqueeze(0).to(self.device)
+        return self._aligned_inputs([mean.result()])
 
     def _emit(self, i: int, count: int | None, mean: AlignedMean | Ready | None) -> Frame:
         """Frame ``i`` from its window and its queued aligned mean (the network's input made by ``_aligned_input``)."""
@@ -489,8 +493,7 @@ class RmbNetReconstructor:
         """Frames ``run`` (consecutive, their windows whole) in one batched pass (``RmbNet.step_run``); a run with
         a NaN/Inf frame is made again frame by frame, so the state is reset right after the bad frame."""
         rates = None if means[0] is None else [m.result() for m in means]  # type: ignore[union-attr]
-        aligned = (None if rates is None
-                   else torch.from_numpy(np.stack([self._aligned_array(r) for r in rates])).to(self.device))
+        aligned = None if rates is None else self._aligned_inputs(rates)
         frames = [self._encoded[j] for j in range(run[0] - self._w, run[-1] + self._w + 1)]
         try:
             t, state = self._net.step_run(frames, self._state, convention=self._convention, aligned=aligned,
