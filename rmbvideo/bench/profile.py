@@ -1,10 +1,14 @@
 """Where an end-to-end RMB-Net run spends its time on one device, by operation: the engine (``run_reconstruction``,
 default options, sink null) on a random capture, once unprofiled for its frames/s and once under ``torch.profiler``
-(every thread; CUDA kernels and copies too on a GPU). On a GPU the host side (kernel launches, copies from pageable
-memory) can set the pace rather than the kernels, which only such a profile shows."""
+(every thread; CUDA kernels and copies too on a GPU), and once under ``cProfile`` (the main thread's Python: numpy
+stacks, casts, copies waited for). On a GPU the host side (kernel launches, copies from pageable memory) can set the
+pace rather than the kernels, which only such a profile shows."""
 
 from __future__ import annotations
 
+import cProfile
+import io
+import pstats
 import tempfile
 import time
 from dataclasses import dataclass
@@ -31,6 +35,7 @@ class EngineProfile:
     device_ms_per_frame: float  # self device time (kernels and copies); 0 on a CPU
     host_calls: dict[str, tuple[int, float]]  # name -> (calls, self CPU ms), CUDA runtime calls only
     tables: dict[str, str]  # sort key -> torch.profiler table
+    python: str  # cProfile of the main thread, by own time
 
     def markdown(self) -> str:
         lines = [f"# Engine profile: {self.device}, {self.raw} raw, {self.precision}, {self.frames} frames", "",
@@ -42,6 +47,7 @@ class EngineProfile:
             lines.append(f"- `{name}`: {calls / self.frames:.1f} calls a frame, {ms / self.frames:.3f} ms a frame")
         for key, table in self.tables.items():
             lines += ["", f"## by {key.replace('_', ' ')}", "", "```", table, "```"]
+        lines += ["", "## the main thread's Python (cProfile), by own time", "", "```", self.python, "```"]
         return "\n".join(lines) + "\n"
 
 
@@ -69,6 +75,10 @@ def profile_engine(device: str = "cpu", width: int = 400, height: int = 250, fra
         activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if device == "cuda" else [])
         with profile(activities=activities) as prof:
             run("profiled")
+        python = cProfile.Profile()
+        python.enable()
+        run("python")
+        python.disable()
     events = prof.key_averages()
     count = max(summary.frames, 1)
     cpu_us = sum(e.self_cpu_time_total for e in events)
@@ -79,4 +89,13 @@ def profile_engine(device: str = "cpu", width: int = 400, height: int = 250, fra
     return EngineProfile(device=torch.cuda.get_device_name(0) if device == "cuda" else "CPU",
                          raw=f"{width}x{height}", precision=precision, frames=summary.frames, fps=fps,
                          cpu_ms_per_frame=cpu_us / 1e3 / count, device_ms_per_frame=device_us / 1e3 / count,
-                         host_calls=host, tables=tables)
+                         host_calls=host, tables=tables, python=_own_time_table(python, rows))
+
+
+def _own_time_table(python: cProfile.Profile, rows: int) -> str:
+    """cProfile's table of the ``rows`` functions with the most own time, from its column header on."""
+    text = io.StringIO()
+    pstats.Stats(python, stream=text).sort_stats("tottime").print_stats(rows)
+    lines = text.getvalue().splitlines()
+    start = next((k for k, line in enumerate(lines) if line.lstrip().startswith("ncalls")), 0)
+    return "\n".join(line.rstrip() for line in lines[start:] if line.strip())

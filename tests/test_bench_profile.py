@@ -1,0 +1,17 @@
+"""``rmbvideo bench profile``: the engine's time by operation (torch.profiler) and the main thread's Python
+(cProfile), on a small random capture on the CPU."""
+
+from __future__ import annotations
+
+from rmbvideo.bench.profile import profile_engine
+
+
+def test_profile_has_frames_per_second_the_torch_tables_and_the_main_threads_python():
+    result = profile_engine("cpu", 64, 48, frames=10, threads=1, rows=8)
+    assert result.frames == 10 and result.fps > 0 and result.cpu_ms_per_frame > 0
+    assert result.device_ms_per_frame == 0 and set(result.tables) == {"self_cpu_time_total"}
+    header, *rows = result.python.splitlines()
+    assert header.split()[:2] == ["ncalls", "tottime"] and 1 <= len(rows) <= 8
+    text = result.markdown()
+    assert "## the main thread's Python (cProfile), by own time" in text and result.python in text
+    assert "aten::" in result.tables["self_cpu_time_total"]
