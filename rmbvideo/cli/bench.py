@@ -230,8 +230,8 @@ def sizes(device: str, sizes: tuple[str, ...], frames: int, frame_batches: tuple
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("profile.md"), show_default=True,
               help="Markdown file for the summary and the tables.")
 def profile(device: str, size: str, frames: int, precision: str, threads: int | None, output: Path) -> None:
-    """Where an end-to-end RMB-Net run's time goes, by operation (torch.profiler; on a GPU kernels and copies too), and the
-    main thread's Python (cProfile)."""
+    """Where an end-to-end RMB-Net run's time goes, by operation (torch.profiler; on a GPU kernels and copies too),
+    and the main thread's Python (cProfile)."""
     import torch
 
     from rmbvideo.bench.profile import profile_engine
