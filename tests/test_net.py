@@ -525,10 +525,12 @@ def test_aligned_evidence_is_head_inputs_only_named_as_the_aligned_box_makes_the
     assert squashed[0, 0, 0, 1] == pytest.approx(0.5) and squashed[0, 2, 0, 2] == 1.0 and squashed[0, 1, 0, 3] == 0
 
 
-@pytest.mark.parametrize("kw", [dict(), dict(readout="pure-m", blend=True, centre_windows=(2, 4), aligned=True)])
+@pytest.mark.parametrize("kw", [dict(), dict(readout="pure-m", blend=True, centre_windows=(2, 4), aligned=True),
+                                dict(readout="pure-m", blend=True, centre_windows=(2, 4), aligned=True, edge_input=True)])
 def test_step_run_is_the_steps_one_by_one(kw):
     """A run of K windows in one batched pass (the ConvLSTMs stepping through it in order) gives what K calls of
-    ``step`` give, from a carried state, to float rounding; a run of one is a step."""
+    ``step`` give, from a carried state, to float rounding; a run of one is a step. With ``edge_input`` (the shipped
+    default's head, whose edge planes a GPU's runs of whole windows must read as zeros) too."""
     from rmbvideo.recon.rmbnet import inference_copy
 
     torch.manual_seed(0)

@@ -231,7 +231,7 @@ def _check_ranges(config: TrainConfig, path: Path) -> None:
         problems.append("data.exposure must be [low, high] with 0 < low <= high")
     if o.aged_passes < 0 or o.prime < 0:
         problems.append("optim.aged_passes and optim.prime must be >= 0")
-    if o.hold_whole_windows and not (config.init and o.edges > 0) or o.hold_whole_windows and o.aged_passes:
+    if o.hold_whole_windows and (not (config.init and o.edges > 0) or o.aged_passes):
         problems.append("optim.hold_whole_windows needs init (the model it holds to) and edges > 0, and no aged_passes "
                         "(the held outputs start from a fresh or primed state)")
     if o.lr <= 0 or o.lr_final <= 0 or o.steps < 1 or o.batch < 1 or o.tbptt < 1:
