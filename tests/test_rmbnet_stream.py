@@ -74,6 +74,34 @@ def test_chunk_size_independent_and_equal_to_forward_sequence(frame_batch):
     assert not np.allclose(results[1][0].image, results[1][4].image)
 
 
+@pytest.mark.parametrize("size", [1, 7, 95])
+def test_preliminary_frames_made_a_chunk_ahead_give_the_same_frames(size):
+    """``preliminary_beside`` (a GPU's default) makes each chunk's preliminary frames in a thread of its own while the
+    network works on the chunk before: the same frames bit for bit, a chunk later, all of them by the flush."""
+    model = tiny()
+    chunks = split(rmb_stream(95), size)
+    inline, _ = stream(model, chunks, preliminary_beside=False)
+    engine = RmbNetReconstructor(model, device="cpu", precision="fp32", preliminary_beside=True)
+    pushed = [engine.push(c) for c in chunks]
+    assert pushed[0] == []  # the first chunk's preliminary frames are still being made
+    ahead = [f for frames in pushed for f in frames] + engine.flush()
+    assert [f.index for f in ahead] == [f.index for f in inline] and len(inline) == 9
+    for a, b in zip(ahead, inline):
+        np.testing.assert_array_equal(a.image, b.image)
+    assert engine.stage_seconds["preliminary frames"] > 0
+
+
+def test_a_bad_chunk_made_ahead_fails_the_next_call():
+    """An error in the thread ahead reaches the caller (at the next push or the flush), as it would inline."""
+    model = tiny()
+    first, second = split(rmb_stream(40), 20)
+    engine = RmbNetReconstructor(model, device="cpu", precision="fp32", preliminary_beside=True)
+    engine.push(first)
+    engine.push(first)  # out of order: the preliminary frames refuse it in the thread ahead
+    with pytest.raises(ValueError, match="readout"):
+        engine.flush()
+
+
 def test_first_frames_start_from_a_state_primed_backwards_over_the_frames_after_them():
     """The default engine primes frame 0's state by running the network backwards over frames w .. 1: that
     changes the first frames and nothing that the state has forgotten; ``prime=0`` is the plain forward pass,

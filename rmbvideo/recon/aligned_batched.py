@@ -172,6 +172,7 @@ class BatchedAlignedWorker:
         cv2.setNumThreads(1)  # the pool's threads are the parallelism (the count is process-wide, until close())
         self._busy = BusyClock()
         self._images: dict[int, torch.Tensor] = {}  # (C,H,W) on the device: rate, then sharp
+        self._arrived: dict[int, np.ndarray] = {}  # the same in host memory, until the next batch copies them over
         self._added: dict[int, Future] = {}  # frames' flow images, made on the pool
         self._flows: dict[int, Future] = {}  # DIS flow from frame k - 1 to k, by k
         self._steps: dict[tuple[int, int], torch.Tensor] = {}  # one-step flows (2,H,W) on the device
@@ -183,8 +184,7 @@ class BatchedAlignedWorker:
         """Keep frame ``index`` (its images on the device, cleaned as ``AlignedBox.add`` cleans them) and queue, on
         the pool, its flow image (``AlignedBox.add``) and the flow from frame ``index - 1`` to it."""
         kinds = [rate] + ([sharp] if sharp is not None else [])
-        images = torch.from_numpy(np.stack([np.asarray(k, np.float32) for k in kinds])).to(self.device)
-        self._images[index] = torch.nan_to_num(images, nan=0.0).clamp_(0.0, 1.0)
+        self._arrived[index] = np.stack([np.asarray(k, np.float32) for k in kinds])
         self._added[index] = self._executor.submit(self._timed, self._box.add, index, rate, sharp)
         if index - 1 in self._added:
             needs = (self._added[index - 1], self._added[index])
@@ -218,8 +218,9 @@ class BatchedAlignedWorker:
             self._flows.pop(key).result()
         for key in [k for k in self._added if k < oldest_needed]:
             self._added.pop(key).result()
-        for key in [k for k in self._images if k < oldest_needed]:
-            del self._images[key]
+        for store in (self._images, self._arrived):
+            for key in [k for k in store if k < oldest_needed]:
+                del store[key]
         for key in [k for k in self._steps if min(k) < oldest_needed]:
             del self._steps[key]
         self._box.evict(oldest_needed)
@@ -236,19 +237,40 @@ class BatchedAlignedWorker:
             self._compute()
         return self._done.pop(request)
 
+    def _copy_arrived(self) -> None:
+        """The frames added since the last batch onto the device, in one copy, cleaned as ``AlignedBox.add`` cleans
+        them (NaN -> 0, clipped to [0, 1])."""
+        if not self._arrived:
+            return
+        indices = sorted(self._arrived)
+        images = torch.from_numpy(np.stack([self._arrived.pop(k) for k in indices])).to(self.device)
+        for index, image in zip(indices, torch.nan_to_num(images, nan=0.0).clamp_(0.0, 1.0)):
+            self._images[index] = image
+
     def _step(self, a: int, b: int) -> torch.Tensor:
-        """The one-step flow from frame ``a`` to ``b = a +- 1`` on the device; backwards the forward flow inverted
-        (B(x) = -F(x + B(x)), as ``AlignedBox``)."""
+        """The one-step flow from frame ``a`` to ``b = a +- 1`` on the device (``_prepare_steps`` made it)."""
         if (a, b) not in self._steps:
-            if b > a:
-                self._steps[(a, b)] = torch.from_numpy(self._flows[b].result()).permute(2, 0, 1).to(self.device)
-            else:
-                forward = self._step(b, a)[None]
-                back = -forward
-                for _ in range(INVERSION_ITERATIONS):
-                    back = -warp(forward, back)
-                self._steps[(a, b)] = back[0]
+            self._prepare_steps([(a, b)])
         return self._steps[(a, b)]
+
+    def _prepare_steps(self, pairs: Sequence[tuple[int, int]]) -> None:
+        """The one-step flows ``pairs`` (a, b = a +- 1) not made yet, all at once: the forward ones copied to the
+        device in one stack, the backward ones the forward flows inverted in one batch (B(x) = -F(x + B(x)), as
+        ``AlignedBox``), where one by one they took a few dozen small launches and a copy each."""
+        missing = sorted({pair for pair in pairs if pair not in self._steps})
+        forward = sorted({(min(p), max(p)) for p in missing} - set(self._steps))
+        if forward:
+            flows = torch.from_numpy(np.stack([self._flows[b].result() for _, b in forward])).to(self.device)
+            for pair, flow in zip(forward, flows.permute(0, 3, 1, 2)):
+                self._steps[pair] = flow
+        backward = [(a, b) for a, b in missing if b < a]
+        if backward:
+            ahead = torch.stack([self._steps[(b, a)] for a, b in backward])
+            back = -ahead
+            for _ in range(INVERSION_ITERATIONS):
+                back = -warp(ahead, back)
+            for pair, flow in zip(backward, back):
+                self._steps[pair] = flow
 
     def _compute(self) -> None:
         """Every queued mean in one batch: per side, each step outwards composes the batch's flows one frame
@@ -261,6 +283,10 @@ class BatchedAlignedWorker:
                     self._flows[k].result()
         began = time.perf_counter()
         cfg = self.config
+        self._copy_arrived()
+        self._prepare_steps([(i + d * (s - 1), i + d * s) for i, n, _ in requests for d in (-1, 1)
+                             for s in range(1, max([(j - i) * d for j in n], default=0) + 1)]
+                            + [(k - 1, k) for i, n, _ in requests for k in (i, i + 1) if {k - 1, k} <= {i, *n}])
         reference = torch.stack([self._images[i] for i, _, _ in requests])
         variance = torch.tensor([2.0 / (t * cfg.patch * cfg.patch) for t in (cfg.trials, cfg.sharp_trials)],
                                 dtype=reference.dtype, device=self.device)[: reference.shape[1]].reshape(1, -1, 1, 1)

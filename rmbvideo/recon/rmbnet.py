@@ -22,7 +22,8 @@ from __future__ import annotations
 import copy
 import logging
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import nullcontext
 from pathlib import Path
 from typing import ClassVar, Protocol
@@ -132,6 +133,12 @@ def default_frame_batch(device: torch.device, size: tuple[int, int] | None = Non
     return max(1, min(GPU_FRAME_BATCH, GPU_BATCH_PIXELS // pixels))
 
 
+def preliminary_beside_by_default(device: torch.device) -> bool:
+    """Whether the preliminary frames are made in a thread of their own, a chunk ahead of the network: on a GPU, where
+    the host's work on one thread is what limits the frame rate (the same frames)."""
+    return device.type == "cuda"
+
+
 def aligned_workers(device: torch.device, threads: int | None) -> int:
     """Threads for the aligned window means: with the network on a GPU, ``threads`` when given, else every core but
     one (the network's feeder), since the network outruns one core's optical flow; on a CPU one beside the network
@@ -169,6 +176,8 @@ class RmbNetReconstructor:
     on ``threads`` CPU threads (default: every core but one; ``aligned_worker_for``).
     ``prime``: frames the first frame's state is primed over, backwards in time (default w; 0: a fresh state).
     ``cuda_graphs``: on a GPU, batched passes replay their ConvLSTM recurrences as CUDA graphs (the same frames).
+    ``preliminary_beside``: the preliminary frames of a pushed chunk are made in a thread of their own while the network
+    works on the chunk before (the same frames, a chunk later); None: on a GPU (``preliminary_beside_by_default``).
     ``response``: how a camera's rates are read back as light (``RESPONSES``; "emission-model" only for streams
     rmbvideo simulated in the physical convention). ``n`` is the readouts per preliminary frame when RmbChunks are pushed (default: the model's N)
     and ``upsampler`` the band upsampler they go through (default: flow-free interpolation; see
@@ -191,6 +200,7 @@ class RmbNetReconstructor:
         prime: int | None = None,
         cuda_graphs: bool = True,
         response: str = "closed-form",
+        preliminary_beside: bool | None = None,
     ) -> None:
         if threads is not None and threads < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
@@ -224,6 +234,10 @@ class RmbNetReconstructor:
         self._primed = False
         self._upsampler = upsampler
         self._prelim: PreliminaryFrames | None = None
+        if preliminary_beside is None:
+            preliminary_beside = preliminary_beside_by_default(self.device)
+        self._ahead = ThreadPoolExecutor(max_workers=1, thread_name_prefix="preliminary") if preliminary_beside else None
+        self._pending: Future | None = None  # the last pushed chunk's preliminary frames, made in ``_ahead``
         self._raw: dict[int, PrelimLike] = {}
         self._encoded: dict[int, EncodedFrame] = {}
         self._pair_cache: PairCache = {}
@@ -254,22 +268,40 @@ class RmbNetReconstructor:
 
     def push(self, item: RmbChunk | PrelimLike | Iterable[PrelimLike]) -> list[Frame]:
         """Consume an RMB chunk or preliminary frames; return the frames that became complete."""
-        began = time.perf_counter()
         if isinstance(item, RmbChunk):
-            frames = self._preliminary().push(item)
-        elif hasattr(item, "i_s"):
-            frames = [item]  # type: ignore[list-item]
+            frames = self._preliminary_frames(lambda prelim: prelim.push(item), final=False)
         else:
-            frames = list(item)  # type: ignore[arg-type]
-        self.stage_seconds["preliminary frames"] += time.perf_counter() - began
+            frames = self._preliminary_frames(None, final=False)
+            frames += [item] if hasattr(item, "i_s") else list(item)  # type: ignore[list-item, arg-type]
         return self._consume(frames, final=False)
 
     def flush(self) -> list[Frame]:
         """End of capture: emit the last w frames (their windows end at the last frame)."""
+        return self._consume(self._preliminary_frames(lambda prelim: prelim.flush(), final=True), final=True)
+
+    def _preliminary_frames(self, task: Callable[[PreliminaryFrames], list[PrelimLike]] | None,
+                            final: bool) -> list[PrelimLike]:
+        """The preliminary frames ready now: with a thread ahead, those of the step queued before, and ``task`` (a step
+        of ``PreliminaryFrames``) queued in its place, made now at ``final``; without one, ``task``'s made now."""
+        done = [] if self._pending is None else self._pending.result()
+        self._pending = None
+        if task is None:
+            return done
+        if final:
+            if self._ahead is not None:
+                self._ahead.shutdown(wait=False)
+            return done + (self._timed_preliminary(task) if self._prelim is not None else [])
+        if self._ahead is None:
+            return done + self._timed_preliminary(task)
+        self._pending = self._ahead.submit(self._timed_preliminary, task)
+        return done
+
+    def _timed_preliminary(self, task: Callable[[PreliminaryFrames], list[PrelimLike]]) -> list[PrelimLike]:
         began = time.perf_counter()
-        frames = self._preliminary().flush() if self._prelim is not None else []
-        self.stage_seconds["preliminary frames"] += time.perf_counter() - began
-        return self._consume(frames, final=True)
+        try:
+            return task(self._preliminary())
+        finally:
+            self.stage_seconds["preliminary frames"] += time.perf_counter() - began
 
     def _preliminary(self) -> PreliminaryFrames:
         if self._prelim is None:
@@ -542,6 +574,7 @@ def make_rmbnet(
     prime: int | None = None,
     cuda_graphs: bool = True,
     response: str = "closed-form",
+    preliminary_beside: bool | None = None,
 ) -> RmbNetReconstructor:
     """Pipeline factory for method "rmbnet": ``model`` is a .safetensors path; ``upsampling`` is
     "interp" (flow-free band interpolation) or a flow method ("dis", "farneback", "tvl1").
@@ -551,7 +584,8 @@ def make_rmbnet(
     camera, "spikezoo" for streams simulated in the rate convention); models without the
     convention input ignore it. ``readout``: without ``model``, the shipped model trained on that
     readout design (the default model's when None). ``frame_batch``: output frames per batched pass, ``prime``
-    the frames the first state is primed over, ``cuda_graphs`` and ``response`` (``RmbNetReconstructor``)."""
+    the frames the first state is primed over, ``cuda_graphs``, ``response`` and ``preliminary_beside``
+    (``RmbNetReconstructor``)."""
     from rmbvideo.errors import ModelError
     from rmbvideo.net.weights import default_model_path, shipped_model_with_window
     from rmbvideo.recon.flow import FlowUpsampler
@@ -563,7 +597,7 @@ def make_rmbnet(
     recon = RmbNetReconstructor.from_file(
         model, device=device, input_mode=input_mode, align=align, precision=precision, upsampler=upsampler,
         threads=threads, convention=convention, frame_batch=frame_batch, prime=prime, cuda_graphs=cuda_graphs,
-        response=response,
+        response=response, preliminary_beside=preliminary_beside,
     )
     if w is not None and recon.network.config.w != w:
         raise ModelError(f"{model}: the model's window half-width is w = {recon.network.config.w}, not {w}")
