@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import errno
+import importlib.abc
 import logging
 import sys
 from pathlib import Path
@@ -172,6 +173,33 @@ def test_exr_without_openexr_installed_is_a_one_line_error_naming_the_file(tmp_p
     assert list(tmp_path.iterdir()) == []
     with pytest.raises(RmbvideoError, match=r"frame\.exr: OpenEXR is not installed"):
         read_exr(out)
+
+
+class _FailingImport(importlib.abc.MetaPathFinder):
+    """A finder whose OpenEXR fails to initialise with ``error`` (as a C extension's init reports an exception)."""
+
+    def __init__(self, error: BaseException) -> None:
+        self.error = error
+
+    def find_spec(self, name, path=None, target=None):
+        if name == "OpenEXR":
+            raise ImportError("initialization failed") from self.error
+        return None
+
+
+@pytest.mark.parametrize("error, expected", [(KeyboardInterrupt(), KeyboardInterrupt),
+                                             (RuntimeError("bad build"), RmbvideoError)])
+def test_a_signal_while_openexr_loads_is_an_interruption_not_a_missing_module(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, error: BaseException, expected: type) -> None:
+    """Ctrl-C during OpenEXR's first import (the fault matrix met it) ends the run as interrupted; a broken build is a
+    one-line error that does not call it uninstalled."""
+    monkeypatch.delitem(sys.modules, "OpenEXR")
+    monkeypatch.setattr(sys, "meta_path", [_FailingImport(error), *sys.meta_path])
+    with pytest.raises(expected) as caught:
+        write_exr(tmp_path / "frame.exr", np.zeros((2, 2), np.float32), time_s=0.0)
+    if expected is RmbvideoError:
+        assert "cannot be loaded" in str(caught.value) and "not installed" not in str(caught.value)
+    assert list(tmp_path.iterdir()) == []
 
 
 # ---- sinks --------------------------------------------------------------------------------------

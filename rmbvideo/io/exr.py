@@ -72,11 +72,17 @@ def write_exr(
 
 def _openexr(path: Path) -> Any:
     """The OpenEXR module, imported when an EXR is first read or written; a one-line error naming ``path`` where the
-    environment lacks it (a dependency, so only a broken or partial install does)."""
+    environment lacks it (a dependency, so only a broken or partial install does). A signal that arrives while the
+    module initialises (Ctrl-C, a termination) fails the import as "initialization failed": it is raised as itself,
+    so the run ends as interrupted, not as a missing module."""
     try:
         import OpenEXR
     except ImportError as exc:
-        raise RmbvideoError(f"{path}: OpenEXR is not installed (pip install OpenEXR): {exc}") from None
+        cause = exc.__cause__ or exc.__context__
+        if cause is not None and not isinstance(cause, Exception):
+            raise cause from None
+        missing = "is not installed (pip install OpenEXR)" if isinstance(exc, ModuleNotFoundError) else "cannot be loaded"
+        raise RmbvideoError(f"{path}: OpenEXR {missing}: {exc}") from None
     return OpenEXR
 
 
