@@ -94,7 +94,7 @@ def test_preliminary_frames_made_a_chunk_ahead_give_the_same_frames(size):
 def test_a_bad_chunk_made_ahead_fails_the_next_call():
     """An error in the thread ahead reaches the caller (at the next push or the flush), as it would inline."""
     model = tiny()
-    first, second = split(rmb_stream(40), 20)
+    first = split(rmb_stream(40), 20)[0]
     engine = RmbNetReconstructor(model, device="cpu", precision="fp32", preliminary_beside=True)
     engine.push(first)
     engine.push(first)  # out of order: the preliminary frames refuse it in the thread ahead

@@ -81,7 +81,8 @@ def _openexr(path: Path) -> Any:
         cause = exc.__cause__ or exc.__context__
         if cause is not None and not isinstance(cause, Exception):
             raise cause from None
-        missing = "is not installed (pip install OpenEXR)" if isinstance(exc, ModuleNotFoundError) else "cannot be loaded"
+        missing = ("is not installed (pip install OpenEXR)" if isinstance(exc, ModuleNotFoundError)
+                   else "cannot be loaded")
         raise RmbvideoError(f"{path}: OpenEXR {missing}: {exc}") from None
     return OpenEXR
 

@@ -284,16 +284,18 @@ class BatchedAlignedWorker:
         began = time.perf_counter()
         cfg = self.config
         self._copy_arrived()
-        self._prepare_steps([(i + d * (s - 1), i + d * s) for i, n, _ in requests for d in (-1, 1)
-                             for s in range(1, max([(j - i) * d for j in n], default=0) + 1)]
-                            + [(k - 1, k) for i, n, _ in requests for k in (i, i + 1) if {k - 1, k} <= {i, *n}])
+        # how many frames each request reaches on each side; every one-step flow that takes made at once (the
+        # statistics' flows from i - 1 to i and from i to i + 1 among them)
+        reach = {d: [max([(j - i) * d for j in n if (j - i) * d > 0], default=0) for i, n, _ in requests]
+                 for d in (-1, 1)}
+        self._prepare_steps([(i + d * (s - 1), i + d * s) for d, far in reach.items()
+                             for (i, _, _), f in zip(requests, far) for s in range(1, f + 1)])
         reference = torch.stack([self._images[i] for i, _, _ in requests])
         variance = torch.tensor([2.0 / (t * cfg.patch * cfg.patch) for t in (cfg.trials, cfg.sharp_trials)],
                                 dtype=reference.dtype, device=self.device)[: reference.shape[1]].reshape(1, -1, 1, 1)
         wanted = [r for r, request in enumerate(requests) if request[2]]
         merge = _BatchedMerge(reference, variance, cfg, spread=bool(wanted))
-        for d in (-1, 1):
-            far = [max([(j - i) * d for j in set(n) - {i} if (j - i) * d > 0], default=0) for i, n, _ in requests]
+        for d, far in reach.items():
             flow: torch.Tensor | None = None
             for s in range(1, max(far, default=0) + 1):
                 rows = [r for r, f in enumerate(far) if f >= s]

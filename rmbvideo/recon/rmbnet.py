@@ -236,7 +236,8 @@ class RmbNetReconstructor:
         self._prelim: PreliminaryFrames | None = None
         if preliminary_beside is None:
             preliminary_beside = preliminary_beside_by_default(self.device)
-        self._ahead = ThreadPoolExecutor(max_workers=1, thread_name_prefix="preliminary") if preliminary_beside else None
+        self._ahead = (ThreadPoolExecutor(max_workers=1, thread_name_prefix="preliminary") if preliminary_beside
+                       else None)
         self._pending: Future | None = None  # the last pushed chunk's preliminary frames, made in ``_ahead``
         self._raw: dict[int, PrelimLike] = {}
         self._encoded: dict[int, EncodedFrame] = {}

@@ -4,8 +4,8 @@ from the repository root (a few minutes on one core each):
 
     python models/experiments/ablation-seeds/score_pair.py models/ablations/cpu-3022-seed2 [more folders]
 
-Prints each folder's rows (a folder may hold one of the two) (mean mu-law PSNR and per sequence) and their difference; with several folders, the
-mean difference and its standard error.
+Prints each folder's rows (mean mu-law PSNR and per sequence; a folder may hold one of the two) and, with both, their
+difference; with several pairs, the mean difference and its standard error.
 """
 
 import math
@@ -40,7 +40,8 @@ def main(folders: list[str]) -> None:
     if len(differences) > 1:
         mean = sum(differences) / len(differences)
         sd = math.sqrt(sum((d - mean) ** 2 for d in differences) / (len(differences) - 1))
-        print(f"{len(differences)} pairs: mean {mean:+.2f} dB, sd {sd:.2f}, standard error {sd / math.sqrt(len(differences)):.2f}")
+        error = sd / math.sqrt(len(differences))
+        print(f"{len(differences)} pairs: mean {mean:+.2f} dB, sd {sd:.2f}, standard error {error:.2f}")
 
 
 if __name__ == "__main__":
