@@ -1,5 +1,5 @@
 """Frame images reused only once released: a held image or a view of it is never handed out again, a released one
-is, and TFP frames a caller keeps stay as they were while later frames reuse the released ones."""
+is, and TFP frames and binned chunks a caller keeps stay as they were while later ones reuse the released memory."""
 
 from __future__ import annotations
 
@@ -8,7 +8,8 @@ import numpy as np
 from rmbvideo.bench.memory import write_random_capture
 from rmbvideo.io.dat import DatGeometry, DatReader
 from rmbvideo.recon.classical import Tfp
-from rmbvideo.recon.image_pool import ImagePool
+from rmbvideo.sensor.binning import StreamBinner, bin_2x2x2
+from rmbvideo.image_pool import ImagePool
 
 
 def test_held_images_are_not_reused_and_released_ones_are():
@@ -48,3 +49,29 @@ def test_tfp_frames_kept_by_the_caller_stay_as_they_were(tmp_path):
     for index, image in kept.items():
         assert np.array_equal(image, reference[index]), index
     assert len(tfp._images._images) < seen  # the released images were reused
+
+
+def test_pooled_arrays_keep_their_type_and_a_new_type_starts_afresh():
+    pool = ImagePool()
+    first = pool.take((2, 3), np.uint8)
+    assert first.dtype == np.uint8
+    del first
+    assert pool.take((2, 3), np.uint8).dtype == np.uint8 and pool.take((2, 3)).dtype == np.float32
+    assert len(pool._images) == 1
+
+
+def test_binned_chunks_kept_by_the_caller_stay_as_they_were(tmp_path):
+    path = write_random_capture(tmp_path / "c.dat", 300, 64, 16, seed=4)
+    reader = DatReader(path, DatGeometry(64, 16))
+    reference = bin_2x2x2(reader.read(0, 300))
+    kept, binner = [], StreamBinner()
+    for k, (chunk, packed) in enumerate(zip(reader.binned_chunks(20), reader.packed_chunks(20))):
+        stored = binner.push_stored(packed.data, packed.start, packed.rate_hz, 16, 64, True)
+        for binned in (chunk, stored):
+            s = slice(binned.start, binned.start + len(binned.single))
+            assert np.array_equal(binned.single, reference[0][s]) and np.array_equal(binned.multi, reference[1][s])
+            if k % 4 == 0:
+                kept.append((binned.single[1:3], binned.multi, s))  # a view keeps its chunk's memory too
+    for single, multi, s in kept:
+        assert np.array_equal(single, reference[0][s][1:3]) and np.array_equal(multi, reference[1][s])
+    assert len(reader._binned._images) < 15 and len(binner._outputs._images) < 15  # released chunks were reused

@@ -22,6 +22,7 @@ import numpy as np
 
 from rmbvideo.chunks import RmbChunk, SpikeChunk
 from rmbvideo.errors import InputError, OutputError
+from rmbvideo.image_pool import ImagePool
 from rmbvideo.io.records import RecordFile, regular_file_size
 from rmbvideo.sensor.binning import bin_2x2x2, bin_packed, binned_rmb_chunk
 
@@ -147,6 +148,7 @@ class DatReader:
                 _geometry_hint(size),
             )
         self._file = RecordFile(self.path, plane_bytes, self._n_planes)
+        self._binned = ImagePool()  # binned chunks' arrays, reused once released (no page faults per chunk)
 
     def close(self) -> None:
         """Close the file (reading after this is an error)."""
@@ -229,7 +231,8 @@ class DatReader:
         g = self.geometry
         if g.byte_aligned:
             packed = self._file.read(start, stop, scratch=True).reshape(stop - start, g.height, g.width // 8)
-            single, multi = bin_packed(packed, g.image_width, g.flip)
+            out = self._binned.take((2, (stop - start) // 2, g.height // 2, g.image_width // 2), np.uint8)
+            single, multi = bin_packed(packed, g.image_width, g.flip, out=out)
         else:
             single, multi = bin_2x2x2(self.read(start, stop))
         return binned_rmb_chunk(single, multi, start, self.rate_hz)

@@ -24,7 +24,7 @@ import numpy as np
 
 from rmbvideo.chunks import DenseChunk, Frame, RmbChunk, SpikeChunk
 from rmbvideo.io.dat import DatGeometry, PackedChunk
-from rmbvideo.recon.image_pool import ImagePool
+from rmbvideo.image_pool import ImagePool
 from rmbvideo.recon.prelim import MultiUpsampler, TemporalInterpolation
 
 InputKind = Literal["spikes", "rmb"]

@@ -17,9 +17,11 @@ at an even raw plane.
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from rmbvideo.chunks import RmbChunk, SpikeChunk
+from rmbvideo.image_pool import ImagePool
 
 MULTI_LEVEL = 7
 #: raw pixel-planes behind one binned count (2 x 2 pixels x 2 planes): its Bernoulli trials
@@ -27,10 +29,10 @@ BIN_TRIALS = 8
 # Planes decoded per block by the fused path: keeps the intermediates in cache and memory bounded.
 _FUSED_BLOCK_PLANES = 64
 
-_PAIR_BITS = np.uint8(0x55)  # bit 0 of each 2-bit field
-_NIBBLE_FIELDS = np.uint8(0x33)  # low 2 bits of each 4-bit field
-_NIBBLE_BIT0 = np.uint8(0x11)
-_TIMES_256 = np.uint16(1 << 8)
+_PAIR_BITS = 0x55  # bit 0 of each 2-bit field
+_NIBBLE_FIELDS = 0x33  # low 2 bits of each 4-bit field
+_NIBBLE_BIT0 = 0x11
+_BYTES_PER_WORD = 8
 _SPREAD_NIBBLES = np.uint32(1 + (1 << 12))
 _SPREAD_EVEN_BITS = np.uint32(1 + (1 << 6) + (1 << 12) + (1 << 18))
 _MULTI_BITS = np.uint32(0x07070707)
@@ -55,13 +57,16 @@ def bin_2x2x2(planes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return single, multi
 
 
-def bin_packed(packed: np.ndarray, image_width: int, flip: bool) -> tuple[np.ndarray, np.ndarray]:
+def bin_packed(packed: np.ndarray, image_width: int, flip: bool,
+               out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Decode and bin packed ``.dat`` planes in one pass, without unpacking them to bits.
 
     ``packed`` is (T, H, row_bytes) uint8 as stored (LSB-first bits, rows upside down when
     ``flip``); the first ``image_width`` columns of each row are the image, the rest a header.
     Needs ``image_width % 8 == 0`` (byte-aligned rows). Bit-exact with ``bin_2x2x2`` of the
     decoded planes; the speed comes from SWAR arithmetic on whole bytes (4 bins per byte).
+    ``out``, when given, is a (2, T//2, H//2, image_width//2) uint8 array
+    that receives ``single`` and ``multi`` (the returned views of it), e.g. a reused one.
     """
     if packed.ndim != 3:
         raise ValueError(f"packed must be (T, H, row_bytes), got shape {packed.shape}")
@@ -73,9 +78,14 @@ def bin_packed(packed: np.ndarray, image_width: int, flip: bool) -> tuple[np.nda
     # Stored rows used: image rows 0..2*h2-1. With a flip and odd H the dropped bottom image row
     # is stored row 0.
     first_row = 1 if (flip and height % 2) else 0
-    single = np.empty((t2, h2, image_width // 2), np.uint8)
-    multi = np.empty((t2, h2, image_width // 2), np.uint8)
+    if out is None:
+        out = np.empty((2, t2, h2, image_width // 2), np.uint8)
+    elif out.shape != (2, t2, h2, image_width // 2) or out.dtype != np.uint8 or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a contiguous (2, {t2}, {h2}, {image_width // 2}) uint8 array")
+    single, multi = out
     # Each image byte becomes 4 output bytes: written through uint32 views.
+    if single.size == 0:
+        return single, multi
     single32 = single.view(np.uint32)
     multi32 = multi.view(np.uint32)
     # Within each stored row pair, the image's top row is the stored second row when flipped.
@@ -88,6 +98,22 @@ def bin_packed(packed: np.ndarray, image_width: int, flip: bool) -> tuple[np.nda
         x = x.reshape(p1 - p0, 2, h2, 2, image_bytes)
         work.bin(x, keep_row, flip, multi_out=multi32[p0:p1], single_out=single32[p0:p1])
     return single, multi
+
+
+def _words(*arrays: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The byte arrays as flat uint64 words when all are contiguous whole words, else as they are.
+
+    numpy's uint8 shifts are not vectorised; a word's shift moves bits across its bytes, which every
+    caller masks off, and its adds and subtracts never carry across bytes here (no field overflows).
+    """
+    if all(a.flags.c_contiguous and a.nbytes % _BYTES_PER_WORD == 0 for a in arrays):
+        return tuple(a.reshape(-1).view(np.uint64) for a in arrays)
+    return arrays
+
+
+def _repeat_byte(byte: int, like: np.ndarray) -> np.unsignedinteger:
+    """``byte`` in every byte of ``like``'s element type."""
+    return like.dtype.type(byte * (0x0101010101010101 & ((1 << (8 * like.itemsize)) - 1)))
 
 
 class _FusedWorkspace:
@@ -106,7 +132,6 @@ class _FusedWorkspace:
         self.carry = np.empty((2, pairs, h2, n_bytes), np.uint8)
         self.kept = np.empty((pairs, h2, n_bytes), np.uint8)
         self.packed16 = np.empty((pairs, h2, n_bytes), np.uint16)
-        self.odd16 = np.empty((pairs, h2, n_bytes), np.uint16)
         self.wide = np.empty((pairs, h2, n_bytes), np.uint32)
 
     def bin(self, x: np.ndarray, keep_row: int, flip: bool, multi_out: np.ndarray, single_out: np.ndarray) -> None:
@@ -117,28 +142,34 @@ class _FusedWorkspace:
         p = len(x)
         counts2, shifted = self.pair_counts[:p], self.shifted[:p]
         # 2-bit fields: spikes in each column pair (0..2), as x - ((x >> 1) & 0b01010101).
-        np.right_shift(x, 1, out=shifted)
-        np.bitwise_and(shifted, _PAIR_BITS, out=shifted)
-        np.subtract(x, shifted, out=counts2)
+        xw, shifted_w, counts2_w = _words(x, shifted, counts2)
+        np.right_shift(xw, 1, out=shifted_w)
+        np.bitwise_and(shifted_w, _repeat_byte(_PAIR_BITS, xw), out=shifted_w)
+        np.subtract(xw, shifted_w, out=counts2_w)
         # 4-bit fields: column pairs 0 and 2 of each byte in ``even``, pairs 1 and 3 in ``odd``.
         fields = self.fields[:, :p]
-        np.right_shift(counts2, 2, out=fields[1])
-        np.bitwise_and(fields[1], _NIBBLE_FIELDS, out=fields[1])
-        np.bitwise_and(counts2, _NIBBLE_FIELDS, out=fields[0])
+        counts2_w, odd_w, even_w = _words(counts2, fields[1], fields[0])
+        nibble_fields = _repeat_byte(_NIBBLE_FIELDS, counts2_w)
+        np.right_shift(counts2_w, 2, out=odd_w)
+        np.bitwise_and(odd_w, nibble_fields, out=odd_w)
+        np.bitwise_and(counts2_w, nibble_fields, out=even_w)
         plane_sum, counts, carry = self.plane_sum[:, :p], self.counts[:, :p], self.carry[:, :p]
         np.add(fields[:, :, 0], fields[:, :, 1], out=plane_sum)  # the two planes
-        np.add(plane_sum[:, :, :, 0], plane_sum[:, :, :, 1], out=counts)  # the two rows: 0..8
-        np.right_shift(counts, 3, out=carry)
-        np.bitwise_and(carry, _NIBBLE_BIT0, out=carry)
-        np.subtract(counts, carry, out=counts)  # clamp 8 -> 7
-        # Nibbles even-lo, even-hi, odd-lo, odd-hi (bins 0, 2, 1, 3) of a uint16 -> bytes 0..3 of a
-        # uint32: w + (w << 12) moves the odd nibbles two bytes up (no carries: nibbles are <= 7).
-        # Shifts left are multiplies: numpy's uint8 left shift is not vectorised.
-        packed16, odd16 = self.packed16[:p], self.odd16[:p]
-        np.copyto(odd16, counts[1])
-        np.multiply(odd16, _TIMES_256, out=odd16)
-        np.copyto(packed16, counts[0])
-        np.bitwise_or(packed16, odd16, out=packed16)
+        # The two rows (0..8), as one OpenCV add of 2-D views: numpy's loop over 50-byte rows is 4x slower.
+        width = plane_sum.shape[-1]
+        for e in range(2):  # each a contiguous prefix of the workspace, so the reshapes are views
+            rows = plane_sum[e].reshape(-1, 2, width)
+            cv2.add(rows[:, 0], rows[:, 1], dst=counts[e].reshape(-1, width))
+        counts_w, carry_w = _words(counts, carry)
+        np.right_shift(counts_w, 3, out=carry_w)
+        np.bitwise_and(carry_w, _repeat_byte(_NIBBLE_BIT0, counts_w), out=carry_w)
+        np.subtract(counts_w, carry_w, out=counts_w)  # clamp 8 -> 7
+        # Nibbles even-lo, even-hi, odd-lo, odd-hi (bins 0, 2, 1, 3) of a uint16 (even and odd bytes
+        # interleaved by one OpenCV merge) -> bytes 0..3 of a uint32: w + (w << 12) moves the odd
+        # nibbles two bytes up (no carries: nibbles are <= 7).
+        packed16 = self.packed16[:p]
+        cv2.merge([counts[0].reshape(-1, width), counts[1].reshape(-1, width)],
+                  dst=packed16.view(np.uint8).reshape(-1, width, 2))
         wide = self.wide[:p]
         np.copyto(wide, packed16[:, ::-1] if flip else packed16)
         np.multiply(wide, _SPREAD_NIBBLES, out=wide)
@@ -146,7 +177,7 @@ class _FusedWorkspace:
         # The kept pixels (bits 0, 2, 4, 6) -> bytes 0..3: shifts by 0, 6, 12 and 18 in one multiply
         # (the only carry, bits 6 + 6, lands in bit 7, which is masked off).
         kept = self.kept[:p]
-        np.bitwise_and(x[:, 0, :, keep_row], _PAIR_BITS, out=kept)
+        np.bitwise_and(x[:, 0, :, keep_row], np.uint8(_PAIR_BITS), out=kept)
         np.copyto(wide, kept[:, ::-1] if flip else kept)
         np.multiply(wide, _SPREAD_EVEN_BITS, out=wide)
         np.bitwise_and(wide, _SINGLE_BITS, out=single_out)
@@ -174,10 +205,11 @@ class StreamBinner:
     chunk must start at an even raw plane, and chunks must follow each other without gaps.
     ``push_stored`` takes planes as a ``.dat`` stores them (byte-aligned rows) and bins them from the
     stored bytes (``bin_packed``: bit for bit the same, several times faster than decoding, then
-    binning). One stream is one kind of chunk.
+    binning), into arrays reused once the chunks made of them are released. One stream is one kind of chunk.
     """
 
     def __init__(self) -> None:
+        self._outputs = ImagePool()
         self._carry: np.ndarray | None = None  # (1, ...) plane waiting for its pair, as its chunk held it
         self._next_start: int | None = None
         self._stored: bool | None = None  # whether the stream comes as stored bytes
@@ -200,7 +232,8 @@ class StreamBinner:
         if paired is None:
             return None
         planes, raw_start = paired
-        single, multi = bin_packed(planes.reshape(len(planes), height, -1), image_width, flip)
+        out = self._outputs.take((2, len(planes) // 2, height // 2, image_width // 2), np.uint8)
+        single, multi = bin_packed(planes.reshape(len(planes), height, -1), image_width, flip, out=out)
         return binned_rmb_chunk(single, multi, raw_start, rate_hz)
 
     def _pair(self, planes: np.ndarray, start: int, stored: bool) -> tuple[np.ndarray, int] | None:
