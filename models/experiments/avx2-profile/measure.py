@@ -6,8 +6,11 @@ root (each well under a minute):
     python models/experiments/avx2-profile/measure.py tfp     # TFP on a random 1 s 400x250 capture, in this process
     python models/experiments/avx2-profile/measure.py tfp-against REV [ROUNDS]   # `tfp` of the code at git REV and of
                                                               # this checkout, alternated in fresh processes; medians
+    python models/experiments/avx2-profile/measure.py decode-against REV [ROUNDS]  # `bench decode --planes 40000`
+                                                              # of both, alternated the same way; medians and ratios
 """
 
+import json
 import os
 import re
 import statistics
@@ -75,27 +78,45 @@ def tfp() -> None:
             print(f"{name}: {ms / 1e3:.2f} s for 1 s of capture ({1e3 / ms:.2f}x real time)")
 
 
-def tfp_against(rev: str, rounds: str = "5") -> None:
-    """``tfp`` of the code at ``rev`` (a temporary git worktree) and of this checkout, in alternated fresh processes, so
-    both meet the same drift of a shared host; prints each round and the medians of the real-time factors."""
+def _alternated(rev: str, rounds: int, command: list[str]) -> dict[str, list[str]]:
+    """``command``'s output from the code at ``rev`` (a temporary git worktree) and from this checkout, in alternated
+    fresh processes, so both meet the same drift of a shared host: ``rounds`` outputs of each."""
     root = Path(__file__).resolve().parents[3]
-    factors: dict[str, list[list[float]]] = {rev: [], "this checkout": []}
+    outputs: dict[str, list[str]] = {rev: [], "this checkout": []}
     with tempfile.TemporaryDirectory() as folder:
         old = Path(folder) / "old"
         subprocess.run(["git", "-C", str(root), "worktree", "add", "--detach", "-q", str(old), rev], check=True)
         try:
-            for r in range(int(rounds)):
+            for r in range(rounds):
                 for name, tree in ((rev, old), ("this checkout", root)):
-                    run = subprocess.run([sys.executable, __file__, "tfp"], env={**os.environ, "PYTHONPATH": str(tree)},
-                                         capture_output=True, text=True, check=True)
-                    factors[name].append([float(x) for x in re.findall(r"\(([0-9.]+)x real time\)", run.stdout)])
-                    print(f"round {r + 1}, {name}: {run.stdout.strip()}")
+                    run = subprocess.run([sys.executable, *command], env={**os.environ, "PYTHONPATH": str(tree)},
+                                         capture_output=True, text=True, check=True, cwd=tree)
+                    outputs[name].append(run.stdout)
+                    print(f"round {r + 1}, {name}: {run.stdout.strip()[:200]}", flush=True)
         finally:
             subprocess.run(["git", "-C", str(root), "worktree", "remove", "--force", str(old)], check=True)
-    for name, rows in factors.items():
+    return outputs
+
+
+def tfp_against(rev: str, rounds: str = "5") -> None:
+    """``tfp`` of the code at ``rev`` and of this checkout, alternated; prints each round and the medians of the
+    real-time factors."""
+    for name, runs in _alternated(rev, int(rounds), [__file__, "tfp"]).items():
+        rows = [[float(x) for x in re.findall(r"\(([0-9.]+)x real time\)", out)] for out in runs]
         alone, end_to_end = (statistics.median(column) for column in zip(*rows))
         print(f"{name}: medians TFP alone {alone:.2f}x, reconstruct --format null {end_to_end:.2f}x real time")
 
 
+def decode_against(rev: str, rounds: str = "7") -> None:
+    """``rmbvideo bench decode --planes 40000`` of the code at ``rev`` and of this checkout, alternated; prints the
+    medians of the fused path's planes/s and of the rounds' ratios (this checkout over ``rev``)."""
+    runs = _alternated(rev, int(rounds), ["-m", "rmbvideo.bench.decode", "--planes", "40000", "--json"])
+    rates = {name: [json.loads(out)["fused"]["planes_per_s"] for out in outs] for name, outs in runs.items()}
+    for name, values in rates.items():
+        print(f"{name}: median {statistics.median(values):,.0f} planes/s ({', '.join(f'{v:,.0f}' for v in values)})")
+    ratios = [new / old for old, new in zip(*rates.values())]
+    print(f"ratio this checkout / {rev}: median {statistics.median(ratios):.2f} (range {min(ratios):.2f}-{max(ratios):.2f})")
+
+
 if __name__ == "__main__":
-    {"convs": convs, "tfp": tfp, "tfp-against": tfp_against}[sys.argv[1]](*sys.argv[2:])
+    {"convs": convs, "tfp": tfp, "tfp-against": tfp_against, "decode-against": decode_against}[sys.argv[1]](*sys.argv[2:])
