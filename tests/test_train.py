@@ -574,3 +574,13 @@ def test_held_whole_windows_train_against_the_init_model_also_after_resume(tmp_p
         recipe.write_text(bad.replace("threads = 1", "threads = 1\nhold_whole_windows = true"))
         with pytest.raises(InputError, match="hold_whole_windows"):
             load_recipe(recipe)
+
+
+def test_train_lists_every_bundled_recipe_with_what_it_is_for():
+    listed = CliRunner().invoke(main, ["train", "--list"], catch_exceptions=False)
+    assert listed.exit_code == 0
+    lines = {line.split()[0]: line for line in listed.output.splitlines()}
+    assert set(lines) == {p.stem for p in RECIPES_DIR.glob("*.toml")}
+    assert "the head told where a clip's edges cut the window" in lines["video-edge-input-head-cpu"]
+    missing = CliRunner().invoke(main, ["train"])
+    assert missing.exit_code == 2 and "--list" in missing.output

@@ -17,7 +17,8 @@ from rmbvideo.cli.options import DEVICE_CHOICE, AliasOption
 
 
 @click.command()
-@click.argument("recipe", metavar="RECIPE")
+@click.argument("recipe", metavar="RECIPE", required=False)
+@click.option("--list", "list_recipes", is_flag=True, help="List the bundled recipes, each with what it is for, and exit.")
 @click.option("-o", "--output", "--out", "out_dir", cls=AliasOption, aliases=("--out",),
               type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output folder (default: train-<recipe name> in the current folder).")
@@ -37,13 +38,20 @@ from rmbvideo.cli.options import DEVICE_CHOICE, AliasOption
               help="Where to train (auto: CUDA when available, else CPU).")
 @quiet_option
 @verbose_option
-def train(recipe: str, out_dir: Path | None, cache_dir: Path | None, resume: bool, minutes: float | None,
-          steps: int | None, seed: int | None, workers: int | None, device: str, quiet: bool) -> None:
-    """Train RMB-Net from RECIPE (a .toml file or a bundled recipe name)."""
+def train(recipe: str | None, list_recipes: bool, out_dir: Path | None, cache_dir: Path | None, resume: bool,
+          minutes: float | None, steps: int | None, seed: int | None, workers: int | None, device: str,
+          quiet: bool) -> None:
+    """Train RMB-Net from RECIPE (a .toml file or a bundled recipe name; --list shows the bundled ones)."""
     from rmbvideo.errors import InputError
-    from rmbvideo.train.config import bundled_recipe, load_recipe
+    from rmbvideo.train.config import bundled_recipe, bundled_recipes, load_recipe
     from rmbvideo.train.loop import Trainer
 
+    if list_recipes:
+        for name, summary in bundled_recipes().items():
+            click.echo(f"{name:40s} {summary}")
+        return
+    if recipe is None:
+        raise click.UsageError("Missing argument 'RECIPE' (or --list for the bundled recipes).")
     path = Path(recipe)
     if not path.exists() and bundled_recipe(recipe).is_file():
         path = bundled_recipe(recipe)

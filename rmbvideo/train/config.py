@@ -256,3 +256,12 @@ def recipe_source(path: Path) -> str:
 def bundled_recipe(name: str) -> Path:
     """Path of a bundled recipe (``rmbvideo/train/recipes/NAME.toml``)."""
     return RECIPES_DIR / f"{name}.toml"
+
+
+def bundled_recipes() -> dict[str, str]:
+    """Every bundled recipe's name and the first line of the comment it opens with (what it is for)."""
+    summaries = {}
+    for path in sorted(RECIPES_DIR.glob("*.toml")):
+        first = path.read_text(encoding="utf-8").lstrip().splitlines()[:1]
+        summaries[path.stem] = first[0].lstrip("#").strip() if first and first[0].startswith("#") else ""
+    return summaries
