@@ -77,6 +77,8 @@ def test_kept_pixel_is_top_left_of_first_plane() -> None:
         ((4, 5, 8), 16, True),  # header columns after the image
         ((2, 1, 8), 0, True),  # a single row: no bins
         ((1, 4, 8), 0, True),  # a single plane: no readouts
+        ((130, 6, 40), 0, True),  # two whole 64-plane blocks (uint64 words) and a last pair of 60 bytes (uint8)
+        ((131, 7, 40), 8, False),
     ],
 )
 @pytest.mark.parametrize("rate", [0.05, 0.5, 0.97])
