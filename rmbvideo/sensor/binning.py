@@ -17,7 +17,6 @@ at an even raw plane.
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 from rmbvideo.chunks import RmbChunk, SpikeChunk
@@ -139,6 +138,8 @@ class _FusedWorkspace:
 
         ``flip`` reverses the row order, once per output, when spreading to bytes.
         """
+        import cv2  # here, not at the top: `rmbvideo info` reads captures without paying for OpenCV
+
         p = len(x)
         counts2, shifted = self.pair_counts[:p], self.shifted[:p]
         # 2-bit fields: spikes in each column pair (0..2), as x - ((x >> 1) & 0b01010101).
