@@ -286,6 +286,9 @@ def test_rate_methods_are_scored_as_light_on_a_camera_stream_only():
     np.testing.assert_allclose(light, reset_to_zero_intensity(torch.from_numpy(rate)).numpy())
     assert light[0, 0] == 0 and 0.1 < light[0, 1] < 0.11 and 0.6 < light[1, 0] < 0.8 and light[1, 1] > 1.0
     assert rate_as_light("tfi", rate, "spikezoo") is rate and rate_as_light("mg20", rate, "physical") is rate
+    binned = rate_as_light("tfw", rate, "spikezoo", binned=True)  # the clamp's ceiling of 7/8 read as 1
+    np.testing.assert_array_equal(binned[0], rate[0])
+    assert binned[1, 0] == 0.5 and binned[1, 1] > 0.92
 
 
 def test_moving_region_is_where_the_frames_differ():

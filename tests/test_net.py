@@ -348,10 +348,11 @@ def test_blend_config_needs_every_bin_count_and_round_trips():
 
 def test_blend_starts_near_the_own_estimate_and_can_pass_a_box_filter_through_exactly():
     """A new blend head weighs its own estimate ~0.98; with the logits forced to one box candidate the
-    output is that box filter's intensity: the mean rate itself under the rate convention, and
+    output is that box filter's intensity: the mean rate read through the clamp's inverse under the rate convention
+    (the rate itself up to a half), and
     r / (1 - r/2) for a camera's reset-to-zero pixel (the inverse of the emission model's tabulated response
     when the network is told the stream is that model's)."""
-    from rmbvideo.net.blend import BIN_TRIALS, OWN_LOGIT_INIT, reset_to_zero_intensity
+    from rmbvideo.net.blend import BIN_TRIALS, OWN_LOGIT_INIT, rate_convention_intensity, reset_to_zero_intensity
 
     model = blend_model()
     plain = small(w=3, pooled_windows=(3, 7), convention_input=True, readout="pure-m")
@@ -370,14 +371,15 @@ def test_blend_starts_near_the_own_estimate_and_can_pass_a_box_filter_through_ex
     boxes = (i_m / (7 * 10)).clamp(0, 1) * (7 / BIN_TRIALS)  # reference-frame box rate, per frame
     others = 1 - math.exp(OWN_LOGIT_INIT) / (math.exp(OWN_LOGIT_INIT) + 3)  # weight of the 3 box candidates
     assert others < 0.02
-    bound = others * torch.maximum(own, torch.tensor(7 / BIN_TRIALS))  # box intensities are <= 7/8 here
+    bound = others * torch.maximum(own, torch.tensor(1.0))  # box intensities are <= 1 here
     assert ((mixed - own).abs() <= bound + 1e-6).all()
     with torch.no_grad():
         head.bias[1:] = torch.tensor([-50.0, 50.0, -50.0, -50.0])  # all weight on the reference frame's box
     with torch.inference_mode():
         spikezoo = model.forward_sequence(i_s, i_m, convention=1.0)[0]
         camera = model.forward_sequence(i_s, i_m, convention=0.0)[0]
-    torch.testing.assert_close(spikezoo, boxes, rtol=2e-5, atol=1e-6)
+    torch.testing.assert_close(spikezoo, rate_convention_intensity(boxes), rtol=2e-5, atol=1e-6)
+    assert (boxes > 0.6).any()  # where the clamp's inverse differs from the rate
     torch.testing.assert_close(camera, boxes / (1 - boxes / 2), rtol=2e-5, atol=1e-6)
     model.tabulated_response = True
     with torch.inference_mode():
@@ -416,7 +418,7 @@ def test_centre_windows_config_is_checked_and_round_trips():
 def test_centre_candidate_passes_the_frame_centre_through_exactly():
     """With the logits forced onto the central-4 candidate, the output is the box intensity of the
     reference frame's central 4 readouts, not of its 10; without the central sums the model refuses."""
-    from rmbvideo.net.blend import BIN_TRIALS
+    from rmbvideo.net.blend import BIN_TRIALS, rate_convention_intensity
 
     model = blend_model(centre_windows=(2, 4))
     head = model.decoder.head[-1]
@@ -434,7 +436,7 @@ def test_centre_candidate_passes_the_frame_centre_through_exactly():
         with pytest.raises(ValueError, match="central sums over \\[2, 4\\]"):
             model.forward_sequence(i_s, i_m, convention=1.0)
     rate = (i_c[:, :, 1] / (7 * 4)).clamp(0, 1) * (7 / BIN_TRIALS)
-    torch.testing.assert_close(spikezoo, rate, rtol=2e-5, atol=1e-6)
+    torch.testing.assert_close(spikezoo, rate_convention_intensity(rate), rtol=2e-5, atol=1e-6)
     torch.testing.assert_close(camera, rate / (1 - rate / 2), rtol=2e-5, atol=1e-6)
 
 
@@ -466,7 +468,7 @@ def test_pooled_rates_are_the_means_over_the_valid_frames_of_each_window(valid):
 def test_aligned_candidate_is_checked_round_trips_and_passes_through_exactly():
     """``aligned``: one more head input and the last blend candidate; with the logits forced onto it the
     output is the box intensity of the aligned mean the caller gives, not of the frame's own counts."""
-    from rmbvideo.net.blend import BIN_TRIALS
+    from rmbvideo.net.blend import BIN_TRIALS, rate_convention_intensity
 
     assert "aligned" not in blend_model().config.to_dict()
     model = blend_model(aligned=True)
@@ -484,7 +486,8 @@ def test_aligned_candidate_is_checked_round_trips_and_passes_through_exactly():
         out = model.forward_sequence(i_s, i_m, convention=1.0, i_a=i_a)[0]
         with pytest.raises(ValueError, match="aligned window mean"):
             model.forward_sequence(i_s, i_m, convention=1.0)
-    torch.testing.assert_close(out, (i_a / (7 * 10)).clamp(0, 1) * (7 / BIN_TRIALS), rtol=2e-5, atol=1e-6)
+    torch.testing.assert_close(out, rate_convention_intensity((i_a / (7 * 10)).clamp(0, 1) * (7 / BIN_TRIALS)),
+                               rtol=2e-5, atol=1e-6)
 
 
 def test_aligned_evidence_is_head_inputs_only_named_as_the_aligned_box_makes_them():

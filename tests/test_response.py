@@ -86,3 +86,29 @@ def test_the_engine_reads_a_camera_by_the_closed_form_unless_told_the_emission_m
     assert make_rmbnet(threads=1, response="emission-model")._net.tabulated_response
     with pytest.raises(ValueError, match="response"):
         make_rmbnet(threads=1, response="guess")
+
+
+def test_the_rate_conventions_clamped_rate_is_measured_and_inverts():
+    """A pixel that keeps the charge past its threshold (spikezoo's, and a camera's reset by subtraction) has a binned
+    rate below its light where the 3-bit clamp takes a spike off bins of 8: ``rate_convention_rate`` agrees with both
+    measured, and its inverse reads the light back (a pixel firing every plane: 1, not 7/8)."""
+    import numpy as np
+    import torch
+
+    from rmbvideo.net.blend import rate_convention_intensity, rate_convention_rate
+    from rmbvideo.sensor.binning import bin_2x2x2
+    from rmbvideo.sensor.emission import RateIntegrateFire
+    from rmbvideo.sensor.params import SensorParams
+
+    for light in (0.3, 0.7, 0.9, 0.97, 1.0):
+        pixel = RateIntegrateFire((48, 48), seed=5)
+        planes = np.stack([pixel.emit_one(np.full((48, 48), light)) for _ in range(160)])
+        spikezoo = float(bin_2x2x2(planes)[1].mean()) / 8
+        camera = mean_binned_rate(light, size=24, readouts=80, seed=3, params=SensorParams(reset="subtract"))
+        model = float(rate_convention_rate(torch.tensor(light, dtype=torch.float64)))
+        assert spikezoo == pytest.approx(model, abs=3e-3) and camera == pytest.approx(model, abs=4e-3)
+        if light <= 0.9:  # steeper above: the inverse's slope grows without bound towards a pixel firing every plane
+            assert float(rate_convention_intensity(torch.tensor([camera]))) == pytest.approx(light, rel=0.01)
+    assert rate_convention_intensity(torch.tensor([7 / 8, 1.0])).tolist() == [1.0, 1.0]
+    light = torch.linspace(0, 0.99, 500)
+    assert torch.allclose(rate_convention_intensity(rate_convention_rate(light)), light, atol=2e-4)

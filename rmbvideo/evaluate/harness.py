@@ -118,20 +118,24 @@ SIMULATED_RESPONSE = "emission-model"
 
 #: Methods whose frames are spike rates per raw pixel-plane, not light: on a camera's stream (the physical
 #: convention) the evaluation reads them through the same response RMB-Net is given (``rate_as_light``), so every
-#: row is scored in the ground truth's units; in spikezoo's convention a rate is the light itself.
+#: row is scored in the ground truth's units; in spikezoo's convention a rate is the light itself, except that on the
+#: binned stream the 3-bit clamp holds the rates of bright pixels below it, which RMB-Net's reading undoes too.
 RATE_METHODS = ("tfp", "tfi", "tfw")
 
 
-def rate_as_light(method: str, image: np.ndarray, convention: str) -> np.ndarray:
+def rate_as_light(method: str, image: np.ndarray, convention: str, binned: bool = False) -> np.ndarray:
     """``image`` of ``method`` in the ground truth's units: a rate method's frame of a camera's stream read through
-    the emission model's response (``SIMULATED_RESPONSE``; per pixel, before any 2x2 average), else as it is."""
-    if method not in RATE_METHODS or convention != "physical":
+    the emission model's response (``SIMULATED_RESPONSE``; per pixel, before any 2x2 average); in spikezoo's
+    convention, on the ``binned`` stream, through the inverse of the clamp (``rate_convention_intensity``); else as
+    it is."""
+    if method not in RATE_METHODS or (convention != "physical" and not binned):
         return image
     import torch
 
-    from rmbvideo.net.blend import reset_to_zero_intensity
+    from rmbvideo.net.blend import rate_convention_intensity, reset_to_zero_intensity
 
-    return reset_to_zero_intensity(torch.from_numpy(np.ascontiguousarray(image, np.float32))).numpy()
+    read = reset_to_zero_intensity if convention == "physical" else rate_convention_intensity
+    return read(torch.from_numpy(np.ascontiguousarray(image, np.float32))).numpy()
 
 
 def sequence_convention(seq: Sequence) -> str:
@@ -160,7 +164,8 @@ def run_frames(spec: MethodSpec, seq: Sequence) -> tuple[list[Frame], float, flo
     else:
         summary = reconstruct_stream(SinglePlaneSource(seq, readout), recon, sink, chunk_planes=CHUNK_READOUTS)
     convention = sequence_convention(seq)
-    frames = [Frame(f.index, f.time_s, rate_as_light(spec.method, f.image, convention)) for f in sink.frames.values()]
+    frames = [Frame(f.index, f.time_s, rate_as_light(spec.method, f.image, convention, binned=not spec.raw))
+              for f in sink.frames.values()]
     if spec.raw:
         frames = [Frame(f.index, f.time_s, downsample_2x(f.image, seq.shape)) for f in frames]
     seconds = summary.seconds - summary.stages["read"]

@@ -10,7 +10,9 @@ output is their weighted sum in linear units. It can pass an exact classical est
 right (bright, or fast motion: the reference alone) and use its own where the counts are noisy.
 
 Box-filter intensity from the mean multi-bit rate r per raw pixel-plane (bin count over its 8 trials):
-- spikezoo's rate convention (accumulate and subtract): the intensity is r itself;
+- spikezoo's rate convention (accumulate and subtract; real cameras such as car.dat's): the intensity is r itself up
+  to half a spike per plane; above, the inverse of the binned rate ``rate_convention_rate``, which the 3-bit clamp
+  holds below the light (a bin of 8 spikes reads 7: a pixel firing every plane reads 7/8);
 - a camera's reset-to-zero pixel of unknown response: q = r / (1 - r/2), the inverse of r = q / (1 + q/2) (the
   charge wasted at each reset is half a plane's on average), exact to about 1 % below half a threshold per
   plane; above that the response has a plateau and the network's own estimate must do. Smooth, whatever the
@@ -51,6 +53,52 @@ RESET_TO_ZERO_RATES = (
     0.55345, 0.57712, 0.60672, 0.64164, 0.68061, 0.72110, 0.76042, 0.79542, 0.82368, 0.84452, 0.85833, 0.86663,
     0.87115, 0.87336, 0.87435, 0.87476, 0.87492,
 )
+
+
+#: The binned mean rate's ceiling: a bin of 8 spikes is clamped to 7 (``MULTI_LEVEL``), so no rate reads above 7/8.
+CLAMPED_CEILING = 1.0 - 1.0 / BIN_TRIALS
+#: Cells of the rate convention's tabulated inverse, uniform in the binned rate from 0 to ``CLAMPED_CEILING``.
+_RATE_INVERSE_CELLS = 4096
+
+
+def rate_convention_rate(light: torch.Tensor) -> torch.Tensor:
+    """Mean binned rate (clamped count / 8) of a rate-convention pixel of ``light`` spikes per raw plane (<= 1).
+
+    Such a pixel fires at regular intervals, so it fires in both planes of a pair a fraction max(0, 2 light - 1) of
+    the time; with the four pixels of a bin at independent phases all eight fire with probability (2 light - 1)^4,
+    and the clamp takes one spike off each such bin. Exact for spikezoo's pixel and within 0.002 of a noisy camera's
+    pixel reset by subtraction (``tests/test_net.py``)."""
+    light = light.clamp(0.0, 1.0)
+    return light - (2.0 * light - 1.0).clamp(min=0.0) ** 4 / BIN_TRIALS
+
+
+def rate_convention_intensity(rate: torch.Tensor) -> torch.Tensor:
+    """Light (spikes per raw plane) of a rate-convention pixel with mean binned rate ``rate``: the rate itself up to
+    a half, then the inverse of ``rate_convention_rate`` (tabulated, linear between cells), so a pixel that fires
+    every plane (every bin clamped to 7) reads 1, not 7/8. Rates at or above the ceiling read 1."""
+    table = _rate_inverse_table(rate.device)
+    r = rate.float().clamp(0.0, CLAMPED_CEILING)
+    position = (r * (_RATE_INVERSE_CELLS / CLAMPED_CEILING)).reshape(-1)
+    cell = position.long().clamp_(0, _RATE_INVERSE_CELLS - 1)
+    low, high = torch.index_select(table, 0, cell), torch.index_select(table, 0, cell + 1)
+    inverted = (low + (position - cell.float()) * (high - low)).view(r.shape)
+    return torch.where(r > 0.5, inverted, r).to(rate.dtype)
+
+
+def _rate_inverse_table(device: torch.device) -> torch.Tensor:
+    """The light at each cell edge of the binned rates 0 .. ``CLAMPED_CEILING``, by bisection in float64 (made once)."""
+    if device not in _RATE_INVERSES:
+        target = torch.linspace(0.0, CLAMPED_CEILING, _RATE_INVERSE_CELLS + 1, dtype=torch.float64)
+        low, high = torch.zeros_like(target), torch.ones_like(target)
+        for _ in range(60):  # the rate rises monotonically from 0 to the ceiling as the light goes from 0 to 1
+            middle = 0.5 * (low + high)
+            below = rate_convention_rate(middle) < target
+            low, high = torch.where(below, middle, low), torch.where(below, high, middle)
+        _RATE_INVERSES[device] = (0.5 * (low + high)).float().to(device)
+    return _RATE_INVERSES[device]
+
+
+_RATE_INVERSES: dict[torch.device, torch.Tensor] = {}
 
 
 def candidate_count(pooled_windows: Sequence[int], centre_windows: Sequence[int] = (), aligned: int = 0) -> int:
@@ -97,13 +145,13 @@ def box_intensity(rate: torch.Tensor, convention: torch.Tensor | float, tabulate
     (0 = a camera's reset-to-zero pixel, 1 = spikezoo's rate convention; scalar or one per batch item); a camera's
     by the closed form, or by the emission model's tabulated response when ``tabulated``."""
     if isinstance(convention, (int, float)) and convention == 1:
-        return rate
+        return rate_convention_intensity(rate)
     physical = (reset_to_zero_intensity(rate).to(rate.dtype) if tabulated
                 else rate / (1.0 - 0.5 * rate.clamp(max=_MAX_PHYSICAL_RATE)))
     if isinstance(convention, (int, float)) and convention == 0:  # one convention: no per-item mix
         return physical
     code = torch.as_tensor(convention, dtype=rate.dtype, device=rate.device).reshape(-1, 1, 1, 1)
-    return code * rate + (1.0 - code) * physical
+    return code * rate_convention_intensity(rate) + (1.0 - code) * physical
 
 
 def box_candidates(pooled: Sequence[torch.Tensor], level: int, convention: torch.Tensor | float,
