@@ -107,6 +107,21 @@ def test_info_json_and_preview(tmp_path: Path) -> None:
     assert sheet.shape == (2 * 48, 3 * 64)
 
 
+def test_info_counts_the_pixels_that_fire_every_plane(tmp_path: Path) -> None:
+    """A lamp that fires every plane (an eighth of the frame) is reported as saturated; pixels bright enough to fire
+    in 90 % of the planes are not; a capture too short to tell says so."""
+    rng = np.random.default_rng(4)
+    rates = np.full((48, 64), 0.9)
+    rates[:, :8] = 1.0
+    planes = (rng.random((200, 48, 64)) < rates).astype(np.uint8)
+    write_dat(tmp_path / "lamp.dat", planes, DatGeometry(width=64, height=48))
+    record = json.loads(run("info", tmp_path / "lamp.dat", *GEOM, "--json").stdout)
+    assert record["saturated_fraction"] == pytest.approx(1 / 8, abs=0.01)
+    write_dat(tmp_path / "short.dat", planes[:20], DatGeometry(width=64, height=48))
+    result = run("info", tmp_path / "short.dat", *GEOM)
+    assert result.exit_code == 0 and "too few planes" in result.stdout
+
+
 def test_preview_is_exposed_as_the_video_is(tmp_path: Path) -> None:
     """A uniform scene at a middle level previews as a middle grey (reconstruct's exposure), not as white, and a
     scene that brightens tenfold shows it: the tiles share one exposure."""

@@ -29,7 +29,7 @@ PIXEL_WORDS = {
               help="Rank likely plane geometries from the data itself instead (geometry options are ignored).")
 def info(input_path: Path, width, height, flip, header_cols, rate_hz, as_json: bool,
          guess_geometry: bool) -> None:
-    """Planes, duration, geometry, mean firing rate and trailing bytes of a .dat capture."""
+    """Planes, duration, geometry, mean firing rate, saturated pixels and trailing bytes of a .dat capture."""
     if guess_geometry:
         show_geometry_guesses(input_path, as_json)
         return
@@ -46,6 +46,7 @@ def info(input_path: Path, width, height, flip, header_cols, rate_hz, as_json: b
         "header_cols": geometry.header_cols,
         "flip": geometry.flip,
         "mean_firing_rate": reader.mean_firing_rate(),
+        "saturated_fraction": reader.saturated_fraction(),
         "trailing_bytes": reader.trailing_bytes,
         "pixel": capture_convention(reader, input_path),  # what `reconstruct --convention auto` reads it as
     }
@@ -59,6 +60,9 @@ def info(input_path: Path, width, height, flip, header_cols, rate_hz, as_json: b
                f" (stored width {record['stored_width']}, header columns {record['header_cols']},"
                f" {'flipped' if record['flip'] else 'not flipped'})")
     click.echo(f"mean firing     {record['mean_firing_rate']:.4f} spikes/pixel/plane")
+    saturated = record["saturated_fraction"]
+    click.echo("saturated       " + ("n/a (too few planes to tell)" if saturated is None else
+                                     f"{100 * saturated:.1f} % of pixels fire every plane (light there is clipped)"))
     click.echo(f"trailing bytes  {record['trailing_bytes']}")
     click.echo(f"pixel           {PIXEL_WORDS[record['pixel']]}")
 

@@ -207,6 +207,9 @@ class RmbFileReader:
     def mean_firing_rate(self, max_planes: int = 64) -> float:
         return self.dat.mean_firing_rate(max_planes)
 
+    def saturated_fraction(self, max_planes: int = 64) -> float | None:
+        return self.dat.saturated_fraction(max_planes)
+
     def read(self, start: int = 0, stop: int | None = None) -> np.ndarray:
         return self.dat.read(start, stop)
 
