@@ -3,7 +3,10 @@
 clamped (2x2x2 = 8 raw spikes read as ``MULTI_LEVEL`` = 7). Diagnosis only: nothing is chosen on it. Run from the
 repository root (about a minute on one core; the held-out cache is made by ``rmbvideo evaluate --reset subtract``):
 
-    python models/experiments/bright-pan/where_it_loses.py [SEQUENCE] [zero|subtract]
+    python models/experiments/bright-pan/where_it_loses.py [SEQUENCE] [zero|subtract] [PNG]
+
+With PNG, also writes the truth and each method side by side (mu-law, as scored) at the first, middle and last
+scored frames, one row each.
 """
 
 import sys
@@ -21,7 +24,7 @@ from rmbvideo.sensor.binning import MULTI_LEVEL
 BANDS = (0.0, 0.1, 0.5, 0.8, 0.95, 1.0, np.inf)  # ground-truth levels (charge per plane per threshold); the last: 1
 
 
-def main(name: str, reset: str) -> None:
+def main(name: str, reset: str, png: str | None = None) -> None:
     torch.set_num_threads(1)
     seq = next(s for s in load_heldout(False, reset=reset) if s.name == name)
     full_bins = np.mean(seq.multi == MULTI_LEVEL)
@@ -30,24 +33,40 @@ def main(name: str, reset: str) -> None:
     specs = [s for s in table2_specs(Path("models")) + baseline_specs("pure-m") + list(RAW_SPECS) if s.name in wanted]
     specs = list({s.name: s for s in specs}.values())
     header = " | ".join(f"GT {lo:g}-{hi:g}" if hi < np.inf else f"GT {lo:g} (saturated)" for lo, hi in zip(BANDS, BANDS[1:]))
-    print(f"| method | PSNR | share of the squared error by GT level: {header} |")
-    print("|---|---:|" + "---:|" * (len(BANDS) - 1))
+    print(f"| method | PSNR | median output where saturated | share of the squared error by GT level: {header} |")
+    print("|---|---:|---:|" + "---:|" * (len(BANDS) - 1))
+    scored = {}
     for spec in specs:
         result = run_method(spec, seq)
-        errors, levels = [], []
+        scored[spec.name] = result.frames
+        errors, levels, saturated = [], [], []
         for i, image in result.frames.items():
             truth = np.minimum(seq.gt[i], SATURATION)
             a, b = normalise_pair(image, truth, 99.9)
-            errors.append((mu_law(a) - mu_law(b)) ** 2)
-            levels.append(truth)
-        err, lev = np.concatenate([e.ravel() for e in errors]), np.concatenate([v.ravel() for v in levels])
+            errors.append(((mu_law(a) - mu_law(b)) ** 2).ravel())
+            levels.append(truth.ravel())
+            saturated.append(image[truth >= SATURATION])
+        err, lev = np.concatenate(errors), np.concatenate(levels)
         shares = [err[(lev >= lo) & (lev < hi)].sum() / err.sum() for lo, hi in zip(BANDS, BANDS[1:])]
-        print(f"| {spec.name} | {result.psnr:.2f} | " + " | ".join(f"{100 * s:.0f} %" for s in shares) + " |",
-              flush=True)
-    counts = [np.mean((np.minimum(seq.gt[i], SATURATION) >= lo) & (np.minimum(seq.gt[i], SATURATION) < hi))
-              for lo, hi in zip(BANDS, BANDS[1:]) for i in [seq.scored_frames[0]]]
-    print("| pixels in each band | | " + " | ".join(f"{100 * c:.0f} %" for c in counts) + " |")
+        at_ceiling = np.concatenate(saturated)
+        print(f"| {spec.name} | {result.psnr:.2f} | {np.median(at_ceiling) if at_ceiling.size else float('nan'):.3f} | "
+              + " | ".join(f"{100 * s:.0f} %" for s in shares) + " |", flush=True)
+    shares = [np.mean((lev >= lo) & (lev < hi)) for lo, hi in zip(BANDS, BANDS[1:])]
+    print("| pixels in each band | | | " + " | ".join(f"{100 * c:.0f} %" for c in shares) + " |")
+    if png:
+        import cv2
+
+        frames = sorted(next(iter(scored.values())))
+        rows = []
+        for i in (frames[0], frames[len(frames) // 2], frames[-1]):
+            truth = np.minimum(seq.gt[i], SATURATION)
+            tiles = [mu_law(normalise_pair(truth, truth, 99.9)[1])]
+            tiles += [mu_law(normalise_pair(images[i], truth, 99.9)[0]) for images in scored.values()]
+            rows.append(np.concatenate(tiles, axis=1))
+        cv2.imwrite(png, (np.concatenate(rows) * 255).clip(0, 255).astype(np.uint8))
+        print(f"{png}: columns truth, {', '.join(scored)}; rows the first, middle and last scored frames")
 
 
 if __name__ == "__main__":
-    main(sys.argv[1] if len(sys.argv) > 1 else "random-1000002", sys.argv[2] if len(sys.argv) > 2 else "subtract")
+    main(sys.argv[1] if len(sys.argv) > 1 else "random-1000002", sys.argv[2] if len(sys.argv) > 2 else "subtract",
+         sys.argv[3] if len(sys.argv) > 3 else None)
