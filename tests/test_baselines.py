@@ -178,3 +178,14 @@ def test_frame_schedule_matches_tfw_l() -> None:
     ours = run(Gc20Reconstructor(), stream, 57)
     theirs = run(tfw_l(), stream, 57)
     assert [(f.index, f.time_s) for f in ours] == [(f.index, f.time_s) for f in theirs]
+
+
+def test_the_convention_picks_the_response_unless_one_is_given() -> None:
+    from rmbvideo.recon.gc20 import make_gc20
+    from rmbvideo.recon.mg20 import make_mg20
+
+    assert make_gc20().response == "poisson" and make_gc20(convention="spikezoo").response == "rate"
+    assert make_mg20(convention="physical").response == "poisson"
+    assert make_mg20(convention="spikezoo", response="poisson").response == "poisson"  # an explicit response wins
+    with pytest.raises(ValueError, match="convention"):
+        make_gc20(convention="sideways")

@@ -60,6 +60,34 @@ def test_auto_reads_a_capture_in_the_convention_its_spikes_show(tmp_path: Path):
     assert convention(rate) == 0.0
 
 
+@pytest.mark.parametrize("method", ["gc20", "mg20"])
+def test_the_likelihood_baselines_read_a_capture_in_the_convention_its_spikes_show(tmp_path: Path, method: str):
+    """GC20's thresholded-Poisson jots read a rate-convention pixel far too bright (39 % at half a spike per plane):
+    ``--convention auto`` gives GC20 and MG20 the firing rate itself there, the Poisson model on a reset-to-zero camera."""
+    from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
+    from rmbvideo.recon.run import prepare_run
+
+    rate = tmp_path / "rate.dat"
+    write_dat(rate, _rate_convention(), DatGeometry(100, 64))
+    write_dat(tmp_path / "reset.dat", _reset_to_zero(), DatGeometry(100, 64))
+
+    def run(path: Path, **options) -> tuple[str, np.ndarray]:
+        prepared = prepare_run(path, method=method, resolution="binned", extra_options=options,
+                               capture={"width": 100, "height": 64})
+        sink = FrameCollector()
+        reconstruct_stream(prepared.reader, prepared.method, sink, readout=prepared.readout)
+        return prepared.method.response, sink.frames[5].image.mean(axis=0)  # light along the ramp, binned
+
+    assert run(tmp_path / "reset.dat")[0] == "poisson"
+    response, read = run(rate)
+    assert response == "rate"
+    light = RAMP[0].reshape(-1, 2).mean(axis=1)
+    mid = (light > 0.3) & (light < 0.7)
+    np.testing.assert_allclose(read[mid], light[mid], rtol=0.08)
+    poisson_response, poisson = run(rate, convention="physical")  # an explicit choice wins
+    assert poisson_response == "poisson" and np.all(poisson[mid] > 1.12 * light[mid])
+
+
 @pytest.mark.skipif(not (SHARED / "real" / "car.dat").is_file(), reason="../shared/data is not present (development data only)")
 def test_the_real_camera_behind_car_dat_shows_the_rate_convention():
     from rmbvideo.io.capture import open_capture

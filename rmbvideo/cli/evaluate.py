@@ -113,7 +113,10 @@ def _notes(sequences: list, quick: bool, device: str, figure: tuple[str, int], r
         "emission-model`; a real capture is read by the closed form). TFP, TFI and TFW give spike rates, not light: "
         "on those camera streams their frames are read through the same response, per pixel before any 2x2 "
         "average (`harness.rate_as_light`; a reset-to-zero pixel's rate is below its light, 20 % at half a "
-        "threshold per plane); GC20 and MG20 estimate light by their own likelihoods.",
+        "threshold per plane); GC20 and MG20 estimate light by their own likelihoods, told the convention too: the "
+        "thresholded-Poisson jot model on a reset-to-zero camera's streams, the firing rate itself in the rate "
+        "convention (`reconstruct --convention`; until 2026-11-28 always Poisson, 39 % bright at half a spike per "
+        "plane there).",
         "- Metrics: PSNR and SSIM of mu-law tone-mapped frames (mu = 5000) after dividing by the ground truth's "
         "99.9th percentile; PU21 PSNR replaces HDR-VDP-3/HDR-VQM (MATLAB only). Per-sequence means, then the "
         "mean over sequences.",

@@ -46,7 +46,8 @@ def rmbnet_options(func):
                   "when a second core is idle; with the network on a GPU, every core but one for them]. With 2 or "
                   "more, the aligned means take one of them; on a GPU they take them all."),
         _auto_choice("--convention", CONVENTIONS,
-                     "What made the spikes: physical (pixels reset to zero at a spike: rmbvideo's emission model) or "
+                     "What made the spikes (rmbnet, gc20 and mg20 read it): physical (pixels reset to zero at a spike: "
+                     "rmbvideo's emission model) or "
                      "spikezoo (the charge past the threshold kept: spikezoo's REDS streams, and real cameras such as "
                      "car.dat's). auto: for a capture `rmbvideo simulate` made, the pixel its sidecar records; else "
                      "what its first 200 planes show (a pile-up of spike counts at half the planes means reset to "

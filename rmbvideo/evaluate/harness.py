@@ -35,7 +35,7 @@ from rmbvideo.chunks import Frame, SpikeChunk
 from rmbvideo.evaluate.heldout import Sequence
 from rmbvideo.evaluate.metrics import mu_law_psnr, mu_law_ssim, pu21_psnr
 from rmbvideo.net.weights import model_readout
-from rmbvideo.recon.methods import make_reconstructor
+from rmbvideo.recon.methods import get_method, make_reconstructor
 from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
 from rmbvideo.sensor.readout import RmbReadout
 
@@ -152,8 +152,9 @@ def run_frames(spec: MethodSpec, seq: Sequence) -> tuple[list[Frame], float, flo
     One streaming run (``reconstruct_stream``); its time leaves out reading the cached arrays
     (the "read" stage), so rows differ only by what their method does."""
     options = dict(spec.options)
-    if spec.method == "rmbnet":
+    if "convention" in get_method(spec.method).extra_options:  # RMB-Net, GC20 and MG20 are told what made the spikes
         options.setdefault("convention", sequence_convention(seq))
+    if spec.method == "rmbnet":
         options.setdefault("response", SIMULATED_RESPONSE)
     recon = make_reconstructor(spec.method, **options)
     readout = RmbReadout(mode=spec.readout)

@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 
 from rmbvideo.errors import InputError
-from rmbvideo.evaluate.harness import RMB_ROW
+from rmbvideo.evaluate.harness import RMB_ROW, rate_as_light
 from rmbvideo.evaluate.metrics import ssim
 from rmbvideo.io.dat import DatGeometry, DatReader
 from rmbvideo.recon.methods import make_reconstructor
@@ -139,7 +139,8 @@ def reconstruct_frame(stream: RealStream, row: RealRow) -> np.ndarray:
     reconstruct_stream(reader, recon, sink, readout=readout)
     if stream.frame not in sink.frames:
         raise InputError(f"{stream.capture}: {row.name} produced no frame {stream.frame}")
-    image = sink.frames[stream.frame].image  # finite and >= 0: the pipeline cleans every frame
+    # finite and >= 0 (the pipeline cleans every frame); a binned rate read as the harness reads it
+    image = rate_as_light(row.method, sink.frames[stream.frame].image, CONVENTION, binned=not row.raw)
     height, width = stream.geometry.height // 2, stream.geometry.image_width // 2
     if image.shape != (height, width):
         image = cv2.resize(image[: 2 * height, : 2 * width], (width, height), interpolation=cv2.INTER_AREA)
@@ -177,8 +178,8 @@ def real_video_rows(model: Path | None = None, device: str = "cpu", threads: int
     rows = [
         RealRow("TFW-S", "tfw", {"window": 10, "step": 10}, readout=readout),
         RealRow("TFW-L", "tfw", {"window": 70, "step": 10}, readout=readout),
-        RealRow("GC20", "gc20", {}, readout=readout),
-        RealRow("MG20", "mg20", {}, readout=readout),
+        RealRow("GC20", "gc20", {"convention": CONVENTION}, readout=readout),
+        RealRow("MG20", "mg20", {"convention": CONVENTION}, readout=readout),
         RealRow("RMB-Net", "rmbnet", {"model": model, **options}, readout=readout),
     ]
     rmb_model = model.with_name("rmbnet-binned-rmb.safetensors")

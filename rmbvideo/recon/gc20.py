@@ -14,8 +14,12 @@ raw readout interval relative to the threshold):
 ``response`` gives p(theta): ``"poisson"`` (GC20's thresholded-Poisson QIS model, the default):
 p = 1 - exp(-theta); ``"rate"``: p = min(theta, 1), the marginal firing probability of an
 integrate-and-fire pixel, unbiased in the simulator's units below saturation but blind above it.
-Both agree at low exposure. Where a row was read as multi-bit, its 1-bit value is ignored: for binned
-data it is one of the 8 jots already counted.
+Both agree at low exposure. The method's ``convention`` option picks the one that matches what made the spikes
+(``CONVENTION_RESPONSES``): a pixel reset to zero at a spike saturates about as the Poisson model does (its inverse
+reads rmbvideo's camera within 1 % up to 0.4 of a threshold per plane, within 12 % up to 1), while a pixel that keeps
+the charge past its threshold (spikezoo's streams, cameras such as ``car.dat``'s) fires at the rate of its light,
+which the Poisson model reads 39 % too bright at half a spike per plane. Where a row was read as multi-bit, its
+1-bit value is ignored: for binned data it is one of the 8 jots already counted.
 
 The log-likelihood is concave in p (binomial terms are, and a binomial upper tail is a Beta CDF in p,
 hence log-concave), so the MLE is the unique root of the score; it is found by vectorised bisection
@@ -43,6 +47,8 @@ from rmbvideo.chunks import Frame, RmbChunk
 
 Response = Literal["poisson", "rate"]
 RESPONSES: tuple[str, ...] = ("poisson", "rate")
+#: The response that matches each sensor convention (``rmbvideo.sensor.conventions.CONVENTIONS``).
+CONVENTION_RESPONSES: dict[str, Response] = {"physical": "poisson", "spikezoo": "rate"}
 BISECTION_STEPS = 36
 
 
@@ -286,6 +292,16 @@ class Gc20Reconstructor(BlockWindowReconstructor):
         return solve_exposure(total, model)
 
 
-def make_gc20(**options: object) -> Gc20Reconstructor:
-    """Method "gc20": keyword options are ``Gc20Config`` fields."""
-    return Gc20Reconstructor(Gc20Config(**options))  # type: ignore[arg-type]
+def config_options(options: dict[str, object], convention: str | None) -> dict[str, object]:
+    """A GC20/MG20 config's keyword options with the response ``convention`` calls for, unless one is given."""
+    if convention is None or "response" in options:
+        return options
+    if convention not in CONVENTION_RESPONSES:
+        raise ValueError(f"unknown convention {convention!r} (expected one of {', '.join(CONVENTION_RESPONSES)})")
+    return {**options, "response": CONVENTION_RESPONSES[convention]}
+
+
+def make_gc20(convention: str | None = None, **options: object) -> Gc20Reconstructor:
+    """Method "gc20": keyword options are ``Gc20Config`` fields; ``convention`` (what made the spikes) picks the
+    response when none is given."""
+    return Gc20Reconstructor(Gc20Config(**config_options(options, convention)))  # type: ignore[arg-type]

@@ -111,10 +111,10 @@ METHODS: dict[str, Method] = {m.name: m for m in (
            (1, 10000)),
     Method("gc20", "rmbvideo.recon.gc20:make_gc20", "rmb",
            "maximum-likelihood exposure from the readings read out (Gnanasambandam & Chan 2020)", "readouts", 70,
-           (10, 10000)),
+           (10, 10000), extra_options=("convention",)),
     Method("mg20", "rmbvideo.recon.mg20:make_mg20", "rmb",
            "blocks aligned with DIS flow, robust merge, then the GC20 likelihood (Ma et al. 2020)", "readouts", 70,
-           (10, 10000), min_size=12),
+           (10, 10000), extra_options=("convention",), min_size=12),
 )}
 
 

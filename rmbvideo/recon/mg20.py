@@ -24,7 +24,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from rmbvideo.recon.gc20 import BlockWindowReconstructor, JotModel, ReadingStats, Response, solve_exposure
+from rmbvideo.recon.gc20 import (BlockWindowReconstructor, JotModel, ReadingStats, Response, config_options,
+                                 solve_exposure)
 
 
 @dataclass(frozen=True)
@@ -109,6 +110,7 @@ def _arcsine_sqrt(fires: np.ndarray, jots: np.ndarray) -> np.ndarray:
     return 2.0 * np.arcsin(np.sqrt(np.clip(fires / np.maximum(jots, 1.0), 0.0, 1.0)))
 
 
-def make_mg20(**options: object) -> Mg20Reconstructor:
-    """Method "mg20": keyword options are ``Mg20Config`` fields."""
-    return Mg20Reconstructor(Mg20Config(**options))  # type: ignore[arg-type]
+def make_mg20(convention: str | None = None, **options: object) -> Mg20Reconstructor:
+    """Method "mg20": keyword options are ``Mg20Config`` fields; ``convention`` (what made the spikes) picks the
+    response when none is given."""
+    return Mg20Reconstructor(Mg20Config(**config_options(options, convention)))  # type: ignore[arg-type]
