@@ -289,6 +289,7 @@ def test_rate_methods_are_scored_as_light_on_a_camera_stream_only():
     binned = rate_as_light("tfw", rate, "spikezoo", binned=True)  # the clamp's ceiling of 7/8 read as 1
     np.testing.assert_array_equal(binned[0], rate[0])
     assert binned[1, 0] == 0.5 and binned[1, 1] > 0.92
+    assert rate_as_light("tfi", rate, "spikezoo", binned=True) is rate  # the binned stream's 1-bit plane: unclamped
 
 
 def test_moving_region_is_where_the_frames_differ():

@@ -119,16 +119,21 @@ SIMULATED_RESPONSE = "emission-model"
 #: Methods whose frames are spike rates per raw pixel-plane, not light: on a camera's stream (the physical
 #: convention) the evaluation reads them through the same response RMB-Net is given (``rate_as_light``), so every
 #: row is scored in the ground truth's units; in spikezoo's convention a rate is the light itself, except that on the
-#: binned stream the 3-bit clamp holds the rates of bright pixels below it, which RMB-Net's reading undoes too.
+#: binned stream the 3-bit clamp holds the counts of bright pixels below it (``CLAMPED_RATE_METHODS``), which RMB-Net's
+#: reading undoes too.
 RATE_METHODS = ("tfp", "tfi", "tfw")
+#: Rate methods whose frames on the binned stream are means of its clamped counts (TFI there reads the 1-bit plane,
+#: one raw pixel of each bin: nothing clamps it).
+CLAMPED_RATE_METHODS = ("tfw",)
 
 
 def rate_as_light(method: str, image: np.ndarray, convention: str, binned: bool = False) -> np.ndarray:
     """``image`` of ``method`` in the ground truth's units: a rate method's frame of a camera's stream read through
     the emission model's response (``SIMULATED_RESPONSE``; per pixel, before any 2x2 average); in spikezoo's
-    convention, on the ``binned`` stream, through the inverse of the clamp (``rate_convention_intensity``); else as
-    it is."""
-    if method not in RATE_METHODS or (convention != "physical" and not binned):
+    convention, for the mean of the ``binned`` stream's clamped counts, through the inverse of the clamp
+    (``rate_convention_intensity``); else as it is."""
+    clamped = binned and method in CLAMPED_RATE_METHODS
+    if method not in RATE_METHODS or (convention != "physical" and not clamped):
         return image
     import torch
 
