@@ -206,7 +206,7 @@ def test_bench_profile_writes_the_engine_profile_of_a_real_run(tmp_path) -> None
                                        "-o", str(out)])
     assert result.exit_code == 0, result.output
     text = out.read_text()
-    assert text.startswith("# Engine profile: CPU, 32x32 raw, fp32, 10 frames")
+    assert text.startswith("# Engine profile: CPU, 32x32 raw, fp32, full resolution, 10 frames")
     assert "conv" in text and "## by self cpu time total" in text
     per_frame = float(text.split("torch's operations: ")[1].split(" ms")[0])
     total = text.split("Self CPU time total: ")[1].split("\n")[0]

@@ -15,3 +15,9 @@ def test_profile_has_frames_per_second_the_torch_tables_and_the_main_threads_pyt
     text = result.markdown()
     assert "## the main thread's Python (cProfile), by own time" in text and result.python in text
     assert "aten::" in result.tables["self_cpu_time_total"]
+
+
+def test_profile_of_the_binned_network_alone():
+    result = profile_engine("cpu", 64, 48, frames=10, threads=1, rows=8, resolution="binned")
+    assert result.frames == 10 and result.resolution == "binned"
+    assert result.markdown().startswith("# Engine profile: CPU, 64x48 raw, fp32, binned resolution, 10 frames")

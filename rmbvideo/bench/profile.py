@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from rmbvideo.bench.memory import write_random_capture
-from rmbvideo.recon.run import run_reconstruction
+from rmbvideo.recon.run import DEFAULT_RESOLUTION, run_reconstruction
 
 #: host-side CUDA runtime calls counted per frame in the summary
 HOST_CALLS = ("cudaLaunchKernel", "cudaLaunchKernelExC", "cudaMemcpyAsync", "cudaStreamSynchronize",
@@ -29,6 +29,7 @@ class EngineProfile:
     device: str
     raw: str
     precision: str
+    resolution: str
     frames: int
     fps: float
     cpu_ms_per_frame: float  # self CPU time of torch's operations over every thread
@@ -38,7 +39,8 @@ class EngineProfile:
     python: str  # cProfile of the main thread, by own time
 
     def markdown(self) -> str:
-        lines = [f"# Engine profile: {self.device}, {self.raw} raw, {self.precision}, {self.frames} frames", "",
+        lines = [f"# Engine profile: {self.device}, {self.raw} raw, {self.precision}, {self.resolution} resolution, "
+                 f"{self.frames} frames", "",
                  f"- end to end, unprofiled: {self.fps:.1f} frames/s",
                  f"- torch's operations: {self.cpu_ms_per_frame:.2f} ms a frame of CPU time (every thread)"]
         if self.device_ms_per_frame > 0:
@@ -52,9 +54,11 @@ class EngineProfile:
 
 
 def profile_engine(device: str = "cpu", width: int = 400, height: int = 250, frames: int = 240,
-                   precision: str = "fp32", threads: int | None = None, rows: int = 25) -> EngineProfile:
+                   precision: str = "fp32", threads: int | None = None, rows: int = 25,
+                   resolution: str = DEFAULT_RESOLUTION) -> EngineProfile:
     """Profile the default engine on ``device`` over ``frames`` output frames of a random ``width`` x ``height``
-    capture (20 raw planes a frame), after a short warm-up run."""
+    capture (20 raw planes a frame), after a short warm-up run; ``resolution`` as ``reconstruct --resolution``
+    ("binned": the network alone makes the frames, as the speed targets count them)."""
     import torch
     from torch.profiler import ProfilerActivity, profile
 
@@ -66,7 +70,7 @@ def profile_engine(device: str = "cpu", width: int = 400, height: int = 250, fra
 
         def run(name: str, duration_s: float | None = None):
             return run_reconstruction(path, work / name, fmt="null", duration_s=duration_s, capture=capture,
-                                      extra_options=options, overwrite=True)
+                                      extra_options=options, overwrite=True, resolution=resolution)
 
         run("warm", duration_s=0.1)  # as ``bench sizes`` warms up: the model loaded, the kernels chosen
         began = time.perf_counter()
@@ -87,7 +91,8 @@ def profile_engine(device: str = "cpu", width: int = 400, height: int = 250, fra
     keys = ("self_cpu_time_total",) + (("self_device_time_total",) if device == "cuda" else ())
     tables = {key: events.table(sort_by=key, row_limit=rows, max_name_column_width=45) for key in keys}
     return EngineProfile(device=torch.cuda.get_device_name(0) if device == "cuda" else "CPU",
-                         raw=f"{width}x{height}", precision=precision, frames=summary.frames, fps=fps,
+                         raw=f"{width}x{height}", precision=precision, resolution=resolution,
+                         frames=summary.frames, fps=fps,
                          cpu_ms_per_frame=cpu_us / 1e3 / count, device_ms_per_frame=device_us / 1e3 / count,
                          host_calls=host, tables=tables, python=_own_time_table(python, rows))
 

@@ -227,9 +227,13 @@ def sizes(device: str, sizes: tuple[str, ...], frames: int, frame_batches: tuple
               help="Network precision.")
 @click.option("--threads", type=click.IntRange(min=1), default=None,
               help="The engine's threads, as `reconstruct --threads` [default: the thread policy].")
+@click.option("--resolution", type=click.Choice(["full", "binned"]), default="full", show_default=True,
+              help="As `reconstruct --resolution`: binned profiles the network's frames alone (what the speed "
+                   "targets count), full adds the raw stream's detail.")
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("profile.md"), show_default=True,
               help="Markdown file for the summary and the tables.")
-def profile(device: str, size: str, frames: int, precision: str, threads: int | None, output: Path) -> None:
+def profile(device: str, size: str, frames: int, precision: str, threads: int | None, resolution: str,
+            output: Path) -> None:
     """Where an end-to-end RMB-Net run's time goes, by operation (torch.profiler; on a GPU kernels and copies too),
     and the main thread's Python (cProfile)."""
     import torch
@@ -241,7 +245,8 @@ def profile(device: str, size: str, frames: int, precision: str, threads: int | 
     if device == "cuda" and not torch.cuda.is_available():
         raise InputError("--device cuda: no CUDA device is available")
     width, height = _size(size)
-    result = profile_engine(device, width, height, frames=frames, precision=precision, threads=threads)
+    result = profile_engine(device, width, height, frames=frames, precision=precision, threads=threads,
+                            resolution=resolution)
     text = result.markdown()
     atomic_write_text(output, text)
     click.echo(text.split("\n\n## ")[0])
