@@ -177,6 +177,16 @@ def test_geometry_that_cannot_divide_the_file(tmp_path: Path) -> None:
     assert proc.returncode != 0 and str(dat) in proc.stderr and "Traceback" not in proc.stderr
 
 
+def test_options_the_method_does_not_read_are_named(tmp_path: Path) -> None:
+    dat = small_capture(tmp_path / "cap.dat", planes=40)
+    result = run("reconstruct", dat, "-o", tmp_path / "tfp", *GEOM, "--method", "tfp", "--format", "null",
+                 "--prime", "2", "--convention", "spikezoo", "--threads", "1")
+    assert result.exit_code == 0 and "--convention, --prime: not read by --method tfp, ignored" in result.output
+    result = run("reconstruct", dat, "-o", tmp_path / "mg20", *GEOM, "--method", "gc20", "--format", "null",
+                 "--convention", "spikezoo", "--resolution", "binned")
+    assert result.exit_code == 0 and "not read by" not in result.output  # GC20 reads the convention
+
+
 def test_real_capture_end_to_end(tmp_path: Path, shared_data: Path) -> None:
     car = shared_data / "real" / "car.dat"
     out = tmp_path / "car"

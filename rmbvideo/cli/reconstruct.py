@@ -139,6 +139,7 @@ def reconstruct(input_path: Path, outdir: Path, method: str, window, step, fmt: 
     extra = dict(model=model, align=align, device=device, upsampling=upsampling, precision=precision,
                  threads=threads, convention=convention, response=response, frame_batch=frame_batch, prime=prime,
                  cuda_graphs=cuda_graphs)
+    _warn_unread(click.get_current_context(), method, extra)
     summary = run_reconstruction(
         input_path, outdir, method=method, window=window, step=step, fmt=fmt, fps=fps,
         pixel_format=pixel_format, tonemap=tonemap, exr_dtype=exr_dtype, readout=readout, start_s=start_s,
@@ -150,3 +151,16 @@ def reconstruct(input_path: Path, outdir: Path, method: str, window, step, fmt: 
     if not quiet:
         click.echo(f"{summary.frames} frames from {summary.planes} planes in {summary.seconds:.2f} s "
                    f"({summary.frames_per_second:.1f} frames/s) -> {outdir}", err=True)
+
+
+def _warn_unread(ctx: click.Context, method: str, extra: dict) -> None:
+    """Log the method options typed on the command line that ``method`` does not read (``--threads`` is every
+    method's), so a setting with no effect is not taken for one that had it."""
+    spec = METHODS.get(method)
+    if spec is None:  # an unknown method is refused with its own message
+        return
+    unread = [f"--{name.replace('_', '-')}" for name in extra
+              if name != "threads" and name not in spec.extra_options
+              and ctx.get_parameter_source(name) is click.core.ParameterSource.COMMANDLINE]
+    if unread:
+        log.warning("%s: not read by --method %s, ignored", ", ".join(unread), method)
