@@ -18,6 +18,10 @@ def test_profile_has_frames_per_second_the_torch_tables_and_the_main_threads_pyt
 
 
 def test_profile_of_the_binned_network_alone():
-    result = profile_engine("cpu", 64, 48, frames=10, threads=1, rows=8, resolution="binned")
-    assert result.frames == 10 and result.resolution == "binned"
-    assert result.markdown().startswith("# Engine profile: CPU, 64x48 raw, fp32, binned resolution, 10 frames")
+    """The binned run never enters the full-resolution stage; the default (full) run does (every function the main
+    thread ran is in a table of 1,000 rows)."""
+    binned = profile_engine("cpu", 64, 48, frames=10, threads=1, rows=1000, resolution="binned")
+    assert binned.frames == 10 and binned.resolution == "binned"
+    assert binned.markdown().startswith("# Engine profile: CPU, 64x48 raw, fp32, binned resolution, 10 frames")
+    full = profile_engine("cpu", 64, 48, frames=10, threads=1, rows=1000)
+    assert "full_resolution.py" in full.python and "full_resolution.py" not in binned.python

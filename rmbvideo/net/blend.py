@@ -67,7 +67,7 @@ def rate_convention_rate(light: torch.Tensor) -> torch.Tensor:
     Such a pixel fires at regular intervals, so it fires in both planes of a pair a fraction max(0, 2 light - 1) of
     the time; with the four pixels of a bin at independent phases all eight fire with probability (2 light - 1)^4,
     and the clamp takes one spike off each such bin. Exact for spikezoo's pixel and within 0.002 of a noisy camera's
-    pixel reset by subtraction (``tests/test_net.py``)."""
+    pixel reset by subtraction (``tests/test_response.py``)."""
     light = light.clamp(0.0, 1.0)
     return light - (2.0 * light - 1.0).clamp(min=0.0) ** 4 / BIN_TRIALS
 

@@ -16,7 +16,7 @@ p = 1 - exp(-theta); ``"rate"``: p = min(theta, 1), the marginal firing probabil
 integrate-and-fire pixel, unbiased in the simulator's units below saturation but blind above it.
 Both agree at low exposure. The method's ``convention`` option picks the one that matches what made the spikes
 (``CONVENTION_RESPONSES``): a pixel reset to zero at a spike saturates about as the Poisson model does (its inverse
-reads rmbvideo's camera within 1 % up to 0.4 of a threshold per plane, within 12 % up to 1), while a pixel that keeps
+reads rmbvideo's camera within 4 % up to half a threshold per plane, within 14 % up to 1), while a pixel that keeps
 the charge past its threshold (spikezoo's streams, cameras such as ``car.dat``'s) fires at the rate of its light,
 which the Poisson model reads 39 % too bright at half a spike per plane. Where a row was read as multi-bit, its
 1-bit value is ignored: for binned data it is one of the 8 jots already counted.

@@ -8,6 +8,11 @@ root (each well under a minute):
                                                               # this checkout, alternated in fresh processes; medians
     python models/experiments/avx2-profile/measure.py decode-against REV [ROUNDS]  # `bench decode --planes 40000`
                                                               # of both, alternated the same way; medians and ratios
+    python models/experiments/avx2-profile/measure.py ops     # one core: ns a byte of the element-wise ways to bin
+                                                              # (numpy on uint64 words, torch, cv2.LUT gathers) and
+                                                              # the full-resolution path's decode (unpack_planes)
+    python models/experiments/avx2-profile/measure.py slow-convs  # the binned engine's convolutions that fall to
+                                                              # PyTorch's slow path, by input shape (torch.profiler)
 """
 
 import json
@@ -118,5 +123,65 @@ def decode_against(rev: str, rounds: str = "7") -> None:
     print(f"ratio this checkout / {rev}: median {statistics.median(ratios):.2f} (range {min(ratios):.2f}-{max(ratios):.2f})")
 
 
+def ops() -> None:
+    """ns a byte of one pass over a 64-plane block (about 400 kB, in cache), one thread, best of 300; and
+    ``unpack_planes`` (the full-resolution path's decode for TFI) per 400x250 plane."""
+    import cv2
+    import numpy as np
+
+    from rmbvideo.io.dat import unpack_planes
+
+    torch.set_num_threads(1)
+    cv2.setNumThreads(1)
+    x = np.random.default_rng(0).integers(0, 256, 32 * 2 * 62 * 2 * 50, dtype=np.uint8)
+    y = np.empty_like(x)
+    xw, yw = x.view(np.uint64), y.view(np.uint64)
+    tx, ty = torch.from_numpy(x), torch.from_numpy(y)
+    tw, tyw = torch.from_numpy(xw.view(np.int64)), torch.from_numpy(yw.view(np.int64))
+    image = x.reshape(-1, 400)
+    lut = {"uint8": np.arange(256, dtype=np.uint8).reshape(1, 256), "uint16": np.arange(256, dtype=np.uint16),
+           "int32": np.arange(256, dtype=np.int32)}
+    work = {
+        "numpy AND, uint64 words": lambda: np.bitwise_and(xw, np.uint64(0x5555555555555555), out=yw),
+        "numpy right shift, uint64 words": lambda: np.right_shift(xw, 1, out=yw),
+        "numpy add, uint8": lambda: np.add(x, x, out=y),
+        "torch AND, uint8": lambda: torch.bitwise_and(tx, 0x55, out=ty),
+        "torch right shift, uint8": lambda: torch.bitwise_right_shift(tx, 1, out=ty),
+        "torch right shift, int64": lambda: torch.bitwise_right_shift(tw, 1, out=tyw),
+        **{f"cv2.LUT uint8 -> {name}": (lambda table=table: cv2.LUT(image, table)) for name, table in lut.items()},
+    }
+    for name, run in work.items():
+        print(f"{name:34s} {best_ms(run, runs=300) * 1e6 / x.nbytes:.3f} ns a byte")
+    geometry = DatGeometry(400, 250)
+    packed = np.random.default_rng(1).integers(0, 256, (256, geometry.plane_bytes), dtype=np.uint8)
+    print(f"unpack_planes, 256 planes of 400x250: {best_ms(lambda: unpack_planes(packed, geometry)) * 1e3 / 256:.1f} "
+          f"us a plane")
+
+
+def slow_convs(frames: str = "30") -> None:
+    """The binned engine (one thread, fp32) on a random 400x250 capture under torch.profiler: every convolution that
+    ran on PyTorch's slow path (``_slow_conv2d_forward``), by input shape, and their time a frame."""
+    from torch.profiler import ProfilerActivity, profile
+
+    torch.set_num_threads(1)
+    with tempfile.TemporaryDirectory() as folder:
+        path = write_random_capture(Path(folder) / "c.dat", 20 * int(frames), 400, 250)
+
+        def run(name: str):
+            return run_reconstruction(path, Path(folder) / name, fmt="null", extra_options={"threads": 1},
+                                      overwrite=True, resolution="binned")
+
+        run("warm")
+        with profile(activities=[ProfilerActivity.CPU], record_shapes=True) as prof:
+            summary = run("profiled")
+    slow = [e for e in prof.key_averages(group_by_input_shape=True) if e.key == "aten::_slow_conv2d_forward"]
+    total_ms = sum(e.self_cpu_time_total for e in slow) / 1e3
+    for e in sorted(slow, key=lambda e: -e.self_cpu_time_total):
+        print(f"{e.count:4d} calls {e.self_cpu_time_total / 1e3:7.1f} ms  input, weight: {e.input_shapes[:2]}")
+    print(f"{sum(e.count for e in slow) / summary.frames:.1f} slow-path convolutions a frame, "
+          f"{total_ms / summary.frames:.2f} ms a frame (profiled), over {summary.frames} frames")
+
+
 if __name__ == "__main__":
-    {"convs": convs, "tfp": tfp, "tfp-against": tfp_against, "decode-against": decode_against}[sys.argv[1]](*sys.argv[2:])
+    {"convs": convs, "tfp": tfp, "tfp-against": tfp_against, "decode-against": decode_against, "ops": ops,
+     "slow-convs": slow_convs}[sys.argv[1]](*sys.argv[2:])

@@ -7,6 +7,9 @@ root (each a few minutes on one core):
     python models/experiments/baseline-response/measure.py leads     # both pixels: every method on the default's input
                                                                      # (GC20/MG20 told the convention) and the default's
                                                                      # lead over the best of them
+    python models/experiments/baseline-response/measure.py inverse   # instant: GC20's Poisson inverse -ln(1 - r) of the
+                                                                     # binned rate r of rmbvideo's camera (its tabulated
+                                                                     # response) and of the rate convention, over light
 """
 
 import sys
@@ -53,5 +56,18 @@ def leads() -> None:
             print(f"| {reset} | {seq.name} | {cells} | {scores[default.name] - scores[best]:+.2f} ({best}) |", flush=True)
 
 
+def inverse() -> None:
+    """The light the Poisson model reads from each pixel's binned rate, over the true light (1 = exact)."""
+    from rmbvideo.net.blend import RESET_TO_ZERO_RATES, RESET_TO_ZERO_STEP, rate_convention_rate
+
+    print("| light (threshold per plane) | rmbvideo's camera (reset to zero) | rate convention |")
+    print("|---:|---:|---:|")
+    for k in range(2, 45, 2):
+        light = k * RESET_TO_ZERO_STEP
+        rate_convention = float(rate_convention_rate(torch.tensor(min(light, 1.0), dtype=torch.float64)))
+        cells = [-np.log1p(-rate) / light for rate in (RESET_TO_ZERO_RATES[k], rate_convention)]
+        print(f"| {light:.2f} | {cells[0]:.3f} | {cells[1]:.3f} |")
+
+
 if __name__ == "__main__":
-    {"physical": physical, "leads": leads}[sys.argv[1]]()
+    {"physical": physical, "leads": leads, "inverse": inverse}[sys.argv[1]]()
