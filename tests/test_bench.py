@@ -73,18 +73,24 @@ def test_default_configs_cover_the_issue():
         assert [(c.threads, c.w, c.precision, c.name.endswith(f"{other} threads")) for c in own] == [(other, 3, "auto", True)]
 
 
-def test_full_resolution_row_scores_its_2x2_average_which_is_the_binned_output(tmp_path):
-    """The full-resolution row times the default job (binned network + raw detail) and is scored after
-    2x2 averaging, which gives the binned output back: the same accuracy as the binned row."""
+def test_full_resolution_row_scores_its_2x2_average_which_is_the_binned_output(tmp_path, monkeypatch):
+    """The full-resolution row times the default job (binned network, raw-interval gate, raw detail) and is scored
+    after 2x2 averaging: without the gate that gives the binned output back, the same accuracy as the binned row;
+    with it (the default) the gated frame, which scores otherwise."""
+    import rmbvideo.recon.full_resolution as full_module
+
     models = tmp_path / "models"
     (models / "ablations").mkdir(parents=True)
     torch.manual_seed(1)
     save_model(models / "ablations" / "tiny-w1", RmbNet(RmbNetConfig(w=1, width=0.25)), ModelCard(name="tiny"))
     sequences = [tiny_sequence(0)]
-    binned, full = (run_config(rmbnet_config(w=1, width=0.25, resolution=r), sequences, tmp_path, models)
-                    for r in ("binned", "full"))
+    binned, gated = (run_config(rmbnet_config(w=1, width=0.25, resolution=r), sequences, tmp_path, models)
+                     for r in ("binned", "full"))
+    monkeypatch.setattr(full_module, "raw_gate_stage", lambda kind="auto": None)
+    full = run_config(rmbnet_config(w=1, width=0.25, resolution="full"), sequences, tmp_path, models)
     assert full.name.endswith("full res") and full.frames == binned.frames and full.net_fps > 0
     assert full.psnr == pytest.approx(binned.psnr, abs=0.02) and full.ssim == pytest.approx(binned.ssim, abs=1e-3)
+    assert gated.frames == binned.frames and abs(gated.psnr - full.psnr) > 1e-3  # the gate mixed
 
 
 def test_run_config_records_are_complete_and_finite(tmp_path):

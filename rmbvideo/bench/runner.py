@@ -120,11 +120,11 @@ def _make(config: BenchConfig, network, threads: int | None):
                                  precision=config.precision or "auto", threads=threads)
     if config.resolution != "full":
         return engine
-    from rmbvideo.recon.full_resolution import FullResolution, detail_stage
+    from rmbvideo.recon.full_resolution import FullResolution, detail_stage, raw_gate_stage
 
     readout = RmbReadout(mode=ReadoutMode(trained_readout(engine)))
     return FullResolution(engine, readout, detail=detail_stage("auto"), threads=threads,
-                          precision=config.precision or "auto")
+                          precision=config.precision or "auto", raw_gate=raw_gate_stage("auto"))
 
 
 def _sync(device: str) -> None:

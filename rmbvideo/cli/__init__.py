@@ -28,6 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "dynamic-range": ("rmbvideo.cli.dynamic_range:dynamic_range", "Theoretical dynamic range of a readout design."),
     "train": ("rmbvideo.cli.train:train", "Train RMB-Net from a recipe."),
     "train-detail": ("rmbvideo.cli.train:train_detail", "Train the detail stage of --resolution full."),
+    "train-raw-gate": ("rmbvideo.cli.train:train_raw_gate", "Fit the raw-interval gate of 1-bit captures."),
     "evaluate": ("rmbvideo.cli.evaluate:evaluate", "Score every method on held-out and real-video data."),
     "bench": ("rmbvideo.cli.bench:bench", "What accuracy costs in time, for every method."),
     "batch": ("rmbvideo.cli.batch:batch", "Convert many captures, unattended and resumable."),

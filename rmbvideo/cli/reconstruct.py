@@ -11,7 +11,7 @@ from rmbvideo.cli import progress_enabled, quiet_option, verbose_option
 from rmbvideo.cli.options import capture_options
 from rmbvideo.io.sinks import SINK_FORMATS
 from rmbvideo.io.tonemap import TONE_METHODS
-from rmbvideo.recon.full_resolution import DETAIL_KINDS
+from rmbvideo.recon.full_resolution import DETAIL_KINDS, RAW_GATE_KINDS
 from rmbvideo.recon.methods import DEFAULT_METHOD, METHODS
 from rmbvideo.recon.run import DEFAULT_RESOLUTION, RESOLUTIONS, run_reconstruction
 from rmbvideo.sensor.conventions import CONVENTIONS, RESPONSES
@@ -114,6 +114,10 @@ def rmbnet_options(func):
 @click.option("--detail", type=click.Choice(DETAIL_KINDS), default="auto", show_default=True,
               help="With --resolution full: how the detail inside each 2x2 block is found: learned (the shipped "
                    "detail stage), classical (noise-gated TFP ratio); auto: learned when installed.")
+@click.option("--raw-gate", type=click.Choice(RAW_GATE_KINDS), default="auto", show_default=True,
+              help="With --resolution full and RMB-Net: mix each binned frame per pixel with TFI of the raw planes "
+                   "where the shipped raw-interval gate trusts it (dim fine texture of slow scenes); off: RMB-Net's "
+                   "binned frame as it is.")
 @capture_options
 @click.option("--start", "start_s", type=click.FloatRange(min=0), default=0.0, show_default=True,
               help="Start time in seconds from the beginning of the capture.")
@@ -128,7 +132,7 @@ def rmbnet_options(func):
 @verbose_option
 def reconstruct(input_path: Path, outdir: Path, method: str, window, step, fmt: str, fps: float,
                 pixel_format: str, tonemap: str, exr_dtype: str, readout: str, resolution: str, detail: str,
-                width, height, flip,
+                raw_gate: str, width, height, flip,
                 header_cols, rate_hz,
                 start_s: float, duration_s, chunk_planes: int, model, align: str, device: str,
                 upsampling: str, precision: str, threads, convention: str, response: str, frame_batch, prime,
@@ -146,7 +150,7 @@ def reconstruct(input_path: Path, outdir: Path, method: str, window, step, fmt: 
         duration_s=duration_s, chunk_planes=chunk_planes, progress=progress_enabled(quiet),
         capture=dict(width=width, height=height, flip=flip, header_cols=header_cols, rate_hz=rate_hz),
         extra_options=extra, overwrite=overwrite, nits_per_unit=nits_per_unit, resolution=resolution,
-        detail=detail,
+        detail=detail, raw_gate=raw_gate,
     )
     if not quiet:
         click.echo(f"{summary.frames} frames from {summary.planes} planes in {summary.seconds:.2f} s "

@@ -105,3 +105,25 @@ def train_detail(out_dir: Path, minutes: float, resume: bool, channels: int | No
     weights = run(DetailTrainConfig(detail=detail, minutes=minutes), out_dir, resume=resume,
                   progress=progress_enabled(quiet))
     click.echo(f"{weights}: install it as models/detail-binned.safetensors (+ .json) to use it")
+
+
+@click.command("train-raw-gate")
+@click.option("-o", "--output", "out", type=click.Path(dir_okay=False, path_type=Path),
+              default=Path("raw-gate.safetensors"), show_default=True,
+              help="Weights to write (+ .json card beside them).")
+@click.option("--model", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
+              help="The binned RMB-Net the gate is fitted to (default: the shipped one).")
+@click.option("--steps", type=click.IntRange(min=1), default=None, help="Adam steps [default: the recipe's, 2000].")
+@click.option("--seed", type=click.IntRange(min=0), default=None, help="Initial weights and drawn pixels [default 0].")
+@quiet_option
+@verbose_option
+def train_raw_gate(out: Path, model: Path | None, steps: int | None, seed: int | None, quiet: bool) -> None:
+    """Fit the raw-interval gate of 1-bit captures on simulated captures of training seeds (CPU, one thread)."""
+    import torch
+
+    from rmbvideo.train.raw_gate import RawGateRecipe, fit_raw_gate
+
+    torch.set_num_threads(1)
+    recipe = RawGateRecipe(**{k: v for k, v in (("steps", steps), ("seed", seed)) if v is not None})
+    weights = fit_raw_gate(recipe, out, model=model, progress=progress_enabled(quiet))
+    click.echo(f"{weights}: install it as models/raw-gate.safetensors (+ .json) to use it")

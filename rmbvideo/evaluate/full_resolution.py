@@ -36,7 +36,7 @@ from rmbvideo.evaluate.real_video import (
 )
 from rmbvideo.io.dat import DatReader
 from rmbvideo.io.png import write_png
-from rmbvideo.recon.full_resolution import FullResolution, detail_stage, upsample
+from rmbvideo.recon.full_resolution import FullResolution, detail_stage, raw_gate_stage, upsample
 from rmbvideo.recon.methods import make_reconstructor
 from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
 from rmbvideo.recon.run import trained_readout
@@ -46,6 +46,7 @@ log = logging.getLogger(__name__)
 
 FULL = "RMB-Net, full resolution"
 FULL_LEARNED = "RMB-Net, full resolution (learned detail)"
+NO_RAW_GATE = "RMB-Net, full resolution (learned detail, no raw gate)"
 BINNED_UP = "RMB-Net, binned (bilinear 2x)"
 BEST_RAW_FULL = "best classical on the raw capture"
 
@@ -54,20 +55,25 @@ BEST_RAW_FULL = "best classical on the raw capture"
 class FullRow:
     """A row: ``method`` with ``options``; ``kind`` is "full" (binned method + classical raw detail),
     "full-learned" (+ the learned detail stage), "binned-up" (the binned output upsampled bilinearly) or
-    "raw" (a method on the raw capture)."""
+    "raw" (a method on the raw capture); ``raw_gate``: a full row's binned frames mixed with raw TFI by the shipped
+    raw-interval gate (``rmbvideo.net.raw_gate``), as ``reconstruct`` does by default."""
 
     name: str
     method: str
     options: dict[str, Any] = field(default_factory=dict)
     kind: str = "raw"
+    raw_gate: bool = False
 
 
 def full_rows(model: Path | None = None, threads: int | None = 1) -> list[FullRow]:
     """RMB-Net at full and at binned resolution, TFP at every window and TFI on the raw capture."""
-    from rmbvideo.net.weights import default_detail_path
+    from rmbvideo.net.weights import default_detail_path, default_raw_gate_path
 
     rmbnet = {"model": model, "input_mode": "binned", "threads": threads}
-    learned = [FullRow(FULL_LEARNED, "rmbnet", rmbnet, "full-learned")] if default_detail_path().is_file() else []
+    gate = default_raw_gate_path().is_file()
+    learned = ([FullRow(FULL_LEARNED, "rmbnet", rmbnet, "full-learned", raw_gate=gate)]
+               + ([FullRow(NO_RAW_GATE, "rmbnet", rmbnet, "full-learned")] if gate else [])
+               if default_detail_path().is_file() else [])
     return [*learned, FullRow(FULL, "rmbnet", rmbnet, "full"), FullRow(BINNED_UP, "rmbnet", rmbnet, "binned-up"),
             *(FullRow(f"TFP-{w}", "tfp", {"window": w, "step": RAW_STEP}) for w in TFP_WINDOWS),
             FullRow("TFI", "tfi", {"step": RAW_STEP})]
@@ -84,7 +90,8 @@ def run_row(row: FullRow, source: Any, keep: list[int] | None = None,
     readout = RmbReadout(mode=ReadoutMode(trained_readout(recon)))
     if row.kind in ("full", "full-learned"):
         stage = detail_stage("learned" if row.kind == "full-learned" else "classical")
-        recon = FullResolution(recon, readout, step=RAW_STEP, detail=stage, threads=options.get("threads"))
+        recon = FullResolution(recon, readout, step=RAW_STEP, detail=stage, threads=options.get("threads"),
+                               raw_gate=raw_gate_stage("auto" if row.raw_gate else "off"))
         readout = None
     elif row.kind == "raw":
         readout = None

@@ -189,14 +189,25 @@ def _convention(config: HeldoutConfig, convention: str) -> str:
     return "spikezoo" if config.reset == "subtract" else convention
 
 
-def simulate_sequence(seed: int, config: HeldoutConfig) -> Sequence:
-    """Simulate the held-out sequence of ``seed`` (an evaluation seed) at ``config``'s size and length."""
-    from rmbvideo.scenes.random_scenes import is_eval_seed, random_scene
+def _check_seed(seed: int, training: bool) -> None:
+    """Held-out sequences use evaluation seeds only; ``training`` sequences (for a stage fitted on the same kinds,
+    ``rmbvideo.train.raw_gate``) training seeds only."""
+    from rmbvideo.scenes.random_scenes import is_eval_seed
+
+    if is_eval_seed(seed) == training:
+        raise ValueError(f"seed {seed} is {'an evaluation' if training else 'a training'} seed; "
+                         f"{'training' if training else 'held-out'} sequences use "
+                         f"{'training' if training else 'evaluation'} seeds only")
+
+
+def simulate_sequence(seed: int, config: HeldoutConfig, training: bool = False) -> Sequence:
+    """Simulate the held-out sequence of ``seed`` (an evaluation seed; a training seed when ``training``) at
+    ``config``'s size and length."""
+    from rmbvideo.scenes.random_scenes import random_scene
     from rmbvideo.scenes.render import ground_truth
     from rmbvideo.simulate.capture import CaptureSimulator
 
-    if not is_eval_seed(seed):
-        raise ValueError(f"seed {seed} is a training seed; held-out sequences use evaluation seeds only")
+    _check_seed(seed, training)
     raw_planes = 2 * config.readouts
     scene = random_scene(seed, 2 * config.width, 2 * config.height, duration_s=raw_planes / RAW_RATE_HZ,
                          rate_hz=RAW_RATE_HZ)
@@ -252,15 +263,15 @@ VIDEO_KINDS = (
 )
 
 
-def simulate_video_sequence(seed: int, kind: VideoHeldout, config: HeldoutConfig) -> Sequence:
-    """The held-out video sequence of ``seed`` (an evaluation seed) of ``kind`` at ``config``'s size."""
-    from rmbvideo.scenes.random_scenes import is_eval_seed
+def simulate_video_sequence(seed: int, kind: VideoHeldout, config: HeldoutConfig,
+                            training: bool = False) -> Sequence:
+    """The held-out video sequence of ``seed`` (an evaluation seed; a training seed when ``training``) of ``kind``
+    at ``config``'s size."""
     from rmbvideo.scenes.render import bin_image
     from rmbvideo.scenes.video import VideoScene
     from rmbvideo.simulate.capture import capture_planes
 
-    if not is_eval_seed(seed):
-        raise ValueError(f"seed {seed} is a training seed; held-out sequences use evaluation seeds only")
+    _check_seed(seed, training)
     raw_planes = 2 * config.readouts
     scene = VideoScene(seed, 2 * config.width, 2 * config.height, raw_planes, kind.ranges, kind.convention)
     single, multi, packed = [], [], []
@@ -274,7 +285,7 @@ def simulate_video_sequence(seed: int, kind: VideoHeldout, config: HeldoutConfig
     description = json.dumps({"scene": f"{kind.name}-{seed}", "kind": kind.name,
                               "convention": _convention(config, kind.convention), "objects": len(scene.layers) - 1,
                               "reset": config.reset})
-    return Sequence(name=f"{kind.name}-{seed - VIDEO_SEED_START}", seed=seed, rate_hz=RAW_RATE_HZ / 2,
+    return Sequence(name=f"{kind.name}-{seed - (0 if training else VIDEO_SEED_START)}", seed=seed, rate_hz=RAW_RATE_HZ / 2,
                     single=np.concatenate(single), multi=np.concatenate(multi), raw_packed=np.concatenate(packed),
                     gt=gt.astype(np.float32), edge_readouts=config.edge_readouts, description=description)
 

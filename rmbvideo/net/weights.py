@@ -28,16 +28,19 @@ from rmbvideo.io.atomic import atomic_path, atomic_write_text
 from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.detail import DetailConfig, DetailNet
 from rmbvideo.net.model import RmbNet
+from rmbvideo.net.raw_gate import RawGate, RawGateConfig
 
 log = logging.getLogger(__name__)
 
 CARD_FORMAT = "rmbvideo-rmbnet"
 DETAIL_CARD_FORMAT = "rmbvideo-detail"
+RAW_GATE_CARD_FORMAT = "rmbvideo-raw-gate"
 CARD_FORMAT_VERSION = 1
 #: card format -> (what it is, its config class, its network class)
 _KINDS: dict[str, tuple[str, Any, Any]] = {
     CARD_FORMAT: ("an RMB-Net model card", RmbNetConfig, RmbNet),
     DETAIL_CARD_FORMAT: ("a detail-stage model card", DetailConfig, DetailNet),
+    RAW_GATE_CARD_FORMAT: ("a raw-gate model card", RawGateConfig, RawGate),
 }
 MAX_HEADER_BYTES = 100 * 1024 * 1024
 # Shipped weights: ``rmbvideo/models`` links to the repository's top-level ``models/`` folder.
@@ -45,11 +48,18 @@ MODELS_DIR = Path(__file__).resolve().parents[1] / "models"
 DEFAULT_MODELS = {"binned": "rmbnet-binned", "native": "rmbnet-native"}
 #: The shipped detail stage of ``--resolution full`` (``rmbvideo.net.detail``).
 DEFAULT_DETAIL = "detail-binned"
+#: The shipped raw-interval gate of 1-bit captures (``rmbvideo.net.raw_gate``).
+DEFAULT_RAW_GATE = "raw-gate"
 
 
 def default_detail_path() -> Path:
     """Where the shipped detail stage lives (it may be absent: then full resolution is classical)."""
     return MODELS_DIR / f"{DEFAULT_DETAIL}.safetensors"
+
+
+def default_raw_gate_path() -> Path:
+    """Where the shipped raw-interval gate lives (it may be absent: then RMB-Net's binned frame is kept)."""
+    return MODELS_DIR / f"{DEFAULT_RAW_GATE}.safetensors"
 
 
 def default_model_path(input_mode: str = "binned", readout: str | None = None) -> Path:
@@ -118,11 +128,11 @@ def _paths(path: str | os.PathLike[str]) -> tuple[Path, Path]:
     return weights, weights.with_suffix(".json")
 
 
-def save_model(path: str | os.PathLike[str], model: RmbNet | DetailNet, card: ModelCard) -> Path:
+def save_model(path: str | os.PathLike[str], model: RmbNet | DetailNet | RawGate, card: ModelCard) -> Path:
     """Write ``path`` (.safetensors added if missing) and its JSON card; returns the weights path."""
     weights, card_path = _paths(path)
     tensors = {k: v.detach().to("cpu").contiguous() for k, v in model.state_dict().items()}
-    card_format = DETAIL_CARD_FORMAT if isinstance(model, DetailNet) else CARD_FORMAT
+    card_format = next(name for name, (_, _, kind) in _KINDS.items() if isinstance(model, kind))
     document = {
         "format": card_format,
         "format_version": CARD_FORMAT_VERSION,
@@ -162,7 +172,7 @@ def _read_card(card_path: Path, card_format: str = CARD_FORMAT) -> tuple[Any, Mo
     return config, card
 
 
-def _architecture_text(config: RmbNetConfig | DetailConfig) -> str:
+def _architecture_text(config: RmbNetConfig | DetailConfig | RawGateConfig) -> str:
     """The architecture as stored inside the weights, so a card that contradicts them is caught."""
     return json.dumps(config.to_dict(), sort_keys=True)
 
@@ -277,6 +287,11 @@ def load_detail_model(path: str | os.PathLike[str], device: str | torch.device =
     """Load a detail-stage weight file and its card (``rmbvideo.net.detail``), with ``load_model``'s checks."""
     model, card = _load(path, DETAIL_CARD_FORMAT, device)
     return model, card
+
+
+def load_raw_gate(path: str | os.PathLike[str], device: str | torch.device = "cpu") -> tuple[RawGate, ModelCard]:
+    """Load a raw-gate weight file and its card (``rmbvideo.net.raw_gate``), with ``load_model``'s checks."""
+    return _load(path, RAW_GATE_CARD_FORMAT, device)
 
 
 def _load(path: str | os.PathLike[str], card_format: str, device: str | torch.device,

@@ -18,6 +18,11 @@ noise-aware gain.
 With a learned detail stage (``rmbvideo.net.detail.DetailNet``, ``detail=``) the factor is predicted
 instead, from TFP over each of the stage's windows (and TFI when the stage reads it). With the binned method on a
 GPU those rates are made there too, in a thread beside it (``rmbvideo.recon.device_rates``, the same frames).
+
+With RMB-Net as the binned method and a raw-interval gate (``rmbvideo.net.raw_gate``, ``raw_gate=``), each binned
+frame is first mixed per pixel with TFI of the raw planes (read as light and 2x2-averaged) where the gate trusts it:
+single intervals resolve dim fine texture of slow scenes that the binned counts blur. The detail then shapes that
+frame, so the full output still averages back to it over 2x2 blocks.
 """
 
 from __future__ import annotations
@@ -41,6 +46,9 @@ DEFAULT_DETAIL_WINDOW = 20  # raw planes: the frame interval, so moving detail i
 #: How the detail inside each 2x2 block is found: "learned" (the shipped detail stage), "classical"
 #: (the Wiener-gated TFP ratio), "auto" (learned when the detail stage is installed).
 DETAIL_KINDS = ("auto", "learned", "classical")
+#: Whether RMB-Net's binned frames of a 1-bit capture are mixed with raw TFI: "auto" (with the shipped raw-interval
+#: gate when installed) or "off".
+RAW_GATE_KINDS = ("auto", "off")
 #: full-resolution pixels one call of the detail stage holds on a GPU (its activations: under 1 kB a pixel)
 DETAIL_BATCH_PIXELS = 1 << 22
 
@@ -64,6 +72,19 @@ def detail_stage(kind: str = "auto") -> Any:
     if kind == "classical" or (kind == "auto" and not path.is_file()):
         return None
     return load_detail_model(path)[0]
+
+
+def raw_gate_stage(kind: str = "auto") -> Any:
+    """The shipped raw-interval gate for ``kind`` (see ``RAW_GATE_KINDS``), or None ("off", or none installed)."""
+    from rmbvideo.errors import OptionError
+    from rmbvideo.net.weights import default_raw_gate_path, load_raw_gate
+
+    if kind not in RAW_GATE_KINDS:
+        raise OptionError(f"--raw-gate: must be one of {', '.join(RAW_GATE_KINDS)}, not {kind!r}")
+    path = default_raw_gate_path()
+    if kind == "off" or not path.is_file():
+        return None
+    return load_raw_gate(path)[0]
 
 
 def detail_inference_copy(detail: Any, precision: str = "auto", device: Any = "cpu") -> Any:
@@ -154,7 +175,7 @@ class FullResolution:
     def __init__(self, binned: Any, readout: RmbReadout | None, step: int = 20,
                  settings: DetailSettings = DetailSettings(), detail: Any = None, threads: int | None = None,
                  precision: str = "auto", rates_beside: bool | None = None,
-                 rates_on_device: bool | None = None) -> None:
+                 rates_on_device: bool | None = None, raw_gate: Any = None) -> None:
         if binned.input_kind != "rmb":
             raise ValueError(f"full resolution wraps a method on the binned stream, not {type(binned).__name__}")
         self.binned = binned
@@ -163,6 +184,11 @@ class FullResolution:
         # the binned method's device (a GPU for RMB-Net there), so frames do not wait for the CPU
         self.device = getattr(binned, "device", None)
         self.detail = None if detail is None else detail_inference_copy(detail, precision, self.device or "cpu")
+        # the gate mixes RMB-Net's frames only (it was fitted to them): how RMB-Net reads light, or None
+        reading = getattr(binned, "light_reading", None)
+        self.raw_gate = None if raw_gate is None or reading is None else raw_gate.eval()
+        self._reading = reading
+        self._previous: np.ndarray | None = None  # the last binned frame, before the gate (its change is a feature)
         # resolved once, as the RMB-Net engine does: the policy, not the load of each frame's moment
         self.threads = threads if threads is not None else default_threads()
         self._binner = StreamBinner()
@@ -182,9 +208,12 @@ class FullResolution:
             on_device = self.detail is not None
             self._rates: list = [DeviceTfp(window=w, step=step, on_device=on_device) for w in windows]
             self._rates += [DeviceTfi(step=step, max_reach=reach, on_device=on_device)] if reach else []
+            self._rates += [DeviceTfi(step=step, max_reach=self.raw_gate.config.tfi_reach, on_device=False)
+                            ] if self.raw_gate is not None else []
         else:
             self._rates = [Tfp(window=w, step=step) for w in windows]
             self._rates += [Tfi(step=step, max_reach=reach)] if reach else []
+            self._rates += [Tfi(step=step, max_reach=self.raw_gate.config.tfi_reach)] if self.raw_gate is not None else []
         # whether a raw-rate method on the CPU reads decoded planes (TFI; TFP sums the stored bits)
         self._rates_decode = self._rates_device is None and not all(getattr(r, "accepts_packed", False)
                                                                     for r in self._rates)
@@ -225,6 +254,7 @@ class FullResolution:
             self._beside.shutdown(wait=False)
         frames = self._combine()
         self._coarse.clear()
+        self._previous = None
         for store in self._fine:
             store.clear()
         return frames
@@ -258,6 +288,12 @@ class FullResolution:
         rates = [[store.pop(index).image[: 2 * c.image.shape[0], : 2 * c.image.shape[1]] for store in self._fine]
                  for index, c in zip(ready, coarse)]
         began = time.perf_counter()
+        if self.raw_gate is not None:  # the gate's TFI is the last rate: the detail reads the ones before
+            gated = self._gated([c.image for c in coarse], [r[-1] for r in rates])
+            coarse = [Frame(index=c.index, time_s=c.time_s, image=image) for c, image in zip(coarse, gated)]
+            rates = [r[:-1] for r in rates]
+        self.stage_seconds["raw gate"] = self.stage_seconds.get("raw gate", 0.0) + time.perf_counter() - began
+        began = time.perf_counter()
         if self.detail is not None:
             images = self._learned([c.image for c in coarse], rates)
         else:
@@ -266,6 +302,26 @@ class FullResolution:
         self.stage_seconds["detail"] = self.stage_seconds.get("detail", 0.0) + time.perf_counter() - began
         # Frames one side made and the other never will (edges of the clip) are dropped at flush.
         return [Frame(index=index, time_s=c.time_s, image=image) for index, c, image in zip(ready, coarse, images)]
+
+    def _gated(self, coarse: list[np.ndarray], tfis: list[Any]) -> list[np.ndarray]:
+        """Each binned frame mixed with its raw TFI (read as RMB-Net reads light, 2x2-averaged) by the gate, in order;
+        the previous binned frame is the one before the gate (the frame itself at a clip's start)."""
+        import torch
+        import torch.nn.functional as F
+
+        from rmbvideo.net.raw_gate import tfi_light
+
+        convention, tabulated = self._reading
+        out = []
+        with compute_threads(self.threads), torch.inference_mode():
+            for image, tfi in zip(coarse, tfis):
+                binned = torch.from_numpy(np.ascontiguousarray(image, np.float32))[None, None]
+                previous = binned if self._previous is None else torch.from_numpy(self._previous)[None, None]
+                rate = torch.as_tensor(tfi).float().cpu()[None, None]
+                light = F.avg_pool2d(tfi_light(rate, convention, tabulated), 2)
+                out.append(self.raw_gate(binned, light, previous, convention)[0, 0].numpy())
+                self._previous = np.ascontiguousarray(image, np.float32)
+        return out
 
     def _learned(self, coarse: list[np.ndarray], rates: list[list[Any]]) -> list[np.ndarray]:
         """The detail stage on the frames, ``detail_batch`` of them per call."""

@@ -315,6 +315,12 @@ class RmbNetReconstructor:
         return self._aligned_box is not None and self._aligned_box.concurrent
 
     @property
+    def light_reading(self) -> tuple[float, bool]:
+        """How this run reads a camera's rates as light: the convention (0 a reset-to-zero pixel, 1 the rate
+        convention) and whether by the emission model's table (``response``); a stage beside it reads the same way."""
+        return self._convention, self._net.tabulated_response
+
+    @property
     def network(self) -> RmbNet:
         """The inference copy of the model that actually runs (BatchNorm folded, channels-last)."""
         return self._net

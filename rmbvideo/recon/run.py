@@ -19,7 +19,7 @@ from rmbvideo.io.rmbfile import RmbFileReader
 from rmbvideo.io.sidecar import simulated_camera
 from rmbvideo.io.sinks import make_sink
 from rmbvideo.io.tonemap import ToneMapConfig
-from rmbvideo.recon.full_resolution import FullResolution, detail_stage
+from rmbvideo.recon.full_resolution import FullResolution, detail_stage, raw_gate_stage
 from rmbvideo.recon.methods import DEFAULT_METHOD, get_method
 from rmbvideo.recon.pipeline import RunSummary, iter_frames, reconstruct_stream
 from rmbvideo.sensor.conventions import response_for
@@ -52,13 +52,14 @@ def prepare_run(input_path: Path, *, method: str = DEFAULT_METHOD, window: int |
                 step: int | None = None, readout: str | None = None, start_s: float = 0.0,
                 duration_s: float | None = None, capture: dict | None = None,
                 extra_options: dict[str, Any] | None = None, resolution: str = DEFAULT_RESOLUTION,
-                detail: str = "auto") -> PreparedRun:
+                detail: str = "auto", raw_gate: str = "auto") -> PreparedRun:
     """Open ``input_path`` (options over sidecar over defaults) and build ``method`` for it, as
     ``rmbvideo reconstruct`` does; ``extra_options`` are further method options, of which the method
     takes those it declares (``Method.extra_options``). ``readout``: the design applied to the binned
     stream (default: the one RMB-Net's model was trained on, else "rmb"). ``resolution="full"`` gives a method on the
     binned stream the camera's full resolution with the raw stream's detail
-    (``rmbvideo.recon.full_resolution``; ``detail``: how, see ``DETAIL_KINDS``); methods on raw spikes
+    (``rmbvideo.recon.full_resolution``; ``detail``: how, see ``DETAIL_KINDS``; ``raw_gate``: whether RMB-Net's frames
+    are mixed with raw TFI, see ``RAW_GATE_KINDS``); methods on raw spikes
     and native captures have it already. Bad input raises before anything runs."""
     if resolution not in RESOLUTIONS:
         raise OptionError(f"--resolution: must be one of {', '.join(RESOLUTIONS)}, not {resolution!r}")
@@ -96,6 +97,7 @@ def prepare_run(input_path: Path, *, method: str = DEFAULT_METHOD, window: int |
     rmb_readout = RmbReadout(mode=ReadoutMode(readout)) if recon.input_kind == "rmb" and not native else None
     if resolution == "full" and rmb_readout is not None:
         recon, rmb_readout = FullResolution(recon, rmb_readout, step=step, detail=detail_stage(detail),
+                                            raw_gate=raw_gate_stage(raw_gate),
                                             threads=options.get("threads"),
                                             precision=options.get("precision", "auto")), None
     return PreparedRun(reader, recon, start, stop, step, rmb_readout)
@@ -121,7 +123,8 @@ def reconstruct_frames(path: str | Path, method: str = DEFAULT_METHOD, *, window
                        duration_s: float | None = None, chunk_planes: int = 1024, progress: bool = False,
                        width: int | None = None, height: int | None = None, flip: bool | None = None,
                        header_cols: int | None = None, rate_hz: float | None = None,
-                       resolution: str = DEFAULT_RESOLUTION, detail: str = "auto", **options: Any) -> Iterator[Frame]:
+                       resolution: str = DEFAULT_RESOLUTION, detail: str = "auto", raw_gate: str = "auto",
+                       **options: Any) -> Iterator[Frame]:
     """The frames of capture ``path`` (``.index``, ``.time_s``, ``.image``: linear float32, finite,
     >= 0) reconstructed with ``method``, with the defaults and sidecar handling of ``rmbvideo
     reconstruct``, streaming in bounded memory. ``options`` go to the method (e.g. RMB-Net's ``model``,
@@ -131,7 +134,7 @@ def reconstruct_frames(path: str | Path, method: str = DEFAULT_METHOD, *, window
         raise OptionError(f"method {method} takes no option {', '.join(unknown)}")
     run = prepare_run(Path(path), method=method, window=window, step=step, readout=readout, start_s=start_s,
                       duration_s=duration_s, extra_options=options, resolution=resolution, detail=detail,
-                      capture=dict(width=width, height=height, flip=flip, header_cols=header_cols, rate_hz=rate_hz))
+                      raw_gate=raw_gate, capture=dict(width=width, height=height, flip=flip, header_cols=header_cols, rate_hz=rate_hz))
     return iter_frames(run.reader, run.method, start=run.start, stop=run.stop, chunk_planes=chunk_planes,
                        progress=progress, readout=run.readout, expected_frames=(run.stop - run.start) // run.step)
 
@@ -144,7 +147,8 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
                        chunk_planes: int = 1024, progress: bool = False,
                        capture: dict | None = None, extra_options: dict[str, Any] | None = None,
                        overwrite: bool = False, nits_per_unit: float | None = None,
-                       resolution: str = DEFAULT_RESOLUTION, detail: str = "auto") -> RunSummary:
+                       resolution: str = DEFAULT_RESOLUTION, detail: str = "auto",
+                       raw_gate: str = "auto") -> RunSummary:
     """Reconstruct ``input_path`` into ``outdir`` with ``method`` (see ``prepare_run``).
 
     The input is opened and checked before anything is created. The outputs are written into a
@@ -154,7 +158,7 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
     """
     run = prepare_run(input_path, method=method, window=window, step=step, readout=readout, start_s=start_s,
                       duration_s=duration_s, capture=capture, extra_options=extra_options, resolution=resolution,
-                      detail=detail)
+                      detail=detail, raw_gate=raw_gate)
     reader = run.reader
     sink_options = dict(fps=fps, tonemap=ToneMapConfig(method=tonemap), exr_dtype=exr_dtype,
                         mp4_pixel_format=pixel_format, capture_rate_hz=reader.rate_hz,

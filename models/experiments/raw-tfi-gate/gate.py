@@ -1,0 +1,206 @@
+"""What the raw capture's TFI could add to the default as one more blend candidate, measured before any training: a
+small per-pixel gate mixes the default's frame with TFI on the raw 1-bit capture (2x2-averaged, read as light as the
+evaluation reads it), fitted on development sequences only and scored once on the held-out set (both pixels). The
+gate sees only a few per-pixel features of the two images, less than the network's head would, so its gain is a
+figure for deciding whether to build and train the candidate, never a model to ship. Run from the repository root
+(about 15 minutes on one core once the held-out caches exist):
+
+    python models/experiments/raw-tfi-gate/gate.py [SEEDS]          # a gate fitted on development data (a figure only)
+    python models/experiments/raw-tfi-gate/gate.py fitted PATH development|heldout   # a gate file (``rmbvideo
+                                                                    # train-raw-gate``, training seeds) scored
+    python models/experiments/raw-tfi-gate/gate.py real PATH ../shared/data/spikezoo-base   # the same on real video
+"""
+
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from rmbvideo.evaluate.harness import RAW_SPECS, SATURATION, run_method, score_frames, sequence_convention, table2_specs
+from rmbvideo.evaluate.heldout import (DEVELOPMENT_RANDOM_OFFSET, DEVELOPMENT_VIDEO_FIRST, FULL, load_development, load_heldout,
+                                       load_heldout_config, load_video_heldout)
+from rmbvideo.evaluate.metrics import robust_scale
+
+FEATURES = ("default level", "TFI level", "log ratio", "TFI roughness", "default roughness", "default change",
+            "rate convention")
+PIXELS_PER_FRAME = 2000
+
+
+def _roughness(image: np.ndarray) -> np.ndarray:
+    """Local 3x3 standard deviation over the local mean (log), the texture or noise around a pixel."""
+    mean = cv2.blur(image, (3, 3))
+    spread = np.sqrt(np.maximum(cv2.blur(image * image, (3, 3)) - mean * mean, 0.0))
+    return np.log((spread + 1e-4) / (mean + 1e-3))
+
+
+def pairs(seq) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per scored frame of ``seq``: the default's image, raw TFI's image and their per-pixel ``FEATURES``."""
+    specs = {s.name: s for s in [*table2_specs(Path("models")), *RAW_SPECS]}
+    default, tfi = run_method(specs["RMB-Net"], seq).frames, run_method(specs["TFI (raw)"], seq).frames
+    rate = float(sequence_convention(seq) != "physical")
+    out = {}
+    for i in sorted(default):
+        d, t = default[i].astype(np.float32), tfi[i].astype(np.float32)
+        before = default.get(i - 1, d).astype(np.float32)
+        features = np.stack([np.log(d + 1e-4), np.log(t + 1e-4), np.log((t + 1e-3) / (d + 1e-3)), _roughness(t),
+                             _roughness(d), np.log(np.abs(d - before) / (d + 1e-3) + 1e-3), np.full_like(d, rate)])
+        out[i] = (d, t, features.astype(np.float32))
+    return out
+
+
+def development() -> list:
+    """Every development sequence: 16 random scenes and the video kinds with the paper's pixel, and the set again
+    with a pixel reset by subtraction (never the held-out seeds)."""
+    randoms = load_heldout_config(replace(FULL, count=16, first_seed_offset=DEVELOPMENT_RANDOM_OFFSET))
+    return randoms + load_video_heldout(False, first=DEVELOPMENT_VIDEO_FIRST) + load_development(reset="subtract")
+
+
+def main(seeds: int = 3) -> None:
+    torch.set_num_threads(1)
+    fit = development()
+    test = {reset: load_heldout(False, reset=reset) + load_video_heldout(False, reset=reset)
+            for reset in ("zero", "subtract")}
+    data = {(seq.name, seq.description): pairs(seq) for seq in [*fit, *test["zero"], *test["subtract"]]}
+    rng = np.random.default_rng(0)
+    feats, defaults, tfis, truths = [], [], [], []
+    for seq in fit:
+        for i, (d, t, f) in data[(seq.name, seq.description)].items():
+            truth = np.minimum(seq.gt[i], SATURATION)
+            scale = robust_scale(truth)
+            pick = rng.integers(0, d.size, PIXELS_PER_FRAME)
+            feats.append(f.reshape(len(FEATURES), -1)[:, pick].T)
+            defaults.append((d / scale).ravel()[pick]), tfis.append((t / scale).ravel()[pick])
+            truths.append((truth / scale).ravel()[pick])
+    feats, defaults, tfis, truths = (torch.from_numpy(np.concatenate(x).astype(np.float32))
+                                     for x in (feats, defaults, tfis, truths))
+    mean, std = feats.mean(0), feats.std(0) + 1e-6
+    tone = lambda x: torch.log1p(5000 * x.clamp(0, 1)) / np.log1p(5000)  # noqa: E731
+    rows: dict[str, list[float]] = {}
+    gated: dict[str, list[float]] = {}
+    for reset, sequences in test.items():
+        for seq in sequences:
+            key = f"{seq.name} ({reset})"
+            frames = data[(seq.name, seq.description)]
+            rows[key] = [score_frames({i: v[0] for i, v in frames.items()}, seq)[0],
+                         score_frames({i: v[1] for i, v in frames.items()}, seq)[0]]
+            gated[key] = []
+    for seed in range(seeds):
+        torch.manual_seed(seed)
+        gate = torch.nn.Sequential(torch.nn.Linear(len(FEATURES), 16), torch.nn.ReLU(), torch.nn.Linear(16, 1))
+        with torch.no_grad():
+            gate[-1].bias.fill_(-3.0)  # start from the default alone
+        optimiser = torch.optim.Adam(gate.parameters(), lr=3e-3)
+        for _ in range(2000):
+            share = torch.sigmoid(gate((feats - mean) / std))[:, 0]
+            loss = ((tone(share * tfis + (1 - share) * defaults) - tone(truths)) ** 2).mean()
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+        with torch.no_grad():
+            for reset, sequences in test.items():
+                for seq in sequences:
+                    images = {}
+                    for i, (d, t, f) in data[(seq.name, seq.description)].items():
+                        x = (torch.from_numpy(f.reshape(len(FEATURES), -1).T) - mean) / std
+                        share = torch.sigmoid(gate(x))[:, 0].numpy().reshape(d.shape)
+                        images[i] = share * t + (1 - share) * d
+                    gated[f"{seq.name} ({reset})"].append(score_frames(images, seq)[0])
+        gains = [gated[k][-1] - rows[k][0] for k in rows]
+        print(f"initialisation {seed}: mean gain {np.mean(gains):+.2f} dB, least {min(gains):+.2f}", flush=True)
+    print("| sequence | default | TFI (raw) | gated | gain |")
+    print("|---|---:|---:|---:|---:|")
+    for key, (d, t) in rows.items():
+        g = float(np.mean(gated[key]))
+        print(f"| {key} | {d:.2f} | {t:.2f} | {g:.2f} | {g - d:+.2f} |")
+    for reset in test:
+        keys = [k for k in rows if k.endswith(f"({reset})")]
+        d = np.mean([rows[k][0] for k in keys])
+        g = np.mean([np.mean(gated[k]) for k in keys])
+        print(f"| mean ({reset}) | {d:.2f} | {np.mean([rows[k][1] for k in keys]):.2f} | {g:.2f} | {g - d:+.2f} |")
+
+
+def fitted(path: str, which: str) -> None:
+    """A gate file scored on the development sequences (both pixels) or the held-out set (both pixels), as
+    ``reconstruct`` mixes the frames: RMB-Net's binned frame, the gated one, and raw TFI."""
+    from rmbvideo.net.weights import default_model_path, load_raw_gate
+    from rmbvideo.train.raw_gate import frame_triples
+
+    torch.set_num_threads(1)
+    gate = load_raw_gate(path)[0]
+    if which == "development":
+        sets = {reset: load_development(reset=reset) for reset in ("zero", "subtract")}
+    else:
+        sets = {reset: load_heldout(False, reset=reset) + load_video_heldout(False, reset=reset)
+                for reset in ("zero", "subtract")}
+    print("| sequence | default | TFI (raw) | gated | gain |")
+    print("|---|---:|---:|---:|---:|")
+    means = {}
+    for reset, sequences in sets.items():
+        rows = []
+        for seq in sequences:
+            triples = frame_triples(seq, default_model_path("binned"), gate.config.tfi_reach)
+            code = float(sequence_convention(seq) != "physical")
+            gated, previous = [], triples[0][0]
+            with torch.no_grad():
+                for binned, tfi, _ in triples:
+                    x = [torch.from_numpy(np.ascontiguousarray(v, np.float32))[None, None] for v in (binned, tfi, previous)]
+                    gated.append(gate(*x, code)[0, 0].numpy())
+                    previous = binned
+            scored = seq.scored_frames
+            row = [score_frames({i: triples[i][k] for i in scored}, seq)[0] for k in (0, 1)]
+            row.append(score_frames({i: gated[i] for i in scored}, seq)[0])
+            rows.append(row)
+            print(f"| {seq.name} ({reset}) | {row[0]:.2f} | {row[1]:.2f} | {row[2]:.2f} | {row[2] - row[0]:+.2f} |",
+                  flush=True)
+        means[reset] = np.mean(rows, axis=0)
+    for reset, m in means.items():
+        print(f"| mean ({reset}) | {m[0]:.2f} | {m[1]:.2f} | {m[2]:.2f} | {m[2] - m[0]:+.2f} |")
+
+
+def real(path: str, folder: str) -> None:
+    """A gate file on real-video streams at the binned size, as the real-video table scores every row: the 1-bit
+    capture's default path (RMB-Net on the binned stream, the gate, then 2x2 blocks averaged: the detail keeps every
+    block's mean, so it is left out) with and without the gate, linear PSNR after a least-squares gain."""
+    from rmbvideo.evaluate.real_video import (CONVENTION, RAW_STEP, binned_reference, find_streams, scaled_psnr)
+    from rmbvideo.io.dat import DatReader
+    from rmbvideo.net.weights import default_model_path, load_raw_gate, model_readout
+    from rmbvideo.recon.full_resolution import FullResolution
+    from rmbvideo.recon.methods import make_reconstructor
+    from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
+    from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
+
+    torch.set_num_threads(1)
+    gate = load_raw_gate(path)[0]
+    model = default_model_path("binned")
+    print("| stream | default (binned) | with the raw gate | gain |")
+    print("|---|---:|---:|---:|")
+    gains = []
+    for stream in find_streams(Path(folder)):
+        reference = binned_reference(stream)
+        scores = []
+        for raw_gate in (None, gate):
+            engine = make_reconstructor("rmbnet", model=str(model), input_mode="binned", threads=1,
+                                        convention=CONVENTION)
+            recon = FullResolution(engine, RmbReadout(mode=ReadoutMode(model_readout(model))), step=RAW_STEP,
+                                   threads=1, raw_gate=raw_gate)
+            sink = FrameCollector(keep=[stream.frame])
+            reconstruct_stream(DatReader(stream.capture, stream.geometry), recon, sink)
+            image = sink.frames[stream.frame].image
+            h, w = reference.shape
+            scores.append(scaled_psnr(cv2.resize(image[: 2 * h, : 2 * w], (w, h), interpolation=cv2.INTER_AREA),
+                                      reference))
+        gains.append(scores[1] - scores[0])
+        print(f"| {stream.name} | {scores[0]:.2f} | {scores[1]:.2f} | {scores[1] - scores[0]:+.2f} |", flush=True)
+    print(f"| mean gain | | | {np.mean(gains):+.2f} |")
+
+
+if __name__ == "__main__":
+    if len(sys.argv) > 1 and sys.argv[1] == "fitted":
+        fitted(sys.argv[2], sys.argv[3])
+    elif len(sys.argv) > 1 and sys.argv[1] == "real":
+        real(sys.argv[2], sys.argv[3])
+    else:
+        main(int(sys.argv[1]) if len(sys.argv) > 1 else 3)

@@ -1,0 +1,155 @@
+"""The raw-interval gate of 1-bit captures: RMB-Net's binned frames mixed with raw TFI (``rmbvideo.net.raw_gate``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+
+from rmbvideo.evaluate.heldout import HeldoutConfig, simulate_sequence
+from rmbvideo.net.config import RmbNetConfig
+from rmbvideo.net.model import RmbNet
+from rmbvideo.net.raw_gate import FEATURES, RawGate, RawGateConfig, tfi_light
+from rmbvideo.net.weights import ModelCard, save_model
+
+TINY = HeldoutConfig(count=1, width=48, height=40, readouts=60, edge_readouts=20)
+
+
+def _tiny_model(path: Path) -> Path:
+    torch.manual_seed(0)
+    return save_model(path, RmbNet(RmbNetConfig(w=1, width=0.25, convention_input=True)), ModelCard(name="tiny"))
+
+
+def _mixing_gate() -> RawGate:
+    """A gate that mixes (shares spread around a half), so a fault in what it is given shows in the output."""
+    torch.manual_seed(3)
+    gate = RawGate(RawGateConfig(hidden=4, tfi_reach=30))
+    with torch.no_grad():
+        gate.body[-1].bias.zero_()
+        gate.feature_mean.copy_(torch.tensor([-3.0, -3.0, 0.0, -2.0, -2.0, -3.0, 0.0]))
+    return gate
+
+
+def test_tfi_is_read_as_light_as_the_evaluation_reads_it() -> None:
+    from rmbvideo.evaluate.harness import rate_as_light
+
+    rates = np.linspace(0.0, 1.0, 101, dtype=np.float32)[None]
+    for convention, code in (("physical", 0.0), ("spikezoo", 1.0)):
+        ours = tfi_light(torch.from_numpy(rates), code, tabulated=True).numpy()
+        np.testing.assert_allclose(ours, rate_as_light("tfi", rates, convention), rtol=1e-6, atol=1e-7)
+    closed = tfi_light(torch.tensor([0.5]), 0.0, tabulated=False)
+    assert closed.item() == pytest.approx(0.5 / 0.75)
+
+
+def test_the_gate_mixes_between_its_two_images_and_never_passes_nan_or_inf() -> None:
+    gate = _mixing_gate()
+    binned, tfi = torch.rand(1, 1, 16, 20) * 0.5, torch.rand(1, 1, 16, 20) * 0.5
+    out = gate(binned, tfi, binned, 0.0)
+    low, high = torch.minimum(binned, tfi), torch.maximum(binned, tfi)
+    assert (out >= low - 1e-6).all() and (out <= high + 1e-6).all()
+    assert (out - binned).abs().max() > 0.01  # it mixes
+    broken = binned.clone()
+    broken[0, 0, 0, :3] = torch.tensor([float("nan"), float("inf"), -float("inf")])
+    out = gate(broken, tfi, broken, 1.0)
+    assert torch.isfinite(out).all() and (out >= 0).all()
+    assert RawGate().share(torch.zeros(1, len(FEATURES), 2, 2)).max() < 0.05  # a new gate keeps RMB-Net's frame
+
+
+def test_full_resolution_mixes_each_binned_frame_as_the_fitting_reads_it(tmp_path: Path) -> None:
+    """Streamed at full resolution, 2x2-averaged, the frames are the gate applied to exactly what the fitting reads:
+    RMB-Net's binned frames and raw TFI read as light, with the previous binned frame (itself at the start)."""
+    from rmbvideo.evaluate.harness import SIMULATED_RESPONSE, downsample_2x, sequence_convention
+    from rmbvideo.recon.full_resolution import FullResolution
+    from rmbvideo.recon.methods import make_reconstructor
+    from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
+    from rmbvideo.recon.run import trained_readout
+    from rmbvideo.sensor.readout import RmbReadout
+    from rmbvideo.train.raw_gate import frame_triples
+
+    seq = simulate_sequence(123, TINY, training=True)
+    model = _tiny_model(tmp_path / "m.safetensors")
+    gate = _mixing_gate()
+    convention = sequence_convention(seq)
+    engine = make_reconstructor("rmbnet", model=str(model), input_mode="binned", threads=1, convention=convention,
+                                response=SIMULATED_RESPONSE)
+    sink = FrameCollector()
+    readout = RmbReadout(trained_readout(engine))  # the one the fitting's binned frames are read through
+    reconstruct_stream(seq, FullResolution(engine, readout, step=20, threads=1, raw_gate=gate), sink, chunk_planes=48)
+    triples = frame_triples(seq, model, gate.config.tfi_reach)
+    assert sorted(sink.frames) == list(range(len(triples))) and len(triples) >= 4
+    code = float(convention != "physical")
+    previous = triples[0][0]
+    for i, (binned, tfi, _) in enumerate(triples):
+        as_tensor = [torch.from_numpy(np.ascontiguousarray(x, np.float32))[None, None] for x in (binned, tfi, previous)]
+        expected = gate(*as_tensor, code)[0, 0].detach().numpy()
+        streamed = downsample_2x(sink.frames[i].image, seq.shape)
+        assert np.isfinite(streamed).all()
+        np.testing.assert_allclose(streamed, expected, rtol=2e-3, atol=1e-5)
+        previous = binned
+    assert np.abs(expected - binned).max() > 1e-3  # the gate did mix
+
+
+def test_fitting_writes_a_gate_that_loads_and_refuses_evaluation_seeds(tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    from rmbvideo.net.weights import load_raw_gate
+    from rmbvideo.scenes.random_scenes import EVAL_SEED_START
+    from rmbvideo.train.raw_gate import RawGateRecipe, fit_raw_gate
+
+    recipe = RawGateRecipe(gate=RawGateConfig(hidden=4, tfi_reach=30), capture=TINY, pans=1, videos=0,
+                           resets=("zero",), pixels=200, steps=30)
+    weights = fit_raw_gate(recipe, tmp_path / "gate.safetensors", model=_tiny_model(tmp_path / "m.safetensors"))
+    gate, card = load_raw_gate(weights)
+    assert gate.config == recipe.gate and len(card.data["captures"]) == 1
+    assert np.isfinite([card.metrics["fit_mse"], card.metrics["fit_mse_without_gate"]]).all()
+    with pytest.raises(ValueError, match="evaluation seed"):
+        simulate_sequence(EVAL_SEED_START, TINY, training=True)
+    with pytest.raises(ValueError, match="training seed"):
+        simulate_sequence(5, replace(TINY), training=False)
+
+
+def test_a_weight_file_of_another_kind_is_refused_as_a_gate(tmp_path: Path) -> None:
+    from rmbvideo.errors import ModelError
+    from rmbvideo.net.weights import load_raw_gate
+
+    with pytest.raises(ModelError, match="raw-gate"):
+        load_raw_gate(_tiny_model(tmp_path / "m.safetensors"))
+
+
+def test_reconstruct_mixes_rmbnet_frames_of_a_1bit_capture_by_default_and_only_those(tmp_path: Path) -> None:
+    from rmbvideo.errors import OptionError
+    from rmbvideo.io.dat import DatGeometry, write_dat
+    from rmbvideo.net.weights import default_raw_gate_path
+    from rmbvideo.recon.run import prepare_run
+
+    assert default_raw_gate_path().is_file()  # shipped
+    dat = tmp_path / "c.dat"
+    write_dat(dat, (np.random.default_rng(0).random((80, 48, 64)) < 0.3).astype(np.uint8), DatGeometry(64, 48))
+    assert prepare_run(dat, extra_options={"threads": 1}).method.raw_gate is not None
+    assert prepare_run(dat, extra_options={"threads": 1}, raw_gate="off").method.raw_gate is None
+    assert prepare_run(dat, method="tfw").method.raw_gate is None  # fitted to RMB-Net's frames, not another method's
+    assert not hasattr(prepare_run(dat, resolution="binned", extra_options={"threads": 1}).method, "raw_gate")
+    with pytest.raises(OptionError, match="--raw-gate"):
+        prepare_run(dat, raw_gate="always")
+
+
+def test_the_shipped_gate_gives_finite_frames_of_a_real_size(tmp_path: Path) -> None:
+    """The shipped gate with the shipped models on a small capture: full-size, finite, non-negative frames that differ
+    from the ungated ones only where the gate mixed (2x2 averages within TFI's and RMB-Net's range)."""
+    from rmbvideo.io.dat import DatGeometry, write_dat
+    from rmbvideo.recon.run import reconstruct_frames
+
+    rng = np.random.default_rng(2)
+    rate = np.clip(rng.gamma(0.5, 0.1, (48, 64)), 0.0, 0.9)
+    dat = tmp_path / "c.dat"
+    write_dat(dat, (rng.random((240, 48, 64)) < rate).astype(np.uint8), DatGeometry(64, 48))
+    gated = list(reconstruct_frames(dat, width=64, height=48, threads=1))
+    plain = list(reconstruct_frames(dat, width=64, height=48, threads=1, raw_gate="off"))
+    assert [f.index for f in gated] == [f.index for f in plain] and len(gated) >= 8
+    for a, b in zip(gated, plain):
+        assert a.image.shape == (48, 64) and np.isfinite(a.image).all() and (a.image >= 0).all()
+    pooled = [F.avg_pool2d(torch.from_numpy(f.image)[None, None], 2) for f in (gated[4], plain[4])]
+    assert not torch.equal(*pooled)
