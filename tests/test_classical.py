@@ -115,6 +115,24 @@ def test_tfi_finite_on_dark_and_single_spike():
     assert frames[4].image[1, 2] == pytest.approx(1 / (80 - 40))  # next bounded by the end of data
 
 
+@pytest.mark.parametrize("chunk", [9, 64, 1000])
+def test_tfi_shorter_reaches_are_exactly_the_shorter_searches(chunk):
+    """One search over the longest reach gives every shorter one's frames bit for bit, the clip's edges included."""
+    rng = np.random.default_rng(4)
+    rates = rng.uniform(0.0, 0.2, (5, 6))
+    rates[0] = 0.0  # never fires
+    planes = (rng.random((430, 5, 6)) < rates).astype(np.uint8)
+    shared = _run(Tfi(step=20, max_reach=200, shorter=(7, 40)), _spikes(planes, chunk))
+    alone = [_run(Tfi(step=20, max_reach=reach), _spikes(planes, chunk)) for reach in (7, 40, 200)]
+    assert len(shared) == len(alone[0]) >= 20
+    for k, frame in enumerate(shared):
+        assert frame.image.shape == (3, 5, 6)
+        for plane, frames in zip(frame.image, alone):
+            assert frames[k].index == frame.index and np.array_equal(plane, frames[k].image)
+    with pytest.raises(ValueError, match="shorter"):
+        Tfi(step=20, max_reach=40, shorter=(40,))
+
+
 def test_tfw_pools_single_and_multi():
     t, h, w = 40, 4, 3
     single = np.zeros((t, h, w), np.uint8)

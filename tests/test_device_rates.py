@@ -41,10 +41,11 @@ def test_planes_decoded_on_the_device_are_the_stored_planes(device):
 def test_device_tfp_and_tfi_give_the_numpy_frames_bit_for_bit(chunk, first, packed, device):
     stored = _stream()
     planes = unpack_planes(stored, GEOMETRY)
-    # the last two keep their images on the device (for the detail stage there): the same values
+    # the last three keep their images on the device (for the detail stage there): the same values
     pairs = [(Tfp(6, 20), DeviceTfp(6, 20)), (Tfp(41, 20), DeviceTfp(41, 20)), (Tfi(20, 40), DeviceTfi(20, 40)),
              (Tfi(20, 7), DeviceTfi(20, 7)), (Tfp(41, 20), DeviceTfp(41, 20, on_device=True)),
-             (Tfi(20, 40), DeviceTfi(20, 40, on_device=True))]
+             (Tfi(20, 40), DeviceTfi(20, 40, on_device=True)),
+             (Tfi(20, 40, shorter=(7,)), DeviceTfi(20, 40, on_device=True, shorter=(7,)))]
     frames = [([], []) for _ in pairs]
     for a in range(first, len(stored), chunk):
         b = min(len(stored), a + chunk)

@@ -342,15 +342,22 @@ class Tfi:
     + 1`` or the plane after the data): the value is then an upper bound on the rate, finite and
     > 0, and an all-dark pixel reads about ``1 / (2 * max_reach + 1)``. Value = 1 / (next - prev),
     with next - prev >= 1.
+
+    ``shorter``: further reaches below ``max_reach`` read from the same search (each frame's image is then
+    (len(shorter) + 1, H, W): each of them, then ``max_reach``), exactly what a ``Tfi`` of that reach gives, for the
+    cost of one search: the spikes around a frame within the shorter reach are the same ones.
     """
 
     input_kind: ClassVar[InputKind] = "spikes"
 
-    def __init__(self, step: int = 20, max_reach: int = 200) -> None:
+    def __init__(self, step: int = 20, max_reach: int = 200, shorter: tuple[int, ...] = ()) -> None:
         if step < 1 or max_reach < 1:
             raise ValueError(f"step and max_reach must be >= 1, got step={step}, max_reach={max_reach}")
+        if any(not 1 <= reach < max_reach for reach in shorter):
+            raise ValueError(f"shorter reaches must lie in 1 .. {max_reach - 1}, got {shorter}")
         self.step = step
         self.max_reach = max_reach
+        self.shorter = tuple(shorter)
         self._first: int | None = None
         self._pos = 0
         self._rate_hz = 0.0
@@ -381,6 +388,7 @@ class Tfi:
 
     # The array operations, numpy's here (``rmbvideo.recon.device_rates.DeviceTfi``: torch's, on a device).
     _where = staticmethod(np.where)
+    _stack = staticmethod(np.stack)
 
     @staticmethod
     def _full_like(like: np.ndarray, value: int) -> np.ndarray:
@@ -443,13 +451,19 @@ class Tfi:
 
     def _frame(self, i: int, state: tuple[int, np.ndarray, np.ndarray]) -> Frame:
         r, prev, nxt = state
-        lo = max(r - self.max_reach + 1, self._first)
-        hi = min(r + self.max_reach, self._pos - 1)
-        prev = self._where(prev >= lo, prev, lo - 1)
-        nxt = self._where(nxt >= 0, nxt, hi + 1)
-        interval = nxt - prev
-        image = self._image(self._where(interval >= 1, interval, 1))
+        images = [self._reach_image(r, prev, nxt, reach) for reach in (*self.shorter, self.max_reach)]
+        image = images[0] if len(images) == 1 else self._stack(images)
         return Frame(index=i, time_s=_centre2(i, self.step) / 2 / self._rate_hz, image=image)
+
+    def _reach_image(self, r: int, prev: np.ndarray, nxt: np.ndarray, reach: int) -> np.ndarray:
+        """1 / interval for spikes searched at most ``reach`` planes either side (a next spike found further out, by
+        the longer search, is out of reach)."""
+        lo = max(r - reach + 1, self._first)
+        hi = min(r + reach, self._pos - 1)
+        prev = self._where(prev >= lo, prev, lo - 1)
+        nxt = self._where((nxt >= 0) & (nxt <= hi), nxt, hi + 1)
+        interval = nxt - prev
+        return self._image(self._where(interval >= 1, interval, 1))
 
 
 class Tfw:

@@ -105,9 +105,14 @@ class DeviceTfi(Tfi):
 
     _where = staticmethod(torch.where)
 
-    def __init__(self, step: int = 20, max_reach: int = 200, on_device: bool = False) -> None:
-        super().__init__(step, max_reach)
+    def __init__(self, step: int = 20, max_reach: int = 200, on_device: bool = False,
+                 shorter: tuple[int, ...] = ()) -> None:
+        super().__init__(step, max_reach, shorter)
         self._on_device = on_device
+
+    @staticmethod
+    def _stack(images: list[np.ndarray | torch.Tensor]) -> np.ndarray | torch.Tensor:
+        return torch.stack(images) if isinstance(images[0], torch.Tensor) else np.stack(images)
 
     @staticmethod
     def _full_like(like: torch.Tensor, value: int) -> torch.Tensor:

@@ -193,7 +193,15 @@ class FullResolution:
         self.threads = threads if threads is not None else default_threads()
         self._binner = StreamBinner()
         windows = detail.config.windows if detail is not None else (settings.window,)
-        reach = detail.config.interval_reach if detail is not None else 0
+        # TFI for the detail stage and for the gate: one search over the longer reach gives both (``Tfi``'s ``shorter``)
+        detail_reach = detail.config.interval_reach if detail is not None else 0
+        gate_reach = self.raw_gate.config.tfi_reach if self.raw_gate is not None else 0
+        reaches = sorted({r for r in (detail_reach, gate_reach) if r})
+        tfi = dict(max_reach=reaches[-1], shorter=tuple(reaches[:-1])) if reaches else None
+        # where each reader's planes are among a frame's raw rates (the windows' TFP, then TFI at each reach)
+        self._detail_planes = [*range(len(windows)), *([len(windows) + reaches.index(detail_reach)]
+                                                       if detail_reach else [])]
+        self._gate_plane = len(windows) + reaches.index(gate_reach) if gate_reach else None
         # on a GPU the raw stream's rates are made there too (``rmbvideo.recon.device_rates``: the same frames)
         if rates_on_device is None:
             rates_on_device = rates_on_device_by_default(self.device)
@@ -207,13 +215,10 @@ class FullResolution:
             # the detail stage runs on the same device: its inputs stay there (no copy to host memory and back)
             on_device = self.detail is not None
             self._rates: list = [DeviceTfp(window=w, step=step, on_device=on_device) for w in windows]
-            self._rates += [DeviceTfi(step=step, max_reach=reach, on_device=on_device)] if reach else []
-            self._rates += [DeviceTfi(step=step, max_reach=self.raw_gate.config.tfi_reach, on_device=False)
-                            ] if self.raw_gate is not None else []
+            self._rates += [DeviceTfi(step=step, on_device=on_device, **tfi)] if tfi else []
         else:
             self._rates = [Tfp(window=w, step=step) for w in windows]
-            self._rates += [Tfi(step=step, max_reach=reach)] if reach else []
-            self._rates += [Tfi(step=step, max_reach=self.raw_gate.config.tfi_reach)] if self.raw_gate is not None else []
+            self._rates += [Tfi(step=step, **tfi)] if tfi else []
         # whether a raw-rate method on the CPU reads decoded planes (TFI; TFP sums the stored bits)
         self._rates_decode = self._rates_device is None and not all(getattr(r, "accepts_packed", False)
                                                                     for r in self._rates)
@@ -285,14 +290,15 @@ class FullResolution:
     def _combine(self) -> list[Frame]:
         ready = sorted(set(self._coarse).intersection(*self._fine))
         coarse = [self._coarse.pop(index) for index in ready]
-        rates = [[store.pop(index).image[: 2 * c.image.shape[0], : 2 * c.image.shape[1]] for store in self._fine]
-                 for index, c in zip(ready, coarse)]
-        began = time.perf_counter()
-        if self.raw_gate is not None:  # the gate's TFI is the last rate: the detail reads the ones before
-            gated = self._gated([c.image for c in coarse], [r[-1] for r in rates])
+        # per frame: the TFP windows, then TFI at each reach, shortest first
+        rates = [_planes([store.pop(index).image[..., : 2 * c.image.shape[0], : 2 * c.image.shape[1]]
+                          for store in self._fine]) for index, c in zip(ready, coarse)]
+        if self.raw_gate is not None:
+            began = time.perf_counter()
+            gated = self._gated([c.image for c in coarse], [r[self._gate_plane] for r in rates])
             coarse = [Frame(index=c.index, time_s=c.time_s, image=image) for c, image in zip(coarse, gated)]
-            rates = [r[:-1] for r in rates]
-        self.stage_seconds["raw gate"] = self.stage_seconds.get("raw gate", 0.0) + time.perf_counter() - began
+            self.stage_seconds["raw gate"] = self.stage_seconds.get("raw gate", 0.0) + time.perf_counter() - began
+        rates = [[r[k] for k in self._detail_planes] for r in rates]
         began = time.perf_counter()
         if self.detail is not None:
             images = self._learned([c.image for c in coarse], rates)
@@ -340,6 +346,11 @@ class FullResolution:
                 full = self.detail(binned.to(device), _stacked_rates(rates[a : a + batch]).to(device))
                 out += list(full[:, 0].float().cpu().numpy())
         return out
+
+
+def _planes(images: list[Any]) -> list[Any]:
+    """The raw-rate images of a frame, a stacked one (``Tfi`` with shorter reaches) split into its planes."""
+    return [plane for image in images for plane in (image if image.ndim == 3 else [image])]
 
 
 def _stacked_rates(rates: list[list[Any]]) -> Any:

@@ -10,6 +10,7 @@ figure for deciding whether to build and train the candidate, never a model to s
                                                                     # train-raw-gate``, training seeds) scored
     python models/experiments/raw-tfi-gate/gate.py real PATH ../shared/data/spikezoo-base   # the same on real video
     python models/experiments/raw-tfi-gate/gate.py car ../shared/data/real/car.dat   # grain on a smooth surface
+    python models/experiments/raw-tfi-gate/gate.py cost           # what the gate costs a frame, one thread
 """
 
 import sys
@@ -219,9 +220,60 @@ def car(path: str, out: str = "models/figures/car-raw-gate.png") -> None:
     print(f"wrote {out}")
 
 
+def cost(repeats: int = 5) -> None:
+    """The default full-resolution job on a random 400x250 capture of 2,000 planes (100 frames), one thread, with and
+    without the gate, alternated; then the gate's parts alone: TFI over 200 planes a side (and over 40, the detail
+    stage's) on the same planes, and the gate on 100 binned frames."""
+    import tempfile
+    import time
+
+    from rmbvideo.chunks import SpikeChunk
+    from rmbvideo.io.dat import DatGeometry, write_dat
+    from rmbvideo.net.weights import default_raw_gate_path, load_raw_gate
+    from rmbvideo.recon.classical import Tfi
+    from rmbvideo.recon.run import reconstruct_frames
+
+    torch.set_num_threads(1)
+    rng = np.random.default_rng(0)
+    rate = np.clip(rng.gamma(0.6, 0.15, (250, 400)), 0.0, 0.95)
+    planes = (rng.random((2000, 250, 400)) < rate).astype(np.uint8)
+    with tempfile.TemporaryDirectory() as folder:
+        dat = Path(folder) / "random.dat"
+        write_dat(dat, planes, DatGeometry(400, 250))
+        seconds: dict[str, list[float]] = {"auto": [], "off": []}
+        cpu: dict[str, list[float]] = {"auto": [], "off": []}
+        for _ in range(repeats):
+            for kind in seconds:
+                began, began_cpu = time.perf_counter(), time.process_time()
+                count = sum(1 for _ in reconstruct_frames(dat, threads=1, raw_gate=kind))
+                seconds[kind].append((time.perf_counter() - began) / count)
+                cpu[kind].append((time.process_time() - began_cpu) / count)
+    for kind, values in seconds.items():
+        print(f"raw gate {kind}: {1000 * min(values):.1f} ms a frame, {1000 * min(cpu[kind]):.1f} ms of CPU (every "
+              f"thread; best of {repeats}), {count} frames")
+    print(f"ratio: {min(seconds['auto']) / min(seconds['off']):.3f} in time, "
+          f"{min(cpu['auto']) / min(cpu['off']):.3f} in CPU")
+    for reach in (200, 40):
+        tfi, began = Tfi(step=20, max_reach=reach), time.perf_counter()
+        frames = []
+        for start in range(0, len(planes), 128):
+            frames += tfi.push(SpikeChunk(planes[start : start + 128], start, 20000.0))
+        frames += tfi.flush()
+        print(f"TFI, reach {reach}: {1000 * (time.perf_counter() - began) / len(frames):.2f} ms a frame")
+    gate = load_raw_gate(default_raw_gate_path())[0]
+    binned = torch.rand(100, 1, 125, 200) * 0.5
+    with torch.inference_mode():
+        began = time.perf_counter()
+        for k in range(100):
+            gate(binned[k : k + 1], binned[k : k + 1] * 1.1, binned[k - 1 : k] if k else binned[:1], 0.0)
+    print(f"gate alone: {10 * (time.perf_counter() - began):.2f} ms a frame")
+
+
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "fitted":
         fitted(sys.argv[2], sys.argv[3])
+    elif len(sys.argv) > 1 and sys.argv[1] == "cost":
+        cost()
     elif len(sys.argv) > 1 and sys.argv[1] == "car":
         car(sys.argv[2])
     elif len(sys.argv) > 1 and sys.argv[1] == "real":
