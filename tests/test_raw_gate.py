@@ -93,8 +93,6 @@ def test_full_resolution_mixes_each_binned_frame_as_the_fitting_reads_it(tmp_pat
 
 
 def test_fitting_writes_a_gate_that_loads_and_refuses_evaluation_seeds(tmp_path: Path) -> None:
-    from dataclasses import replace
-
     from rmbvideo.net.weights import load_raw_gate
     from rmbvideo.scenes.random_scenes import EVAL_SEED_START
     from rmbvideo.train.raw_gate import RawGateRecipe, fit_raw_gate
@@ -108,7 +106,7 @@ def test_fitting_writes_a_gate_that_loads_and_refuses_evaluation_seeds(tmp_path:
     with pytest.raises(ValueError, match="evaluation seed"):
         simulate_sequence(EVAL_SEED_START, TINY, training=True)
     with pytest.raises(ValueError, match="training seed"):
-        simulate_sequence(5, replace(TINY), training=False)
+        simulate_sequence(5, TINY, training=False)
 
 
 def test_a_weight_file_of_another_kind_is_refused_as_a_gate(tmp_path: Path) -> None:
