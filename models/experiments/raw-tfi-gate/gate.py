@@ -11,6 +11,7 @@ figure for deciding whether to build and train the candidate, never a model to s
     python models/experiments/raw-tfi-gate/gate.py real PATH ../shared/data/spikezoo-base   # the same on real video
     python models/experiments/raw-tfi-gate/gate.py car ../shared/data/real/car.dat   # grain on a smooth surface
     python models/experiments/raw-tfi-gate/gate.py cost           # what the gate costs a frame, one thread
+    python models/experiments/raw-tfi-gate/gate.py picture        # models/figures/raw-gate.png: where it mixes
 """
 
 import sys
@@ -269,9 +270,43 @@ def cost(repeats: int = 5) -> None:
     print(f"gate alone: {10 * (time.perf_counter() - began):.2f} ms a frame")
 
 
+def picture(out: str = "models/figures/raw-gate.png") -> None:
+    """The middle frame of two held-out sequences (a bright pan, a dark clip): truth, RMB-Net's binned frame, raw TFI,
+    the gate's share of TFI (black 0, white 1) and the mixed frame, each tone-mapped as the evaluation's pictures
+    (mu-law of the frame over the truth's robust scale)."""
+    from rmbvideo.mulaw import mu_law as curve
+    from rmbvideo.net.raw_gate import gate_features
+    from rmbvideo.net.weights import default_model_path, default_raw_gate_path, load_raw_gate
+    from rmbvideo.train.raw_gate import frame_triples
+
+    torch.set_num_threads(1)
+    gate = load_raw_gate(default_raw_gate_path())[0]
+    sequences = [s for s in load_heldout(False) + load_video_heldout(False)
+                 if s.name in ("random-1000002", "dark-100")]
+    rows = []
+    for seq in sequences:
+        triples = frame_triples(seq, default_model_path("binned"), gate.config.tfi_reach)
+        i = len(triples) // 2
+        binned, tfi, truth = triples[i]
+        x = [torch.from_numpy(np.ascontiguousarray(v, np.float32))[None, None] for v in (binned, tfi, triples[i - 1][0])]
+        code = float(sequence_convention(seq) != "physical")
+        with torch.no_grad():
+            share = gate.share(gate_features(*x, code))[0, 0].numpy()
+            mixed = gate(*x, code)[0, 0].numpy()
+        scale = robust_scale(truth)
+        tone = lambda im: (255 * np.clip(curve(np.clip(im / scale, 0, 1), 5000.0), 0, 1)).astype(np.uint8)  # noqa: E731
+        tiles = [tone(truth), tone(binned), tone(tfi), (255 * share).astype(np.uint8), tone(mixed)]
+        rows.append(np.hstack(tiles))
+        print(f"{seq.name} frame {i}: mean share {share.mean():.3f}, above a half on {100 * (share > 0.5).mean():.1f} %")
+    cv2.imwrite(out, cv2.resize(np.vstack(rows), None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST))
+    print(f"wrote {out} (columns: truth, RMB-Net binned, raw TFI, the gate's share of TFI, mixed)")
+
+
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "fitted":
         fitted(sys.argv[2], sys.argv[3])
+    elif len(sys.argv) > 1 and sys.argv[1] == "picture":
+        picture()
     elif len(sys.argv) > 1 and sys.argv[1] == "cost":
         cost()
     elif len(sys.argv) > 1 and sys.argv[1] == "car":
