@@ -73,12 +73,13 @@ def test_full_resolution_mixes_each_binned_frame_as_the_fitting_reads_it(tmp_pat
     model = _tiny_model(tmp_path / "m.safetensors")
     gate = _mixing_gate()
     convention = sequence_convention(seq)
+    # fp32 on both sides: on a host with bf16 the two runs' frame batches would round differently
     engine = make_reconstructor("rmbnet", model=str(model), input_mode="binned", threads=1, convention=convention,
-                                response=SIMULATED_RESPONSE)
+                                response=SIMULATED_RESPONSE, precision="fp32")
     sink = FrameCollector()
     readout = RmbReadout(trained_readout(engine))  # the one the fitting's binned frames are read through
     reconstruct_stream(seq, FullResolution(engine, readout, step=20, threads=1, raw_gate=gate), sink, chunk_planes=48)
-    triples = frame_triples(seq, model, gate.config.tfi_reach)
+    triples = frame_triples(seq, model, gate.config.tfi_reach, precision="fp32")
     assert sorted(sink.frames) == list(range(len(triples))) and len(triples) >= 4
     code = float(convention != "physical")
     previous = triples[0][0]
@@ -147,7 +148,7 @@ def test_the_shipped_gate_gives_finite_frames_of_a_real_size(tmp_path: Path) -> 
     gated = list(reconstruct_frames(dat, width=64, height=48, threads=1))
     plain = list(reconstruct_frames(dat, width=64, height=48, threads=1, raw_gate="off"))
     assert [f.index for f in gated] == [f.index for f in plain] and len(gated) >= 8
-    for a, b in zip(gated, plain):
-        assert a.image.shape == (48, 64) and np.isfinite(a.image).all() and (a.image >= 0).all()
+    for frame in gated:
+        assert frame.image.shape == (48, 64) and np.isfinite(frame.image).all() and (frame.image >= 0).all()
     pooled = [F.avg_pool2d(torch.from_numpy(f.image)[None, None], 2) for f in (gated[4], plain[4])]
     assert not torch.equal(*pooled)

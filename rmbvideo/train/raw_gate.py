@@ -66,11 +66,12 @@ def training_sequences(recipe: RawGateRecipe) -> Iterator[Sequence]:
                                               else config, training=True)
 
 
-def frame_triples(seq: Sequence, model: Path, reach: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Per frame of ``seq`` (in order): RMB-Net's binned frame, raw TFI read as light and 2x2-averaged, and the ground
-    truth, as the evaluation makes them."""
-    network = MethodSpec("RMB-Net", "rmbnet", {"model": str(model), "input_mode": "binned", "threads": 1},
-                         model_readout(model))
+def frame_triples(seq: Sequence, model: Path, reach: int,
+                  precision: str = "auto") -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per frame of ``seq`` (in order): RMB-Net's binned frame (at ``precision``, ``reconstruct``'s policy by default),
+    raw TFI read as light and 2x2-averaged, and the ground truth, as the evaluation makes them."""
+    network = MethodSpec("RMB-Net", "rmbnet", {"model": str(model), "input_mode": "binned", "threads": 1,
+                                               "precision": precision}, model_readout(model))
     tfi = MethodSpec("TFI (raw)", "tfi", {"step": 20, "max_reach": reach}, raw=True)
     binned = {f.index: f.image for f in run_frames(network, seq)[0]}
     raw = {f.index: f.image for f in run_frames(tfi, seq)[0]}

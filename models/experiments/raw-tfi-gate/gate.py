@@ -12,6 +12,7 @@ figure for deciding whether to build and train the candidate, never a model to s
     python models/experiments/raw-tfi-gate/gate.py car ../shared/data/real/car.dat   # grain on a smooth surface
     python models/experiments/raw-tfi-gate/gate.py cost           # what the gate costs a frame, one thread
     python models/experiments/raw-tfi-gate/gate.py picture        # models/figures/raw-gate.png: where it mixes
+    python models/experiments/raw-tfi-gate/gate.py edges          # the clips' first and last frames, with and without
 """
 
 import sys
@@ -302,9 +303,37 @@ def picture(out: str = "models/figures/raw-gate.png") -> None:
     print(f"wrote {out} (columns: truth, RMB-Net binned, raw TFI, the gate's share of TFI, mixed)")
 
 
+def edges() -> None:
+    """The held-out video clips' first, median and last frames (mu-law PSNR, every frame scored as ``evaluate``'s
+    checks do) of RMB-Net's binned frames and of the gated ones: the gate at a clip's edge, where the binned frame's
+    change since the last is zero (the first frame is its own previous)."""
+    from rmbvideo.evaluate.metrics import mu_law_psnr
+    from rmbvideo.net.weights import default_model_path, default_raw_gate_path, load_raw_gate
+    from rmbvideo.train.raw_gate import frame_triples
+
+    torch.set_num_threads(1)
+    gate = load_raw_gate(default_raw_gate_path())[0]
+    print("| clip | first: binned / gated | median frame: binned / gated | last: binned / gated |")
+    print("|---|---:|---:|---:|")
+    for seq in load_video_heldout(False):
+        triples = frame_triples(seq, default_model_path("binned"), gate.config.tfi_reach)
+        code = float(sequence_convention(seq) != "physical")
+        scores, previous = [], triples[0][0]
+        with torch.no_grad():
+            for binned, tfi, truth in triples:
+                x = [torch.from_numpy(np.ascontiguousarray(v, np.float32))[None, None] for v in (binned, tfi, previous)]
+                scores.append((mu_law_psnr(binned, truth), mu_law_psnr(gate(*x, code)[0, 0].numpy(), truth)))
+                previous = binned
+        median = np.median(np.array(scores), axis=0)
+        cells = [f"{a:.2f} / {b:.2f}" for a, b in (scores[0], median, scores[-1])]
+        print(f"| {seq.name} | " + " | ".join(cells) + " |", flush=True)
+
+
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "fitted":
         fitted(sys.argv[2], sys.argv[3])
+    elif len(sys.argv) > 1 and sys.argv[1] == "edges":
+        edges()
     elif len(sys.argv) > 1 and sys.argv[1] == "picture":
         picture()
     elif len(sys.argv) > 1 and sys.argv[1] == "cost":
