@@ -152,3 +152,43 @@ def test_the_shipped_gate_gives_finite_frames_of_a_real_size(tmp_path: Path) -> 
         assert frame.image.shape == (48, 64) and np.isfinite(frame.image).all() and (frame.image >= 0).all()
     pooled = [F.avg_pool2d(torch.from_numpy(f.image)[None, None], 2) for f in (gated[4], plain[4])]
     assert not torch.equal(*pooled)
+
+
+def test_the_gate_loss_adds_the_linear_error_of_display_referred_pixels_only() -> None:
+    """"mu-law" is the mu-law MSE of every pixel; "mu-law+display-linear" adds the log of the display-referred pixels'
+    linear MSE to its log (the two PSNRs alike), and is the mu-law MSE alone without such pixels."""
+    from rmbvideo.cli.train import train_raw_gate
+    from rmbvideo.mulaw import mu_law
+    from rmbvideo.train.raw_gate import GATE_LOSSES, LOSS_MU, RawGateRecipe, gate_loss
+
+    truth = torch.tensor([0.01, 0.2, 0.5, 0.9])
+    mixed = torch.tensor([0.02, 0.25, 0.4, 0.8])
+    display = torch.tensor([False, False, True, True])
+    mu_mse = ((mu_law(mixed, LOSS_MU) - mu_law(truth, LOSS_MU)) ** 2).mean()
+    assert float(gate_loss(mixed, truth, display, "mu-law")) == pytest.approx(float(mu_mse))
+    both = float(gate_loss(mixed, truth, display, "mu-law+display-linear"))
+    assert both == pytest.approx(float(torch.log(mu_mse)) + np.log((0.1 ** 2 + 0.1 ** 2) / 2), rel=1e-5)
+    assert float(gate_loss(mixed, truth, torch.zeros(4, dtype=torch.bool), "mu-law+display-linear")) == pytest.approx(
+        float(mu_mse))
+    assert tuple(next(p for p in train_raw_gate.params if p.name == "loss").type.choices) == GATE_LOSSES
+    with pytest.raises(ValueError, match="loss"):
+        RawGateRecipe(loss="linear")
+
+
+def test_display_referred_streams_are_spikezoo_simulator_streams_only() -> None:
+    """The linear term's pixels: spikezoo's noise-free streams (the video kind and the recipe's display twins), never
+    a camera's pixel reset by subtraction, though its streams are in the same rate convention."""
+    from dataclasses import replace
+
+    from rmbvideo.evaluate.harness import sequence_convention
+    from rmbvideo.evaluate.heldout import VIDEO_KINDS, simulate_video_sequence
+    from rmbvideo.train.raw_gate import RawGateRecipe, display_referred, training_sequences
+
+    fast = next(k for k in VIDEO_KINDS if k.name == "fast")
+    twin = simulate_video_sequence(730_000, replace(fast, name="fast-display", convention="spikezoo"), TINY,
+                                   training=True)
+    subtract = simulate_sequence(700_000, replace(TINY, reset="subtract"), training=True)
+    assert display_referred(twin) and not display_referred(subtract)
+    assert sequence_convention(subtract) == "spikezoo" and not display_referred(simulate_sequence(700_000, TINY, True))
+    recipe = RawGateRecipe(capture=TINY, pans=0, videos=0, resets=(), display_videos=1)
+    assert [display_referred(seq) for seq in training_sequences(recipe)] == [True] * 4  # every physical kind's twin

@@ -1,13 +1,16 @@
 """Fitting the raw-interval gate (``rmbvideo.net.raw_gate``) to the shipped RMB-Net, on simulated 1-bit captures of
 training seeds: panorama pans and the video kinds of the evaluation (fast, dark, fast-dark, spikezoo-fast,
 low-contrast), each with both pixels (reset to zero, reset by subtraction). Every capture is run as the evaluation
-runs it: RMB-Net on the binned stream, TFI on the raw planes read as light and 2x2-averaged; the gate is fitted to
-the mu-law error of the mixed frame against the exact ground truth on pixels drawn from every frame. A few minutes
-of simulation and fitting on one core; the same seeds give the same gate.
+runs it: RMB-Net on the binned stream, TFI on the raw planes read as light and 2x2-averaged; the gate is fitted on
+pixels drawn from every frame to the mixed frame's mu-law error against the exact ground truth (the recipe can add
+the linear error of display-referred captures, spikezoo's 8-bit video values, as real video is scored, and
+display-referred twins of every video kind: tried, not shipped, ``models/experiments/raw-tfi-gate/results.md``).
+About half an hour of simulation and fitting on one core; the same seeds give the same gate.
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import time
 from collections.abc import Iterator
@@ -30,25 +33,36 @@ log = logging.getLogger(__name__)
 
 #: mu of the loss's tone curve: the evaluation's mu-law PSNR.
 LOSS_MU = 5000.0
+#: What the gate is fitted to: "mu-law", the mu-law MSE of every pixel; "mu-law+display-linear", the sum of the logs
+#: of that and of the linear MSE of the display-referred pixels (the two PSNRs the evaluation reports, weighed alike).
+GATE_LOSSES = ("mu-law", "mu-law+display-linear")
 
 
 @dataclass(frozen=True)
 class RawGateRecipe:
     """What the gate is fitted on and how: ``pans`` panorama pans and ``videos`` sequences of every video kind per
-    pixel kind in ``resets`` (spikezoo's kind has no reset: once), from training seed ``first_seed`` on, each of
-    ``capture``'s size and length (the held-out set's); ``pixels`` drawn per frame, ``steps`` of Adam at ``lr``,
-    initial weights from ``seed``."""
+    pixel kind in ``resets`` (spikezoo's kind has no reset: once), then ``display_videos`` sequences of every other
+    video kind simulated again in spikezoo's convention (display-referred streams of every kind of motion, not only
+    fast), from training seed ``first_seed`` on, each of ``capture``'s size and length (the held-out set's);
+    ``pixels`` drawn per frame, ``steps`` of Adam at ``lr`` on ``loss`` (one of ``GATE_LOSSES``), initial weights from
+    ``seed``."""
 
     gate: RawGateConfig = RawGateConfig()
     capture: HeldoutConfig = FULL
     pans: int = 6
     videos: int = 2
     resets: tuple[str, ...] = ("zero", "subtract")
+    display_videos: int = 0
     first_seed: int = 700_000
     pixels: int = 2000
     steps: int = 2000
     lr: float = 3e-3
+    loss: str = "mu-law"
     seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.loss not in GATE_LOSSES:
+            raise ValueError(f"loss must be one of {GATE_LOSSES}, got {self.loss!r}")
 
 
 def training_sequences(recipe: RawGateRecipe) -> Iterator[Sequence]:
@@ -64,6 +78,12 @@ def training_sequences(recipe: RawGateRecipe) -> Iterator[Sequence]:
                 seed = recipe.first_seed + 10_000 + 1000 * r + 100 * k + j
                 yield simulate_video_sequence(seed, kind, replace(config, reset="zero") if kind.convention != "physical"
                                               else config, training=True)
+    for k, kind in enumerate(VIDEO_KINDS):
+        if kind.convention == "physical":
+            for j in range(recipe.display_videos):
+                seed = recipe.first_seed + 30_000 + 100 * k + j
+                yield simulate_video_sequence(seed, replace(kind, name=f"{kind.name}-display", convention="spikezoo"),
+                                              replace(recipe.capture, reset="zero"), training=True)
 
 
 def frame_triples(seq: Sequence, model: Path, reach: int,
@@ -76,6 +96,26 @@ def frame_triples(seq: Sequence, model: Path, reach: int,
     binned = {f.index: f.image for f in run_frames(network, seq)[0]}
     raw = {f.index: f.image for f in run_frames(tfi, seq)[0]}
     return [(binned[i], raw[i], np.minimum(seq.gt[i], SATURATION)) for i in sorted(set(binned) & set(raw))]
+
+
+@dataclass(frozen=True)
+class GateSamples:
+    """Pixels the gate is fitted on: ``features`` (N, len(FEATURES)); ``binned``, ``tfi`` and ``truth`` (N,) divided
+    by their frame's robust truth scale; ``display`` (N,) True on display-referred captures; ``captures`` their
+    names."""
+
+    features: np.ndarray
+    binned: np.ndarray
+    tfi: np.ndarray
+    truth: np.ndarray
+    display: np.ndarray
+    captures: tuple[str, ...]
+
+
+def display_referred(seq: Sequence) -> bool:
+    """Whether ``seq`` is a display-referred stream (spikezoo's noise-free simulator: 8-bit video values); a camera's
+    pixel reset by subtraction is in the same rate convention but sees radiance."""
+    return sequence_convention(seq) == "spikezoo" and json.loads(seq.description or "{}").get("reset") != "subtract"
 
 
 def _samples(seq: Sequence, triples: list, recipe: RawGateRecipe,
@@ -97,18 +137,37 @@ def _samples(seq: Sequence, triples: list, recipe: RawGateRecipe,
     return tuple(np.concatenate(x) for x in out)
 
 
-def fit_raw_gate(recipe: RawGateRecipe, out: Path, model: Path | None = None, progress: bool = False) -> Path:
-    """Simulate the recipe's captures, fit the gate to ``model`` (the shipped binned RMB-Net when None) and save it
-    as ``out`` (.safetensors + card); returns the weights path."""
-    model = model or default_model_path("binned")
-    began = time.perf_counter()
+def gather_samples(recipe: RawGateRecipe, model: Path, progress: bool = False) -> GateSamples:
+    """Simulate the recipe's captures, run ``model`` and raw TFI on each and draw the recipe's pixels."""
     rng = np.random.default_rng(recipe.seed)
     parts: list[tuple[np.ndarray, ...]] = []
+    display: list[np.ndarray] = []
     names = []
     for seq in tqdm(training_sequences(recipe), desc="captures", unit="capture", disable=not progress):
         parts.append(_samples(seq, frame_triples(seq, model, recipe.gate.tfi_reach), recipe, rng))
+        display.append(np.full(len(parts[-1][1]), display_referred(seq)))
         names.append(seq.name)
-    features, binned, tfi, truth = (torch.from_numpy(np.concatenate(x)) for x in zip(*parts))
+    features, binned, tfi, truth = (np.concatenate(x) for x in zip(*parts))
+    return GateSamples(features, binned, tfi, truth, np.concatenate(display), tuple(names))
+
+
+def gate_loss(mixed: torch.Tensor, truth: torch.Tensor, display: torch.Tensor, loss: str) -> torch.Tensor:
+    """The recipe's ``loss`` (``GATE_LOSSES``) of mixed pixels against the truth (both divided by the truth's robust
+    scale); without display-referred pixels, the mu-law MSE alone."""
+    tone = lambda v: mu_law(v.clamp(0.0, 1.0), LOSS_MU)  # noqa: E731
+    mu_mse = ((tone(mixed) - tone(truth)) ** 2).mean()
+    if loss == "mu-law" or not bool(display.any()):
+        return mu_mse
+    linear_mse = ((mixed[display] - truth[display]) ** 2).mean()
+    return torch.log(mu_mse) + torch.log(linear_mse)
+
+
+def fit_gate(samples: GateSamples, recipe: RawGateRecipe, progress: bool = False) -> tuple[RawGate, dict[str, float]]:
+    """A gate fitted to ``samples`` by the recipe's Adam steps and loss; also the mu-law and display-referred linear
+    MSE with and without it."""
+    features, binned, tfi, truth = (torch.from_numpy(np.ascontiguousarray(x, np.float32))
+                                    for x in (samples.features, samples.binned, samples.tfi, samples.truth))
+    display = torch.from_numpy(samples.display)
     torch.manual_seed(recipe.seed)
     gate = RawGate(recipe.gate)
     with torch.no_grad():
@@ -116,29 +175,41 @@ def fit_raw_gate(recipe: RawGateRecipe, out: Path, model: Path | None = None, pr
         gate.feature_std.copy_(features.std(0))
     optimiser = torch.optim.Adam(gate.body.parameters(), lr=recipe.lr)
     x = features.T[None, :, :, None]  # the pixels as a (1, F, P, 1) image: the gate's 1x1 convolutions per pixel
-    tone = lambda v: mu_law(v.clamp(0.0, 1.0), LOSS_MU)  # noqa: E731
-    target = tone(truth)
     for _ in tqdm(range(recipe.steps), desc="fitting", unit="step", disable=not progress):
         share = gate.share(x)[0, 0, :, 0]
-        loss = ((tone((1.0 - share) * binned + share * tfi) - target) ** 2).mean()
+        loss = gate_loss((1.0 - share) * binned + share * tfi, truth, display, recipe.loss)
         optimiser.zero_grad()
         loss.backward()
         optimiser.step()
+    metrics = {}
     with torch.no_grad():
         share = gate.share(x)[0, 0, :, 0]
-        fitted = float(((tone((1.0 - share) * binned + share * tfi) - target) ** 2).mean())
-        kept = float(((tone(binned) - target) ** 2).mean())
+        for suffix, image in (("", (1.0 - share) * binned + share * tfi), ("_without_gate", binned)):
+            metrics[f"fit_mse{suffix}"] = float(gate_loss(image, truth, display, "mu-law"))
+            if bool(display.any()):
+                metrics[f"fit_display_linear_mse{suffix}"] = float(((image - truth)[display] ** 2).mean())
+    return gate, metrics
+
+
+def fit_raw_gate(recipe: RawGateRecipe, out: Path, model: Path | None = None, progress: bool = False) -> Path:
+    """Simulate the recipe's captures, fit the gate to ``model`` (the shipped binned RMB-Net when None) and save it
+    as ``out`` (.safetensors + card); returns the weights path."""
+    model = model or default_model_path("binned")
+    began = time.perf_counter()
+    samples = gather_samples(recipe, model, progress)
+    gate, metrics = fit_gate(samples, recipe, progress)
     minutes = (time.perf_counter() - began) / 60
-    log.info("raw gate: mu-law MSE %.3g with the gate, %.3g without (%d pixels, %.1f min)", fitted, kept,
-             len(truth), minutes)
+    log.info("raw gate: mu-law MSE %.3g with the gate, %.3g without (%d pixels, %.1f min)", metrics["fit_mse"],
+             metrics["fit_mse_without_gate"], len(samples.truth), minutes)
     card = ModelCard(
         name=out.stem,
         description="Raw-interval gate of 1-bit captures: RMB-Net's binned frame mixed per pixel with raw TFI "
                     "(rmbvideo.net.raw_gate), fitted to the binned RMB-Net named in data.",
         training={**{k: v for k, v in asdict(recipe).items() if k not in ("gate", "capture")},
-                  "capture": {k: v for k, v in asdict(recipe.capture).items() if k in ("width", "height", "readouts")}, "loss": "mu-law MSE (mu 5000)",
+                  "capture": {k: v for k, v in asdict(recipe.capture).items() if k in ("width", "height", "readouts")},
+                  "loss_mu": LOSS_MU,
                   "optimizer": "Adam", "wall_minutes": round(minutes, 1)},
-        data={"model": model.name, "captures": names, "pixels": len(truth)},
-        metrics={"fit_mse": fitted, "fit_mse_without_gate": kept},
+        data={"model": model.name, "captures": list(samples.captures), "pixels": len(samples.truth)},
+        metrics=metrics,
     )
     return save_model(out, gate, card)

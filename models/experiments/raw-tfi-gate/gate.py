@@ -12,7 +12,7 @@ figure for deciding whether to build and train the candidate, never a model to s
     python models/experiments/raw-tfi-gate/gate.py car ../shared/data/real/car.dat   # grain on a smooth surface
     python models/experiments/raw-tfi-gate/gate.py cost           # what the gate costs a frame, one thread
     python models/experiments/raw-tfi-gate/gate.py picture        # models/figures/raw-gate.png: where it mixes
-    python models/experiments/raw-tfi-gate/gate.py edges          # the clips' first and last frames, with and without
+    python models/experiments/raw-tfi-gate/gate.py edges [PATH]   # the clips' first and last frames, with and without
 """
 
 import sys
@@ -128,9 +128,12 @@ def main(seeds: int = 3) -> None:
 
 def fitted(path: str, which: str) -> None:
     """A gate file scored on the development sequences (both pixels) or the held-out set (both pixels), as
-    ``reconstruct`` mixes the frames: RMB-Net's binned frame, the gated one, and raw TFI."""
+    ``reconstruct`` mixes the frames: RMB-Net's binned frame, the gated one, and raw TFI. A display-referred sequence
+    (spikezoo's streams) gets a second row, "linear": linear PSNR after a least-squares gain, as real video is
+    scored (mean over the scored frames, each divided by its truth's robust scale)."""
+    from rmbvideo.evaluate.real_video import scaled_psnr
     from rmbvideo.net.weights import default_model_path, load_raw_gate
-    from rmbvideo.train.raw_gate import frame_triples
+    from rmbvideo.train.raw_gate import display_referred, frame_triples
 
     torch.set_num_threads(1)
     gate = load_raw_gate(path)[0]
@@ -159,6 +162,12 @@ def fitted(path: str, which: str) -> None:
             rows.append(row)
             print(f"| {seq.name} ({reset}) | {row[0]:.2f} | {row[1]:.2f} | {row[2]:.2f} | {row[2] - row[0]:+.2f} |",
                   flush=True)
+            if display_referred(seq):
+                truths = {i: np.minimum(triples[i][2], SATURATION) for i in scored}
+                linear = [np.mean([scaled_psnr(image(i), truths[i] / robust_scale(truths[i])) for i in scored])
+                          for image in (lambda i: triples[i][0], lambda i: triples[i][1], lambda i: gated[i])]
+                print(f"| {seq.name} ({reset}), linear | {linear[0]:.2f} | {linear[1]:.2f} | {linear[2]:.2f} "
+                      f"| {linear[2] - linear[0]:+.2f} |", flush=True)
         means[reset] = np.mean(rows, axis=0)
     for reset, m in means.items():
         print(f"| mean ({reset}) | {m[0]:.2f} | {m[1]:.2f} | {m[2]:.2f} | {m[2] - m[0]:+.2f} |")
@@ -303,29 +312,38 @@ def picture(out: str = "models/figures/raw-gate.png") -> None:
     print(f"wrote {out} (columns: truth, RMB-Net binned, raw TFI, the gate's share of TFI, mixed)")
 
 
-def edges() -> None:
+def edges(path: str | None = None) -> None:
     """The held-out video clips' first, median and last frames (mu-law PSNR, every frame scored as ``evaluate``'s
     checks do) of RMB-Net's binned frames and of the gated ones: the gate at a clip's edge, where the binned frame's
-    change since the last is zero (the first frame is its own previous)."""
+    change since the last is zero (the first frame is its own previous); then the moment each edge frame shows
+    (``evaluate``'s offset search), binned and gated."""
     from rmbvideo.evaluate.metrics import mu_law_psnr
+    from rmbvideo.evaluate.video_checks import FRAME_STEP, best_time_offset_ms, video_scene_of
     from rmbvideo.net.weights import default_model_path, default_raw_gate_path, load_raw_gate
     from rmbvideo.train.raw_gate import frame_triples
 
     torch.set_num_threads(1)
-    gate = load_raw_gate(default_raw_gate_path())[0]
-    print("| clip | first: binned / gated | median frame: binned / gated | last: binned / gated |")
-    print("|---|---:|---:|---:|")
+    gate = load_raw_gate(path or default_raw_gate_path())[0]
+    print("| clip | first: binned / gated | median frame: binned / gated | last: binned / gated "
+          "| offset ms first: binned / gated | last | middle |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
     for seq in load_video_heldout(False):
         triples = frame_triples(seq, default_model_path("binned"), gate.config.tfi_reach)
         code = float(sequence_convention(seq) != "physical")
-        scores, previous = [], triples[0][0]
+        scores, gated, previous = [], [], triples[0][0]
         with torch.no_grad():
             for binned, tfi, truth in triples:
                 x = [torch.from_numpy(np.ascontiguousarray(v, np.float32))[None, None] for v in (binned, tfi, previous)]
-                scores.append((mu_law_psnr(binned, truth), mu_law_psnr(gate(*x, code)[0, 0].numpy(), truth)))
+                gated.append(gate(*x, code)[0, 0].numpy())
+                scores.append((mu_law_psnr(binned, truth), mu_law_psnr(gated[-1], truth)))
                 previous = binned
         median = np.median(np.array(scores), axis=0)
         cells = [f"{a:.2f} / {b:.2f}" for a, b in (scores[0], median, scores[-1])]
+        scene, count = video_scene_of(seq), len(triples)
+        for i in (0, count - 1, count // 2):  # evaluate's edge_report: frame i's centre is raw plane 2 step i + step
+            plane = 2 * FRAME_STEP * i + FRAME_STEP
+            cells.append(" / ".join(f"{best_time_offset_ms(image, scene, plane):+.2f}"
+                                    for image in (triples[i][0], gated[i])))
         print(f"| {seq.name} | " + " | ".join(cells) + " |", flush=True)
 
 
@@ -333,7 +351,7 @@ if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "fitted":
         fitted(sys.argv[2], sys.argv[3])
     elif len(sys.argv) > 1 and sys.argv[1] == "edges":
-        edges()
+        edges(sys.argv[2] if len(sys.argv) > 2 else None)
     elif len(sys.argv) > 1 and sys.argv[1] == "picture":
         picture()
     elif len(sys.argv) > 1 and sys.argv[1] == "cost":
