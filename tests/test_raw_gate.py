@@ -176,8 +176,8 @@ def test_the_gate_loss_adds_the_linear_error_of_display_referred_pixels_only() -
 
 
 def test_display_referred_streams_are_spikezoo_simulator_streams_only() -> None:
-    """The linear term's pixels: spikezoo's noise-free streams (the video kind and the recipe's display twins), never
-    a camera's pixel reset by subtraction, though its streams are in the same rate convention."""
+    """The linear term's pixels: spikezoo's noise-free streams (the video kind and the recipe's display-referred
+    captures), never a camera's pixel reset by subtraction, though its streams are in the same rate convention."""
     from dataclasses import replace
 
     from rmbvideo.evaluate.harness import sequence_convention
@@ -190,5 +190,6 @@ def test_display_referred_streams_are_spikezoo_simulator_streams_only() -> None:
     subtract = simulate_sequence(700_000, replace(TINY, reset="subtract"), training=True)
     assert display_referred(twin) and not display_referred(subtract)
     assert sequence_convention(subtract) == "spikezoo" and not display_referred(simulate_sequence(700_000, TINY, True))
-    recipe = RawGateRecipe(capture=TINY, pans=0, videos=0, resets=(), display_videos=1)
-    assert [display_referred(seq) for seq in training_sequences(recipe)] == [True] * 4  # every physical kind's twin
+    recipe = RawGateRecipe(capture=TINY, pans=0, videos=0, resets=(), display_videos=1, display_scenes=1)
+    made = list(training_sequences(recipe))  # every physical kind's twin, then the training scenes' video ranges
+    assert [display_referred(seq) for seq in made] == [True] * 5 and made[-1].name.startswith("video-display")

@@ -22,12 +22,13 @@ import torch
 from tqdm import tqdm
 
 from rmbvideo.evaluate.harness import SATURATION, MethodSpec, run_frames, sequence_convention
-from rmbvideo.evaluate.heldout import (FULL, VIDEO_KINDS, HeldoutConfig, Sequence, simulate_sequence,
+from rmbvideo.evaluate.heldout import (FULL, VIDEO_KINDS, HeldoutConfig, Sequence, VideoHeldout, simulate_sequence,
                                        simulate_video_sequence)
 from rmbvideo.evaluate.metrics import robust_scale
 from rmbvideo.mulaw import mu_law
 from rmbvideo.net.raw_gate import FEATURES, RawGate, RawGateConfig, gate_features
 from rmbvideo.net.weights import ModelCard, default_model_path, model_readout, save_model
+from rmbvideo.scenes.video import VideoSceneRanges
 
 log = logging.getLogger(__name__)
 
@@ -36,6 +37,9 @@ LOSS_MU = 5000.0
 #: What the gate is fitted to: "mu-law", the mu-law MSE of every pixel; "mu-law+display-linear", the sum of the logs
 #: of that and of the linear MSE of the display-referred pixels (the two PSNRs the evaluation reports, weighed alike).
 GATE_LOSSES = ("mu-law", "mu-law+display-linear")
+#: Display-referred captures of the training scenes' own video ranges (camera speed log-uniform 0.005-1.2 raw px a
+#: plane: mostly slow; the real-video streams move 0.12-0.19, ``models/experiments/raw-tfi-gate/slow_display.py``).
+VIDEO_DISPLAY = VideoHeldout("video-display", VideoSceneRanges(), "spikezoo")
 
 
 @dataclass(frozen=True)
@@ -43,7 +47,8 @@ class RawGateRecipe:
     """What the gate is fitted on and how: ``pans`` panorama pans and ``videos`` sequences of every video kind per
     pixel kind in ``resets`` (spikezoo's kind has no reset: once), then ``display_videos`` sequences of every other
     video kind simulated again in spikezoo's convention (display-referred streams of every kind of motion, not only
-    fast), from training seed ``first_seed`` on, each of ``capture``'s size and length (the held-out set's);
+    fast) and ``display_scenes`` of the training scenes' own video ranges in that convention (mostly slow, as video
+    mostly is), from training seed ``first_seed`` on, each of ``capture``'s size and length (the held-out set's);
     ``pixels`` drawn per frame, ``steps`` of Adam at ``lr`` on ``loss`` (one of ``GATE_LOSSES``), initial weights from
     ``seed``."""
 
@@ -53,6 +58,7 @@ class RawGateRecipe:
     videos: int = 2
     resets: tuple[str, ...] = ("zero", "subtract")
     display_videos: int = 0
+    display_scenes: int = 0
     first_seed: int = 700_000
     pixels: int = 2000
     steps: int = 2000
@@ -84,6 +90,9 @@ def training_sequences(recipe: RawGateRecipe) -> Iterator[Sequence]:
                 seed = recipe.first_seed + 30_000 + 100 * k + j
                 yield simulate_video_sequence(seed, replace(kind, name=f"{kind.name}-display", convention="spikezoo"),
                                               replace(recipe.capture, reset="zero"), training=True)
+    for j in range(recipe.display_scenes):
+        yield simulate_video_sequence(recipe.first_seed + 40_000 + j, VIDEO_DISPLAY,
+                                      replace(recipe.capture, reset="zero"), training=True)
 
 
 def frame_triples(seq: Sequence, model: Path, reach: int,

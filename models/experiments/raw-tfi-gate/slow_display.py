@@ -21,13 +21,11 @@ import cv2
 import numpy as np
 import torch
 
-from rmbvideo.evaluate.heldout import FULL, VideoHeldout, simulate_video_sequence
+from rmbvideo.evaluate.heldout import FULL, simulate_video_sequence
 from rmbvideo.net.weights import ModelCard, default_model_path, save_model
-from rmbvideo.scenes.video import VideoSceneRanges
-from rmbvideo.train.raw_gate import (GateSamples, RawGateRecipe, display_referred, fit_gate, frame_triples,
-                                     gather_samples, _samples)
+from rmbvideo.train.raw_gate import (VIDEO_DISPLAY, GateSamples, RawGateRecipe, display_referred, fit_gate,
+                                     frame_triples, gather_samples, _samples)
 
-VIDEO_DISPLAY = VideoHeldout("video-display", VideoSceneRanges(), "spikezoo")
 FIRST_SEED = 740_000
 
 
