@@ -5,7 +5,9 @@ streams the gate is fitted on move 1.06-1.2 (spikezoo-fast and the fast twin) an
 there RMB-Net's binned window blurs and TFI wins, where on the real streams its window is sharp. This adds captures
 of the training scenes' default video ranges (camera speed log-uniform 0.005-1.2 px/plane: mostly slow) in
 spikezoo's convention to the samples of ``rmbvideo train-raw-gate --display-videos 2``, fits a gate with each loss
-and scores it on the real streams at the binned size (as ``gate.py real``). Run from the repository root:
+and scores it on the real streams at the binned size (as ``gate.py real``). Answer: no (200_part3 -0.77 dB with the
+mu-law loss, -1.25 with the display-linear one, against the shipped gate's -0.48; ``results.md``). Run from the
+repository root:
 
     python models/experiments/raw-tfi-gate/slow_display.py speeds ../shared/data/spikezoo-base   # the speeds above
     python models/experiments/raw-tfi-gate/slow_display.py gather OUT.npz [CAPTURES]   # about 10 minutes, one core
