@@ -4,7 +4,7 @@ low-contrast), each with both pixels (reset to zero, reset by subtraction). Ever
 runs it: RMB-Net on the binned stream, TFI on the raw planes read as light and 2x2-averaged; the gate is fitted on
 pixels drawn from every frame to the mixed frame's mu-law error against the exact ground truth (the recipe can add
 the linear error of display-referred captures, spikezoo's 8-bit video values, as real video is scored, and
-display-referred twins of every video kind: tried, not shipped, ``models/experiments/raw-tfi-gate/results.md``).
+display-referred captures of every kind of motion: tried, not shipped, ``models/experiments/raw-tfi-gate/results.md``).
 About half an hour of simulation and fitting on one core; the same seeds give the same gate.
 """
 
