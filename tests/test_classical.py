@@ -42,7 +42,8 @@ def _random_planes(t=157, h=6, w=7, seed=3):
     return (rng.random((t, h, w)) < rate).astype(np.uint8)
 
 
-@pytest.mark.parametrize("factory", [Tfp, lambda: Tfp(window=7, step=3), Tfi, lambda: Tfi(step=3, max_reach=5)])
+@pytest.mark.parametrize("factory", [Tfp, lambda: Tfp(window=7, step=3), Tfi, lambda: Tfi(step=3, max_reach=5),
+                                     lambda: Tfi(step=3, max_reach=5, window=7), lambda: Tfi(window=30)])
 @pytest.mark.parametrize("start", [0, 5])
 def test_spike_methods_chunk_independent(factory, start):
     planes = _random_planes()
@@ -186,3 +187,61 @@ def test_tfp_matches_ground_truth(shared_data):
     mse = ((scale * x - truth) ** 2).mean()
     psnr = 10 * np.log10(255.0**2 / mse)
     assert psnr >= 28.0
+
+
+def _tfi_m_reference(planes: np.ndarray, start: int, step: int, reach: int, window: int) -> dict[int, np.ndarray]:
+    """TFI-M written out per pixel as its docstring says, on the whole data (planes start..start+T-1)."""
+    end = start + len(planes)
+    out = {}
+    for i in range(1000):
+        centre2 = (2 * i + 1) * step
+        if centre2 < 2 * start:
+            continue
+        if centre2 >= 2 * end:
+            break
+        p = centre2 // 2 - window // 2
+        image = np.empty(planes.shape[1:], np.float32)
+        for y, x in np.ndindex(*planes.shape[1:]):
+            times = start + np.flatnonzero(planes[:, y, x])
+            before = times[(times <= p) & (times >= p - reach + 1)]
+            after = times[(times > p + window) & (times <= p + window + reach)]
+            prev = before.max() if len(before) else max(p - reach + 1, start) - 1
+            nxt = after.min() if len(after) else min(p + window + reach, end - 1) + 1
+            central = ((times > p) & (times <= p + window)).sum()
+            image[y, x] = (central + 1) / max(nxt - prev, 1)
+        out[i] = image
+    return out
+
+
+@pytest.mark.parametrize("window", [0, 1, 6, 9, 40])
+@pytest.mark.parametrize("start", [0, 7])
+def test_tfi_window_counts_the_spikes_between_the_spikes_around_the_central_planes(window, start):
+    """TFI-M, per pixel: (spikes in the central planes + 1) / (first spike after them - last spike before them),
+    every chunking, the data's edges and the reach's bounds included; window 0 is plain TFI."""
+    planes = _random_planes(t=143, h=3, w=4, seed=window)
+    planes[:, 0, 0] = 0  # never fires: the bounds stand in for both spikes
+    expected = _tfi_m_reference(planes, start, step=11, reach=13, window=window)
+    for size in (1, 17, len(planes)):
+        frames = _run(Tfi(step=11, max_reach=13, window=window), _spikes(planes, size, start))
+        assert [f.index for f in frames] == sorted(expected)
+        for f in frames:
+            assert np.array_equal(f.image, expected[f.index]), (size, f.index)
+    if window == 0:
+        _same(_run(Tfi(step=11, max_reach=13), _spikes(planes, 17, start)),
+              _run(Tfi(step=11, max_reach=13, window=0), _spikes(planes, 17, start)))
+
+
+def test_tfi_window_reads_a_regular_pixel_exactly_where_one_interval_cannot():
+    """A noise-free rate-convention pixel at 0.4 spikes a plane: single intervals read 1/2 or 1/3, the spikes over
+    the whole intervals covering 10 central planes read 0.4 to within one spike over their 12-13 planes (5/13 or
+    5/12), whatever its phase."""
+    light, planes = 0.4, np.zeros((300, 1, 5), np.uint8)
+    for x, phase in enumerate(np.linspace(0.0, 0.9, 5)):
+        charge = phase + light * np.arange(1, 301)
+        planes[:, 0, x] = np.diff(np.floor(np.concatenate([[phase], charge]))).astype(np.uint8)
+    single = np.stack([f.image for f in _run(Tfi(step=20, max_reach=50), _spikes(planes, 64))[3:-3]])
+    wide = np.stack([f.image for f in _run(Tfi(step=20, max_reach=50, window=10), _spikes(planes, 64))[3:-3]])
+    assert (np.isclose(single, 1 / 2) | np.isclose(single, 1 / 3)).all()
+    assert np.abs(wide - light).max() <= light / 24 + 1e-6 < np.abs(single - light).max() / 4
+    with pytest.raises(ValueError, match="window"):
+        Tfi(window=-1)

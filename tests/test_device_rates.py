@@ -45,7 +45,8 @@ def test_device_tfp_and_tfi_give_the_numpy_frames_bit_for_bit(chunk, first, pack
     pairs = [(Tfp(6, 20), DeviceTfp(6, 20)), (Tfp(41, 20), DeviceTfp(41, 20)), (Tfi(20, 40), DeviceTfi(20, 40)),
              (Tfi(20, 7), DeviceTfi(20, 7)), (Tfp(41, 20), DeviceTfp(41, 20, on_device=True)),
              (Tfi(20, 40), DeviceTfi(20, 40, on_device=True)),
-             (Tfi(20, 40, shorter=(7,)), DeviceTfi(20, 40, on_device=True, shorter=(7,)))]
+             (Tfi(20, 40, shorter=(7,)), DeviceTfi(20, 40, on_device=True, shorter=(7,))),
+             (Tfi(20, 40, shorter=(7,), window=8), DeviceTfi(20, 40, on_device=True, shorter=(7,), window=8))]
     frames = [([], []) for _ in pairs]
     for a in range(first, len(stored), chunk):
         b = min(len(stored), a + chunk)

@@ -84,7 +84,8 @@ def test_heldout_sequence_is_cached_and_consistent(sequence, cache):
 
 def test_table2_rows_scores_and_not_trained(rows):
     names = [r.name for r in rows]
-    raw = ["TFP-20 (raw)", "TFP-41 (raw)", "TFP-80 (raw)", "TFP-140 (raw)", "TFI (raw)", BEST_RAW]
+    raw = ["TFP-20 (raw)", "TFP-41 (raw)", "TFP-80 (raw)", "TFP-140 (raw)", "TFI (raw)", "TFI-4 (raw)", "TFI-8 (raw)",
+           "TFI-16 (raw)", BEST_RAW]
     assert names == ["TFW-S", "TFW-L", "TFI", "GC20", "MG20", "RMB-Net", CLOSED_FORM_ROW, *raw,
                      "RMB-Net (ablation budget)", "w = 0", "Pure-S", "Pure-M", "Full-M", "w/o XBA", "w/o XTA"]
     status = {r.name: r.status for r in rows}

@@ -180,7 +180,8 @@ def test_cli_writes_full_resolution_frames(tmp_path: Path, fmt: str) -> None:
 def test_full_resolution_evaluation_against_exact_full_size_ground_truth(tmp_path: Path) -> None:
     """A panorama and a video held-out sequence (tiny): the full-size ground truth is rendered again
     from the seed and matches the binned one after 2x2 averaging; every row is scored, full and binned
-    RMB-Net agree at the binned size (adding detail costs nothing there)."""
+    RMB-Net agree at the binned size (adding detail costs nothing there; the raw gate's row mixes in raw
+    intervals, which is meant to change the binned-size image, so it is only required to be finite)."""
     import torch
 
     from rmbvideo.evaluate.full_resolution import (BINNED_UP, FULL, FullScores, full_ground_truth, full_rows,
@@ -203,14 +204,16 @@ def test_full_resolution_evaluation_against_exact_full_size_ground_truth(tmp_pat
     model = save_model(tmp_path / "m.safetensors", RmbNet(RmbNetConfig(w=1, width=0.25, convention_input=True)),
                        ModelCard(name="tiny"))
     scores = FullScores()
-    score_sequences(sequences, full_rows(model), scores)
+    rows = full_rows(model)
+    gated = {row.name for row in rows if row.raw_gate}
+    score_sequences(sequences, rows, scores)
     table = markdown(scores, [s.name for s in sequences], [])
     for name in (FULL, BINNED_UP, "TFP-20", "TFI", "best classical on the raw capture"):
         assert name in table
     for checks in scores.binned_check.values():
         assert FULL in checks and BINNED_UP in checks
-        for value in checks.values():
-            assert np.isfinite(value) and abs(value - checks[BINNED_UP]) < 0.3
+        for name, value in checks.items():
+            assert np.isfinite(value) and (name in gated or abs(value - checks[BINNED_UP]) < 0.3), name
 
 
 @pytest.mark.parametrize("reach", [0, 30])

@@ -17,6 +17,7 @@ def test_every_method_builds_with_its_defaults():
 @pytest.mark.parametrize("name, window, expected", [
     ("tfp", 41, {"window": 41, "step": 20}),
     ("tfi", None, {"step": 20}),
+    ("tfi", 8, {"window": 8, "step": 20}),
     ("tfw", 70, {"window": 70, "step": 10}),
     ("gc20", 70, {"window": 70, "step": 10}),
     ("rmbnet", 0, {"w": 0}),
@@ -34,7 +35,7 @@ def test_native_streams_count_readouts_of_one_raw_plane():
 @pytest.mark.parametrize("name, window, step, message", [
     ("tfp", 100_000_000, 20, "--window: tfp takes 1..20000"),  # a typo cannot ask for gigabytes
     ("tfp", 0, 20, "--window"),
-    ("tfi", 5, 20, "--window: tfi has no window"),
+    ("tfi", -1, 20, "--window: tfi takes 0..20000"),
     ("rmbnet", 4, 20, "--window: rmbnet takes 0..3"),
     ("rmbnet", None, 40, "--step: rmbnet's frame step is fixed"),
     ("tfw", 10, 21, "--step: methods on the binned stream need an even step"),

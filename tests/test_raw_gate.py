@@ -23,10 +23,10 @@ def _tiny_model(path: Path) -> Path:
     return save_model(path, RmbNet(RmbNetConfig(w=1, width=0.25, convention_input=True)), ModelCard(name="tiny"))
 
 
-def _mixing_gate() -> RawGate:
+def _mixing_gate(tfi_window: int = 0) -> RawGate:
     """A gate that mixes (shares spread around a half), so a fault in what it is given shows in the output."""
     torch.manual_seed(3)
-    gate = RawGate(RawGateConfig(hidden=4, tfi_reach=30))
+    gate = RawGate(RawGateConfig(hidden=4, tfi_reach=30, tfi_window=tfi_window))
     with torch.no_grad():
         gate.body[-1].bias.zero_()
         gate.feature_mean.copy_(torch.tensor([-3.0, -3.0, 0.0, -2.0, -2.0, -3.0, 0.0]))
@@ -58,9 +58,11 @@ def test_the_gate_mixes_between_its_two_images_and_never_passes_nan_or_inf() -> 
     assert RawGate().share(torch.zeros(1, len(FEATURES), 2, 2)).max() < 0.05  # a new gate keeps RMB-Net's frame
 
 
-def test_full_resolution_mixes_each_binned_frame_as_the_fitting_reads_it(tmp_path: Path) -> None:
+@pytest.mark.parametrize("tfi_window", [0, 8])
+def test_full_resolution_mixes_each_binned_frame_as_the_fitting_reads_it(tmp_path: Path, tfi_window: int) -> None:
     """Streamed at full resolution, 2x2-averaged, the frames are the gate applied to exactly what the fitting reads:
-    RMB-Net's binned frames and raw TFI read as light, with the previous binned frame (itself at the start)."""
+    RMB-Net's binned frames and raw TFI (TFI-M with a ``tfi_window``: a search of its own beside the detail
+    stage's plain TFI) read as light, with the previous binned frame (itself at the start)."""
     from rmbvideo.evaluate.harness import SIMULATED_RESPONSE, downsample_2x, sequence_convention
     from rmbvideo.recon.full_resolution import FullResolution
     from rmbvideo.recon.methods import make_reconstructor
@@ -71,7 +73,7 @@ def test_full_resolution_mixes_each_binned_frame_as_the_fitting_reads_it(tmp_pat
 
     seq = simulate_sequence(123, TINY, training=True)
     model = _tiny_model(tmp_path / "m.safetensors")
-    gate = _mixing_gate()
+    gate = _mixing_gate(tfi_window)
     convention = sequence_convention(seq)
     # fp32 on both sides: on a host with bf16 the two runs' frame batches would round differently
     engine = make_reconstructor("rmbnet", model=str(model), input_mode="binned", threads=1, convention=convention,
@@ -79,7 +81,7 @@ def test_full_resolution_mixes_each_binned_frame_as_the_fitting_reads_it(tmp_pat
     sink = FrameCollector()
     readout = RmbReadout(trained_readout(engine))  # the one the fitting's binned frames are read through
     reconstruct_stream(seq, FullResolution(engine, readout, step=20, threads=1, raw_gate=gate), sink, chunk_planes=48)
-    triples = frame_triples(seq, model, gate.config.tfi_reach, precision="fp32")
+    triples = frame_triples(seq, model, gate.config.tfi_reach, precision="fp32", window=tfi_window)
     assert sorted(sink.frames) == list(range(len(triples))) and len(triples) >= 4
     code = float(convention != "physical")
     previous = triples[0][0]
@@ -193,3 +195,12 @@ def test_display_referred_streams_are_spikezoo_simulator_streams_only() -> None:
     recipe = RawGateRecipe(capture=TINY, pans=0, videos=0, resets=(), display_videos=1, display_scenes=1)
     made = list(training_sequences(recipe))  # every physical kind's twin, then the training scenes' video ranges
     assert [display_referred(seq) for seq in made] == [True] * 5 and made[-1].name.startswith("video-display")
+
+
+def test_the_gates_tfi_window_is_kept_in_its_card_and_absent_at_zero() -> None:
+    """A gate's TFI-M window survives its card; a card from before the window existed (no key) reads 0."""
+    config = RawGateConfig(hidden=4, tfi_reach=30, tfi_window=8)
+    assert RawGateConfig.from_dict(config.to_dict()) == config
+    assert "tfi_window" not in RawGateConfig().to_dict() and RawGateConfig.from_dict({"hidden": 16}).tfi_window == 0
+    with pytest.raises(ValueError, match="tfi_window"):
+        RawGateConfig(tfi_window=-1)

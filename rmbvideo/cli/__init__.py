@@ -13,6 +13,7 @@ import logging
 import os
 import signal
 import sys
+from typing import Any
 
 import click
 
@@ -93,11 +94,15 @@ class LazyGroup(click.Group):
 
     def invoke(self, ctx: click.Context):
         _received.clear()  # signals of an earlier in-process run do not count for this one
-        previous = {sig: signal.signal(sig, _terminate) for sig in (signal.SIGTERM, signal.SIGHUP)}
-        if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
-            previous[signal.SIGINT] = signal.signal(signal.SIGINT, _interrupt)
+        previous: dict[int, Any] = {}
+        # The handlers are installed and restored inside the try, so a signal that lands just after one is installed,
+        # or while they are restored at the end, is reported as that signal (not as click's "Aborted!", exit 1).
         try:
             try:
+                for sig in (signal.SIGTERM, signal.SIGHUP):
+                    previous[sig] = signal.signal(sig, _terminate)
+                if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+                    previous[signal.SIGINT] = signal.signal(signal.SIGINT, _interrupt)
                 return super().invoke(ctx)
             except (RmbvideoError, KeyboardInterrupt, MemoryError):
                 raise
@@ -105,6 +110,9 @@ class LazyGroup(click.Group):
                 if _received:  # the signal's exception was turned into another one on its way up
                     raise (KeyboardInterrupt() if _received[0] == signal.SIGINT else Terminated(_received[0])) from None
                 raise
+            finally:
+                for sig, handler in previous.items():
+                    signal.signal(sig, handler)
         except RmbvideoError as exc:
             click.echo(f"rmbvideo: error: {exc}", err=True)
             ctx.exit(2)
@@ -119,9 +127,6 @@ class LazyGroup(click.Group):
             click.echo(f"rmbvideo: error: {command}: out of memory for this geometry and these options (or the "
                        "process's memory limit); partial output removed", err=True)
             ctx.exit(2)
-        finally:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
 
 
 def _spec_exists(spec: str) -> bool:

@@ -121,12 +121,18 @@ def train_detail(out_dir: Path, minutes: float, resume: bool, channels: int | No
               help="Sequences of every physical video kind simulated again in spikezoo's convention [default 0].")
 @click.option("--display-scenes", type=click.IntRange(min=0), default=None,
               help="Sequences of the training scenes' video ranges in spikezoo's convention [default 0].")
+@click.option("--tfi-window", type=click.IntRange(min=0), default=None,
+              help="Central raw planes of the gate's TFI (TFI-M: the whole intervals covering them; 0: one interval) "
+                   "[default: the recipe's, 4].")
 @quiet_option
 @verbose_option
 def train_raw_gate(out: Path, model: Path | None, steps: int | None, seed: int | None, loss: str | None,
-                   display_videos: int | None, display_scenes: int | None, quiet: bool) -> None:
+                   display_videos: int | None, display_scenes: int | None, tfi_window: int | None,
+                   quiet: bool) -> None:
     """Fit the raw-interval gate of 1-bit captures on simulated captures of training seeds (CPU, one thread)."""
     import torch
+
+    from dataclasses import replace
 
     from rmbvideo.train.raw_gate import RawGateRecipe, fit_raw_gate
 
@@ -134,5 +140,7 @@ def train_raw_gate(out: Path, model: Path | None, steps: int | None, seed: int |
     chosen = (("steps", steps), ("seed", seed), ("loss", loss), ("display_videos", display_videos),
               ("display_scenes", display_scenes))
     recipe = RawGateRecipe(**{k: v for k, v in chosen if v is not None})
+    if tfi_window is not None:
+        recipe = replace(recipe, gate=replace(recipe.gate, tfi_window=tfi_window))
     weights = fit_raw_gate(recipe, out, model=model, progress=progress_enabled(quiet))
     click.echo(f"{weights}: install it as models/raw-gate.safetensors (+ .json) to use it")

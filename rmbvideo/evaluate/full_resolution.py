@@ -23,7 +23,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from rmbvideo.evaluate.harness import SATURATION, SIMULATED_RESPONSE, downsample_2x, rate_as_light, sequence_convention
+from rmbvideo.evaluate.harness import (SATURATION, SIMULATED_RESPONSE, TFI_WINDOWS, downsample_2x, rate_as_light,
+                                       sequence_convention)
 from rmbvideo.evaluate.heldout import RAW_RATE_HZ, VIDEO_KINDS, Sequence
 from rmbvideo.evaluate.metrics import mu_law_psnr, mu_law_ssim, ssim
 from rmbvideo.evaluate.real_video import (
@@ -76,7 +77,8 @@ def full_rows(model: Path | None = None, threads: int | None = 1) -> list[FullRo
                if default_detail_path().is_file() else [])
     return [*learned, FullRow(FULL, "rmbnet", rmbnet, "full"), FullRow(BINNED_UP, "rmbnet", rmbnet, "binned-up"),
             *(FullRow(f"TFP-{w}", "tfp", {"window": w, "step": RAW_STEP}) for w in TFP_WINDOWS),
-            FullRow("TFI", "tfi", {"step": RAW_STEP})]
+            FullRow("TFI", "tfi", {"step": RAW_STEP}),
+            *(FullRow(f"TFI-{w}", "tfi", {"step": RAW_STEP, "window": w}) for w in TFI_WINDOWS)]
 
 
 def run_row(row: FullRow, source: Any, keep: list[int] | None = None,

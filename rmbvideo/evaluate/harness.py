@@ -329,12 +329,16 @@ BASELINE_SPECS = (
 def baseline_specs(readout: str) -> list[MethodSpec]:
     """The baselines on the binned stream through ``readout`` (the default model's input)."""
     return [MethodSpec(s.name, s.method, s.options, readout) for s in BASELINE_SPECS]
+#: Central planes of the raw capture's TFI-M rows (``Tfi``'s ``window``: the whole inter-spike intervals covering
+#: them), a doubling sweep like TFP's windows; 0, plain TFI, is a row of its own.
+TFI_WINDOWS = (4, 8, 16)
 #: Classical methods on the raw capture at full resolution, scored after 2x2 averaging; the table
 #: adds their per-sequence best as ``BEST_RAW``.
 RAW_SPECS = (
     *(MethodSpec(f"TFP-{window} (raw)", "tfp", {"window": window, "step": 20}, raw=True)
       for window in (20, 41, 80, 140)),
     MethodSpec("TFI (raw)", "tfi", {"step": 20}, raw=True),
+    *(MethodSpec(f"TFI-{window} (raw)", "tfi", {"step": 20, "window": window}, raw=True) for window in TFI_WINDOWS),
 )
 BEST_RAW = "best classical on the raw capture"
 RMB_ROW = "RMB-Net, RMB readout"

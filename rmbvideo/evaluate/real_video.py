@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 
 from rmbvideo.errors import InputError
-from rmbvideo.evaluate.harness import RMB_ROW, rate_as_light
+from rmbvideo.evaluate.harness import RMB_ROW, TFI_WINDOWS, rate_as_light
 from rmbvideo.evaluate.metrics import ssim
 from rmbvideo.io.dat import DatGeometry, DatReader
 from rmbvideo.recon.methods import make_reconstructor
@@ -188,6 +188,8 @@ def real_video_rows(model: Path | None = None, device: str = "cpu", threads: int
     rows += [RealRow(f"TFP-{window} (raw, 2x2-avg)", "tfp", {"window": window, "step": RAW_STEP}, raw=True)
              for window in TFP_WINDOWS]
     rows.append(RealRow("TFI (raw, 2x2-avg)", "tfi", {"step": RAW_STEP}, raw=True))
+    rows += [RealRow(f"TFI-{window} (raw, 2x2-avg)", "tfi", {"step": RAW_STEP, "window": window}, raw=True)
+             for window in TFI_WINDOWS]
     return rows
 
 

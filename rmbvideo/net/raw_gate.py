@@ -30,18 +30,24 @@ INITIAL_LOGIT = -3.0
 @dataclass(frozen=True)
 class RawGateConfig:
     """``hidden``: width of the per-pixel network; ``tfi_reach``: raw planes TFI searches on each side of a frame's
-    centre (``rmbvideo.recon.classical.Tfi``'s ``max_reach``; 200 reads down to about 1/400 of a spike a plane)."""
+    centre (``rmbvideo.recon.classical.Tfi``'s ``max_reach``; 200 reads down to about 1/400 of a spike a plane);
+    ``tfi_window``: its central planes (``Tfi``'s ``window``: 0 one interval, M the whole intervals covering M)."""
 
     hidden: int = 16
     tfi_reach: int = 200
+    tfi_window: int = 0
 
     def __post_init__(self) -> None:
-        if self.hidden < 1 or self.tfi_reach < 1:
-            raise ValueError(f"hidden and tfi_reach must be >= 1, got {self.hidden}, {self.tfi_reach}")
+        if self.hidden < 1 or self.tfi_reach < 1 or self.tfi_window < 0:
+            raise ValueError(f"hidden and tfi_reach must be >= 1 and tfi_window >= 0, got {self.hidden}, "
+                             f"{self.tfi_reach}, {self.tfi_window}")
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dictionary."""
-        return asdict(self)
+        """JSON-ready dictionary (no ``tfi_window`` key at 0: cards written before it existed stay as they are)."""
+        out = asdict(self)
+        if not self.tfi_window:
+            del out["tfi_window"]
+        return out
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> RawGateConfig:

@@ -333,15 +333,20 @@ class Tfp:
 
 
 class Tfi:
-    """Texture from inter-spike interval: 1 / (interval between the spikes around each frame time).
+    """Texture from inter-spike interval: 1 / (interval between the spikes around each frame time); with a
+    ``window`` of M planes, the rate over the whole intervals that cover the frame's central M planes.
 
-    For frame ``i`` the reference plane is ``r = floor(c_i)``; per pixel ``prev`` is the last spike at
-    or before ``r`` and ``next`` the first spike after it, each searched at most ``max_reach`` planes
-    away and never outside the pushed data. Where no spike is found on a side, the edge of the
-    searched range stands in for it (``r - max_reach`` or the plane before the data; ``r + max_reach
-    + 1`` or the plane after the data): the value is then an upper bound on the rate, finite and
-    > 0, and an all-dark pixel reads about ``1 / (2 * max_reach + 1)``. Value = 1 / (next - prev),
-    with next - prev >= 1.
+    For frame ``i`` with ``r = floor(c_i)`` the central planes are ``r - M//2 + 1 .. r - M//2 + M`` (none when
+    M = 0); per pixel ``prev`` is the last spike before them (at or before ``p = r - M//2``) and ``next`` the first
+    spike after them, each searched at most ``max_reach`` planes beyond them and never outside the pushed data.
+    Value = (spikes in the central planes + 1) / (next - prev): the spikes from just after ``prev`` up to ``next``
+    over the planes they span, so M = 0 is plain TFI. A pixel that fires regularly (the rate convention, no
+    noise) reads its rate to within one spike over the span, where TFP's fixed window of the same length is off
+    by up to one spike at each end and a single interval quantises it coarsely (at 0.4 spikes a plane it reads
+    1/2 or 1/3). Where no spike is found on a side, the edge of the searched range stands in for it
+    (``p - max_reach`` or the plane before the data; ``p + M + max_reach + 1`` or the plane after the data): the
+    value is then an upper bound on the rate, finite and > 0, and an all-dark pixel reads about
+    ``1 / (2 * max_reach + M + 1)``. next - prev >= 1.
 
     ``shorter``: further reaches below ``max_reach`` read from the same search (each frame's image is then
     (len(shorter) + 1, H, W): each of them, then ``max_reach``), exactly what a ``Tfi`` of that reach gives, for the
@@ -350,23 +355,27 @@ class Tfi:
 
     input_kind: ClassVar[InputKind] = "spikes"
 
-    def __init__(self, step: int = 20, max_reach: int = 200, shorter: tuple[int, ...] = ()) -> None:
-        if step < 1 or max_reach < 1:
-            raise ValueError(f"step and max_reach must be >= 1, got step={step}, max_reach={max_reach}")
+    def __init__(self, step: int = 20, max_reach: int = 200, shorter: tuple[int, ...] = (), window: int = 0) -> None:
+        if step < 1 or max_reach < 1 or window < 0:
+            raise ValueError(f"step and max_reach must be >= 1 and window >= 0, got step={step}, "
+                             f"max_reach={max_reach}, window={window}")
         if any(not 1 <= reach < max_reach for reach in shorter):
             raise ValueError(f"shorter reaches must lie in 1 .. {max_reach - 1}, got {shorter}")
         self.step = step
         self.max_reach = max_reach
+        self.window = window
         self.shorter = tuple(shorter)
         self._first: int | None = None
         self._pos = 0
         self._rate_hz = 0.0
         self._last_spike: np.ndarray | None = None  # (H, W) int64 last spike plane so far, -1 if none
         self._next_frame = 0  # next frame whose reference plane is not yet reached
-        self._pending: dict[int, tuple[int, np.ndarray, np.ndarray]] = {}  # frame -> (r, prev, next or -1)
+        # frame -> (p, prev, next or -1, spikes so far in the central planes p + 1 .. p + window; None without)
+        self._pending: dict[int, tuple[int, np.ndarray, np.ndarray, np.ndarray | None]] = {}
 
     def _reference(self, i: int) -> int:
-        return _centre2(i, self.step) // 2
+        """The plane ``p`` just before frame ``i``'s central planes (its centre's plane when ``window`` is 0)."""
+        return _centre2(i, self.step) // 2 - self.window // 2
 
     def push(self, chunk: SpikeChunk) -> list[Frame]:
         """Consume raw planes; return the frames whose look-ahead is complete."""
@@ -379,12 +388,16 @@ class Tfi:
         self._rate_hz = chunk.rate_hz
         for b0 in range(0, len(chunk.planes), _TFI_BLOCK_PLANES):
             self._process_block(chunk.planes[b0 : b0 + _TFI_BLOCK_PLANES], chunk.start + b0)
-        done = sorted(i for i, (r, _, _) in self._pending.items() if r + self.max_reach < self._pos)
+        done = sorted(i for i, (r, *_) in self._pending.items() if r + self.window + self.max_reach < self._pos)
         return [self._frame(i, self._pending.pop(i)) for i in done]
 
     def flush(self) -> list[Frame]:
-        """Return the remaining frames, their look-ahead clipped at the end of the data."""
-        return [self._frame(i, self._pending.pop(i)) for i in sorted(self._pending)]
+        """Return the remaining frames whose centre lies in the data, their look-ahead clipped at its end (a
+        ``window`` starts frames a little before their centre's plane is reached)."""
+        frames = [self._frame(i, self._pending[i]) for i in sorted(self._pending)
+                  if _centre2(i, self.step) // 2 < self._pos]
+        self._pending.clear()
+        return frames
 
     # The array operations, numpy's here (``rmbvideo.recon.device_rates.DeviceTfi``: torch's, on a device).
     _where = staticmethod(np.where)
@@ -399,8 +412,13 @@ class Tfi:
         return a.astype(np.int64)
 
     @staticmethod
-    def _image(interval: np.ndarray) -> np.ndarray:
-        return (1.0 / interval).astype(np.float32)
+    def _count(planes: np.ndarray) -> np.ndarray:
+        return planes.sum(axis=0, dtype=np.int64)
+
+    @staticmethod
+    def _image(interval: np.ndarray, spikes: np.ndarray | None = None) -> np.ndarray:
+        """``spikes`` / ``interval`` (1 / ``interval`` when None) in float64, rounded to float32."""
+        return ((1.0 if spikes is None else spikes) / interval).astype(np.float32)
 
     @staticmethod
     def _scan(planes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -428,42 +446,51 @@ class Tfi:
             found = self._int64(first_from[lo - start])
             return start + found, found <= hi - start
 
-        for r, _, nxt in self._pending.values():  # pending frames: search this block for next
-            lo, hi = max(r + 1, start), min(r + self.max_reach, start + count - 1)
+        m = self.window
+
+        def search(r: int, nxt: np.ndarray, spikes: np.ndarray | None) -> None:
+            """Add this block's central planes of the frame at ``r`` to ``spikes``; search it for ``next``."""
+            lo, hi = max(r + 1, start), min(r + m, start + count - 1)
+            if spikes is not None and lo <= hi:
+                spikes += self._count(planes[lo - start : hi - start + 1])
+            lo, hi = max(r + m + 1, start), min(r + m + self.max_reach, start + count - 1)
             if lo <= hi:
                 found, hit = first_spike(lo, hi)
                 take = hit & (nxt < 0)
                 nxt[take] = found[take]
+
+        for r, _, nxt, spikes in self._pending.values():  # pending frames: this block's part of each
+            search(r, nxt, spikes)
         while self._reference(self._next_frame) < start + count:
-            r = self._reference(self._next_frame)  # >= start: earlier blocks created frames before it
-            in_block = self._int64(last_in[r - start])
-            prev = self._where(in_block > 0, start + in_block - 1, self._last_spike)
-            nxt = self._full_like(prev, -1)
-            hi = min(r + self.max_reach, start + count - 1)
-            if r + 1 <= hi:
-                found, hit = first_spike(r + 1, hi)
-                nxt[hit] = found[hit]
-            self._pending[self._next_frame] = (r, prev, nxt)
+            # r >= start, except at the data's start (central planes before the data: no spike there)
+            r = self._reference(self._next_frame)
+            prev = self._last_spike
+            if r >= start:
+                in_block = self._int64(last_in[r - start])
+                prev = self._where(in_block > 0, start + in_block - 1, prev)
+            nxt, spikes = self._full_like(prev, -1), self._full_like(prev, 0) if m else None
+            search(r, nxt, spikes)
+            self._pending[self._next_frame] = (r, prev, nxt, spikes)
             self._next_frame += 1
         last = self._int64(last_in[-1])
         self._last_spike = self._where(last > 0, start + last - 1, self._last_spike)
         self._pos = start + count
 
-    def _frame(self, i: int, state: tuple[int, np.ndarray, np.ndarray]) -> Frame:
-        r, prev, nxt = state
-        images = [self._reach_image(r, prev, nxt, reach) for reach in (*self.shorter, self.max_reach)]
+    def _frame(self, i: int, state: tuple[int, np.ndarray, np.ndarray, np.ndarray | None]) -> Frame:
+        images = [self._reach_image(*state, reach) for reach in (*self.shorter, self.max_reach)]
         image = images[0] if len(images) == 1 else self._stack(images)
         return Frame(index=i, time_s=_centre2(i, self.step) / 2 / self._rate_hz, image=image)
 
-    def _reach_image(self, r: int, prev: np.ndarray, nxt: np.ndarray, reach: int) -> np.ndarray:
-        """1 / interval for spikes searched at most ``reach`` planes either side (a next spike found further out, by
-        the longer search, is out of reach)."""
+    def _reach_image(self, r: int, prev: np.ndarray, nxt: np.ndarray, spikes: np.ndarray | None,
+                     reach: int) -> np.ndarray:
+        """(central spikes + 1) / interval for spikes searched at most ``reach`` planes beyond the central planes (a
+        next spike found further out, by the longer search, is out of reach)."""
         lo = max(r - reach + 1, self._first)
-        hi = min(r + reach, self._pos - 1)
+        hi = min(r + self.window + reach, self._pos - 1)
         prev = self._where(prev >= lo, prev, lo - 1)
         nxt = self._where((nxt >= 0) & (nxt <= hi), nxt, hi + 1)
         interval = nxt - prev
-        return self._image(self._where(interval >= 1, interval, 1))
+        return self._image(self._where(interval >= 1, interval, 1), None if spikes is None else spikes + 1)
 
 
 class Tfw:

@@ -106,8 +106,8 @@ class DeviceTfi(Tfi):
     _where = staticmethod(torch.where)
 
     def __init__(self, step: int = 20, max_reach: int = 200, on_device: bool = False,
-                 shorter: tuple[int, ...] = ()) -> None:
-        super().__init__(step, max_reach, shorter)
+                 shorter: tuple[int, ...] = (), window: int = 0) -> None:
+        super().__init__(step, max_reach, shorter, window)
         self._on_device = on_device
 
     @staticmethod
@@ -122,8 +122,12 @@ class DeviceTfi(Tfi):
     def _int64(a: torch.Tensor) -> torch.Tensor:
         return a.to(torch.int64)
 
-    def _image(self, interval: torch.Tensor) -> np.ndarray | torch.Tensor:
-        return _image(1.0 / interval.double(), self._on_device)
+    @staticmethod
+    def _count(planes: torch.Tensor) -> torch.Tensor:
+        return planes.sum(dim=0, dtype=torch.int64)
+
+    def _image(self, interval: torch.Tensor, spikes: torch.Tensor | None = None) -> np.ndarray | torch.Tensor:
+        return _image((1.0 if spikes is None else spikes.double()) / interval.double(), self._on_device)
 
     @staticmethod
     def _scan(planes: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

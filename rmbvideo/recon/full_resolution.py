@@ -193,15 +193,20 @@ class FullResolution:
         self.threads = threads if threads is not None else default_threads()
         self._binner = StreamBinner()
         windows = detail.config.windows if detail is not None else (settings.window,)
-        # TFI for the detail stage and for the gate: one search over the longer reach gives both (``Tfi``'s ``shorter``)
+        # TFI for the detail stage and for the gate: one search over the longer reach gives both (``Tfi``'s
+        # ``shorter``), unless the gate's TFI counts central planes (``tfi_window``): then it has a search of its own
         detail_reach = detail.config.interval_reach if detail is not None else 0
         gate_reach = self.raw_gate.config.tfi_reach if self.raw_gate is not None else 0
-        reaches = sorted({r for r in (detail_reach, gate_reach) if r})
+        gate_window = self.raw_gate.config.tfi_window if self.raw_gate is not None else 0
+        shared_reach = gate_reach if not gate_window else 0
+        reaches = sorted({r for r in (detail_reach, shared_reach) if r})
         tfi = dict(max_reach=reaches[-1], shorter=tuple(reaches[:-1])) if reaches else None
-        # where each reader's planes are among a frame's raw rates (the windows' TFP, then TFI at each reach)
+        # where each reader's planes are among a frame's raw rates (the windows' TFP, TFI at each reach, the gate's)
         self._detail_planes = [*range(len(windows)), *([len(windows) + reaches.index(detail_reach)]
                                                        if detail_reach else [])]
-        self._gate_plane = len(windows) + reaches.index(gate_reach) if gate_reach else None
+        self._gate_plane = (len(windows) + reaches.index(gate_reach) if shared_reach
+                            else len(windows) + len(reaches) if gate_reach else None)
+        gate_tfi = [dict(max_reach=gate_reach, window=gate_window)] if gate_reach and gate_window else []
         # on a GPU the raw stream's rates are made there too (``rmbvideo.recon.device_rates``: the same frames)
         if rates_on_device is None:
             rates_on_device = rates_on_device_by_default(self.device)
@@ -216,9 +221,11 @@ class FullResolution:
             on_device = self.detail is not None
             self._rates: list = [DeviceTfp(window=w, step=step, on_device=on_device) for w in windows]
             self._rates += [DeviceTfi(step=step, on_device=on_device, **tfi)] if tfi else []
+            self._rates += [DeviceTfi(step=step, on_device=on_device, **options) for options in gate_tfi]
         else:
             self._rates = [Tfp(window=w, step=step) for w in windows]
             self._rates += [Tfi(step=step, **tfi)] if tfi else []
+            self._rates += [Tfi(step=step, **options) for options in gate_tfi]
         # whether a raw-rate method on the CPU reads decoded planes (TFI; TFP sums the stored bits)
         self._rates_decode = self._rates_device is None and not all(getattr(r, "accepts_packed", False)
                                                                     for r in self._rates)

@@ -105,7 +105,8 @@ METHODS: dict[str, Method] = {m.name: m for m in (
     Method("tfp", "rmbvideo.recon.classical:Tfp", "spikes",
            "mean of --window raw planes, full resolution", "raw planes", 41, (1, 20000)),
     Method("tfi", "rmbvideo.recon.classical:Tfi", "spikes",
-           "1 / inter-spike interval around the frame time, full resolution"),
+           "1 / inter-spike interval around the frame time; with --window M, the rate over the whole intervals "
+           "that cover the central M raw planes (TFI-M), full resolution", "raw planes", 0, (0, 20000)),
     Method("tfw", "rmbvideo.recon.classical:Tfw", "rmb",
            "pooled 1-bit and multi-bit rate over --window readouts (10 = TFW-S, 70 = TFW-L)", "readouts", 10,
            (1, 10000)),

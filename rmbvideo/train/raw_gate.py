@@ -50,9 +50,9 @@ class RawGateRecipe:
     fast) and ``display_scenes`` of the training scenes' own video ranges in that convention (mostly slow, as video
     mostly is), from training seed ``first_seed`` on, each of ``capture``'s size and length (the held-out set's);
     ``pixels`` drawn per frame, ``steps`` of Adam at ``lr`` on ``loss`` (one of ``GATE_LOSSES``), initial weights from
-    ``seed``."""
+    ``seed``. The gate's TFI counts the whole intervals covering 4 central planes (TFI-4, the shipped gate's)."""
 
-    gate: RawGateConfig = RawGateConfig()
+    gate: RawGateConfig = RawGateConfig(tfi_window=4)
     capture: HeldoutConfig = FULL
     pans: int = 6
     videos: int = 2
@@ -95,13 +95,14 @@ def training_sequences(recipe: RawGateRecipe) -> Iterator[Sequence]:
                                       replace(recipe.capture, reset="zero"), training=True)
 
 
-def frame_triples(seq: Sequence, model: Path, reach: int,
-                  precision: str = "auto") -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+def frame_triples(seq: Sequence, model: Path, reach: int, precision: str = "auto",
+                  window: int = 0) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Per frame of ``seq`` (in order): RMB-Net's binned frame (at ``precision``, ``reconstruct``'s policy by default),
-    raw TFI read as light and 2x2-averaged, and the ground truth, as the evaluation makes them."""
+    raw TFI (over ``window`` central planes) read as light and 2x2-averaged, and the ground truth, as the evaluation
+    makes them."""
     network = MethodSpec("RMB-Net", "rmbnet", {"model": str(model), "input_mode": "binned", "threads": 1,
                                                "precision": precision}, model_readout(model))
-    tfi = MethodSpec("TFI (raw)", "tfi", {"step": 20, "max_reach": reach}, raw=True)
+    tfi = MethodSpec("TFI (raw)", "tfi", {"step": 20, "max_reach": reach, "window": window}, raw=True)
     binned = {f.index: f.image for f in run_frames(network, seq)[0]}
     raw = {f.index: f.image for f in run_frames(tfi, seq)[0]}
     return [(binned[i], raw[i], np.minimum(seq.gt[i], SATURATION)) for i in sorted(set(binned) & set(raw))]
@@ -153,7 +154,7 @@ def gather_samples(recipe: RawGateRecipe, model: Path, progress: bool = False) -
     display: list[np.ndarray] = []
     names = []
     for seq in tqdm(training_sequences(recipe), desc="captures", unit="capture", disable=not progress):
-        parts.append(_samples(seq, frame_triples(seq, model, recipe.gate.tfi_reach), recipe, rng))
+        parts.append(_samples(seq, frame_triples(seq, model, recipe.gate.tfi_reach, window=recipe.gate.tfi_window), recipe, rng))
         display.append(np.full(len(parts[-1][1]), display_referred(seq)))
         names.append(seq.name)
     features, binned, tfi, truth = (np.concatenate(x) for x in zip(*parts))
@@ -213,7 +214,9 @@ def fit_raw_gate(recipe: RawGateRecipe, out: Path, model: Path | None = None, pr
     card = ModelCard(
         name=out.stem,
         description="Raw-interval gate of 1-bit captures: RMB-Net's binned frame mixed per pixel with raw TFI "
-                    "(rmbvideo.net.raw_gate), fitted to the binned RMB-Net named in data.",
+                    + (f"over the whole intervals covering {recipe.gate.tfi_window} central planes (TFI-"
+                       f"{recipe.gate.tfi_window}) " if recipe.gate.tfi_window else "")
+                    + "(rmbvideo.net.raw_gate), fitted to the binned RMB-Net named in data.",
         training={**{k: v for k, v in asdict(recipe).items() if k not in ("gate", "capture")},
                   "capture": {k: v for k, v in asdict(recipe.capture).items() if k in ("width", "height", "readouts")},
                   "loss_mu": LOSS_MU,

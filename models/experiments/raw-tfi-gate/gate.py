@@ -148,7 +148,8 @@ def fitted(path: str, which: str) -> None:
     for reset, sequences in sets.items():
         rows = []
         for seq in sequences:
-            triples = frame_triples(seq, default_model_path("binned"), gate.config.tfi_reach)
+            triples = frame_triples(seq, default_model_path("binned"), gate.config.tfi_reach,
+                                    window=gate.config.tfi_window)
             code = float(sequence_convention(seq) != "physical")
             gated, previous = [], triples[0][0]
             with torch.no_grad():
@@ -295,7 +296,8 @@ def picture(out: str = "models/figures/raw-gate.png") -> None:
                  if s.name in ("random-1000002", "dark-100")]
     rows = []
     for seq in sequences:
-        triples = frame_triples(seq, default_model_path("binned"), gate.config.tfi_reach)
+        triples = frame_triples(seq, default_model_path("binned"), gate.config.tfi_reach,
+                                window=gate.config.tfi_window)
         i = len(triples) // 2
         binned, tfi, truth = triples[i]
         x = [torch.from_numpy(np.ascontiguousarray(v, np.float32))[None, None] for v in (binned, tfi, triples[i - 1][0])]
@@ -328,7 +330,8 @@ def edges(path: str | None = None) -> None:
           "| offset ms first: binned / gated | last | middle |")
     print("|---|---:|---:|---:|---:|---:|---:|")
     for seq in load_video_heldout(False):
-        triples = frame_triples(seq, default_model_path("binned"), gate.config.tfi_reach)
+        triples = frame_triples(seq, default_model_path("binned"), gate.config.tfi_reach,
+                                window=gate.config.tfi_window)
         code = float(sequence_convention(seq) != "physical")
         scores, gated, previous = [], [], triples[0][0]
         with torch.no_grad():
