@@ -130,9 +130,9 @@ def train_raw_gate(out: Path, model: Path | None, steps: int | None, seed: int |
                    display_videos: int | None, display_scenes: int | None, tfi_window: int | None,
                    quiet: bool) -> None:
     """Fit the raw-interval gate of 1-bit captures on simulated captures of training seeds (CPU, one thread)."""
-    import torch
-
     from dataclasses import replace
+
+    import torch
 
     from rmbvideo.train.raw_gate import RawGateRecipe, fit_raw_gate
 
