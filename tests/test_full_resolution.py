@@ -181,7 +181,8 @@ def test_full_resolution_evaluation_against_exact_full_size_ground_truth(tmp_pat
     """A panorama and a video held-out sequence (tiny): the full-size ground truth is rendered again
     from the seed and matches the binned one after 2x2 averaging; every row is scored, full and binned
     RMB-Net agree at the binned size (adding detail costs nothing there; the raw gate's row mixes in raw
-    intervals, which is meant to change the binned-size image, so it is only required to be finite)."""
+    intervals, which is meant to change the binned-size image, so it is only required to be finite here; what it
+    mixes is checked exactly in tests/test_raw_gate.py)."""
     import torch
 
     from rmbvideo.evaluate.full_resolution import (BINNED_UP, FULL, FullScores, full_ground_truth, full_rows,

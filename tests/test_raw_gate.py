@@ -198,7 +198,12 @@ def test_display_referred_streams_are_spikezoo_simulator_streams_only() -> None:
 
 
 def test_the_gates_tfi_window_is_kept_in_its_card_and_absent_at_zero() -> None:
-    """A gate's TFI-M window survives its card; a card from before the window existed (no key) reads 0."""
+    """A gate's TFI-M window survives its card; a card from before the window existed (no key) reads 0; the recipe's
+    defaults make the shipped gate's architecture (``rmbvideo train-raw-gate`` with no options refits it)."""
+    from rmbvideo.net.weights import default_raw_gate_path, load_raw_gate
+    from rmbvideo.train.raw_gate import RawGateRecipe
+
+    assert RawGateRecipe().gate == load_raw_gate(default_raw_gate_path())[0].config
     config = RawGateConfig(hidden=4, tfi_reach=30, tfi_window=8)
     assert RawGateConfig.from_dict(config.to_dict()) == config
     assert "tfi_window" not in RawGateConfig().to_dict() and RawGateConfig.from_dict({"hidden": 16}).tfi_window == 0

@@ -1,7 +1,8 @@
 """Fitting the raw-interval gate (``rmbvideo.net.raw_gate``) to the shipped RMB-Net, on simulated 1-bit captures of
 training seeds: panorama pans and the video kinds of the evaluation (fast, dark, fast-dark, spikezoo-fast,
 low-contrast), each with both pixels (reset to zero, reset by subtraction). Every capture is run as the evaluation
-runs it: RMB-Net on the binned stream, TFI on the raw planes read as light and 2x2-averaged; the gate is fitted on
+runs it: RMB-Net on the binned stream, TFI on the raw planes (TFI-M over the gate's ``tfi_window``) read as light
+and 2x2-averaged; the gate is fitted on
 pixels drawn from every frame to the mixed frame's mu-law error against the exact ground truth (the recipe can add
 the linear error of display-referred captures, spikezoo's 8-bit video values, as real video is scored, and
 display-referred captures of every kind of motion: tried, not shipped, ``models/experiments/raw-tfi-gate/results.md``).
@@ -154,7 +155,8 @@ def gather_samples(recipe: RawGateRecipe, model: Path, progress: bool = False) -
     display: list[np.ndarray] = []
     names = []
     for seq in tqdm(training_sequences(recipe), desc="captures", unit="capture", disable=not progress):
-        parts.append(_samples(seq, frame_triples(seq, model, recipe.gate.tfi_reach, window=recipe.gate.tfi_window), recipe, rng))
+        triples = frame_triples(seq, model, recipe.gate.tfi_reach, window=recipe.gate.tfi_window)
+        parts.append(_samples(seq, triples, recipe, rng))
         display.append(np.full(len(parts[-1][1]), display_referred(seq)))
         names.append(seq.name)
     features, binned, tfi, truth = (np.concatenate(x) for x in zip(*parts))

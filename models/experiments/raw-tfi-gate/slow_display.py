@@ -24,11 +24,14 @@ import numpy as np
 import torch
 
 from rmbvideo.evaluate.heldout import FULL, simulate_video_sequence
+from rmbvideo.net.raw_gate import RawGateConfig
 from rmbvideo.net.weights import ModelCard, default_model_path, save_model
 from rmbvideo.train.raw_gate import (VIDEO_DISPLAY, GateSamples, RawGateRecipe, display_referred, fit_gate,
                                      frame_triples, gather_samples, _samples)
 
 FIRST_SEED = 740_000
+#: The gate these figures were fitted with reads plain TFI (the recipe's default became TFI-4 since).
+PLAIN_TFI = RawGateConfig(tfi_window=0)
 
 
 def flow_speed(planes: np.ndarray, a: int, b: int, window: int = 40) -> float:
@@ -57,7 +60,7 @@ def speeds(folder: str) -> None:
 def gather(out: str, captures: int = 6) -> None:
     """The ``--display-videos 2`` recipe's samples, then ``captures`` of ``VIDEO_DISPLAY`` (its own pixel draws)."""
     torch.set_num_threads(1)
-    recipe = RawGateRecipe(display_videos=2)
+    recipe = RawGateRecipe(gate=PLAIN_TFI, display_videos=2)
     model = default_model_path("binned")
     base = gather_samples(recipe, model)
     rng = np.random.default_rng(1)
@@ -79,7 +82,7 @@ def fit(samples_path: str, loss: str, out: str) -> None:
     z = np.load(samples_path)
     samples = GateSamples(z["features"], z["binned"], z["tfi"], z["truth"], z["display"],
                           tuple(str(n) for n in z["names"]))
-    gate, metrics = fit_gate(samples, RawGateRecipe(loss=loss))
+    gate, metrics = fit_gate(samples, RawGateRecipe(gate=PLAIN_TFI, loss=loss))
     print(metrics)
     save_model(Path(out), gate, ModelCard(name=Path(out).stem, description="slow_display.py experiment",
                                           training={"loss": loss}, data={"captures": list(samples.captures)},
