@@ -12,7 +12,7 @@ import torch.nn.functional as F
 from rmbvideo.evaluate.heldout import HeldoutConfig, simulate_sequence
 from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.model import RmbNet
-from rmbvideo.net.raw_gate import FEATURES, RawGate, RawGateConfig, tfi_light
+from rmbvideo.net.raw_gate import FEATURES, LONG_FEATURES, RawGate, RawGateConfig, gate_features, tfi_light
 from rmbvideo.net.weights import ModelCard, save_model
 
 TINY = HeldoutConfig(count=1, width=48, height=40, readouts=60, edge_readouts=20)
@@ -23,13 +23,15 @@ def _tiny_model(path: Path) -> Path:
     return save_model(path, RmbNet(RmbNetConfig(w=1, width=0.25, convention_input=True)), ModelCard(name="tiny"))
 
 
-def _mixing_gate(tfi_window: int = 0) -> RawGate:
-    """A gate that mixes (shares spread around a half), so a fault in what it is given shows in the output."""
+def _mixing_gate(tfi_window: int = 0, long_window: int = 0) -> RawGate:
+    """A gate that mixes (shares spread around a half, or a third each), so a fault in what it is given shows in the
+    output."""
     torch.manual_seed(3)
-    gate = RawGate(RawGateConfig(hidden=4, tfi_reach=30, tfi_window=tfi_window))
+    gate = RawGate(RawGateConfig(hidden=4, tfi_reach=30, tfi_window=tfi_window, long_window=long_window))
     with torch.no_grad():
         gate.body[-1].bias.zero_()
-        gate.feature_mean.copy_(torch.tensor([-3.0, -3.0, 0.0, -2.0, -2.0, -3.0, 0.0]))
+        gate.feature_mean.copy_(torch.tensor([-3.0, -3.0, 0.0, -2.0, -2.0, -3.0, 0.0, -3.0, 0.0, -2.0][
+            :len(gate.feature_mean)]))
     return gate
 
 
@@ -58,22 +60,43 @@ def test_the_gate_mixes_between_its_two_images_and_never_passes_nan_or_inf() -> 
     assert RawGate().share(torch.zeros(1, len(FEATURES), 2, 2)).max() < 0.05  # a new gate keeps RMB-Net's frame
 
 
-@pytest.mark.parametrize("tfi_window", [0, 8])
-def test_full_resolution_mixes_each_binned_frame_as_the_fitting_reads_it(tmp_path: Path, tfi_window: int) -> None:
+def test_a_gate_with_a_long_window_mixes_three_images_by_shares_that_sum_to_at_most_one() -> None:
+    gate = _mixing_gate(4, 16)
+    binned, tfi, long_tfi = (torch.rand(1, 1, 16, 20) * 0.5 for _ in range(3))
+    out = gate(binned, tfi, binned, 1.0, long_tfi)
+    stack = torch.cat([binned, tfi, long_tfi], dim=1)
+    assert (out >= stack.min(1, keepdim=True).values - 1e-6).all()
+    assert (out <= stack.max(1, keepdim=True).values + 1e-6).all()
+    share = gate.share(gate_features(binned, tfi, binned, 1.0, long_tfi))
+    assert share.shape == (1, 2, 16, 20) and (share > 0.05).all() and (share.sum(1) < 1.0).all()
+    # each candidate moves the output: the long one is read, not only its features
+    assert (gate(binned, tfi, binned, 1.0, long_tfi * 2) - out).abs().max() > 0.01
+    fresh = RawGate(RawGateConfig(tfi_window=4, long_window=16))
+    assert fresh.share(torch.zeros(1, len(FEATURES) + len(LONG_FEATURES), 2, 2)).sum(1).max() < 0.1
+    with pytest.raises(ValueError, match="long_tfi"):
+        gate(binned, tfi, binned, 1.0)
+    with pytest.raises(ValueError, match="long_tfi"):
+        _mixing_gate()(binned, tfi, binned, 1.0, long_tfi)
+
+
+@pytest.mark.parametrize("tfi_window, long_window", [(0, 0), (8, 0), (0, 8)])
+def test_full_resolution_mixes_each_binned_frame_as_the_fitting_reads_it(tmp_path: Path, tfi_window: int,
+                                                                         long_window: int) -> None:
     """Streamed at full resolution, 2x2-averaged, the frames are the gate applied to exactly what the fitting reads:
     RMB-Net's binned frames and raw TFI (TFI-M with a ``tfi_window``: a search of its own beside the detail
-    stage's plain TFI) read as light, with the previous binned frame (itself at the start)."""
+    stage's plain TFI; with a ``long_window`` a second candidate of its own) read as light, with the previous binned
+    frame (itself at the start)."""
     from rmbvideo.evaluate.harness import SIMULATED_RESPONSE, downsample_2x, sequence_convention
     from rmbvideo.recon.full_resolution import FullResolution
     from rmbvideo.recon.methods import make_reconstructor
     from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
     from rmbvideo.recon.run import trained_readout
     from rmbvideo.sensor.readout import RmbReadout
-    from rmbvideo.train.raw_gate import frame_triples
+    from rmbvideo.train.raw_gate import gate_frames
 
     seq = simulate_sequence(123, TINY, training=True)
     model = _tiny_model(tmp_path / "m.safetensors")
-    gate = _mixing_gate(tfi_window)
+    gate = _mixing_gate(tfi_window, long_window)
     convention = sequence_convention(seq)
     # fp32 on both sides: on a host with bf16 the two runs' frame batches would round differently
     engine = make_reconstructor("rmbnet", model=str(model), input_mode="binned", threads=1, convention=convention,
@@ -81,18 +104,20 @@ def test_full_resolution_mixes_each_binned_frame_as_the_fitting_reads_it(tmp_pat
     sink = FrameCollector()
     readout = RmbReadout(trained_readout(engine))  # the one the fitting's binned frames are read through
     reconstruct_stream(seq, FullResolution(engine, readout, step=20, threads=1, raw_gate=gate), sink, chunk_planes=48)
-    triples = frame_triples(seq, model, gate.config.tfi_reach, precision="fp32", window=tfi_window)
-    assert sorted(sink.frames) == list(range(len(triples))) and len(triples) >= 4
+    frames = gate_frames(seq, model, gate.config, precision="fp32")
+    assert sorted(sink.frames) == list(range(len(frames))) and len(frames) >= 4
+    assert (frames[0].long_tfi is not None) == bool(long_window)
     code = float(convention != "physical")
-    previous = triples[0][0]
-    for i, (binned, tfi, _) in enumerate(triples):
-        as_tensor = [torch.from_numpy(np.ascontiguousarray(x, np.float32))[None, None] for x in (binned, tfi, previous)]
-        expected = gate(*as_tensor, code)[0, 0].detach().numpy()
+    previous = frames[0].binned
+    tensor = lambda x: torch.from_numpy(np.ascontiguousarray(x, np.float32))[None, None]  # noqa: E731
+    for i, frame in enumerate(frames):
+        expected = gate(tensor(frame.binned), tensor(frame.tfi), tensor(previous), code,
+                        *(tensor(x) for x in frame.candidates[1:]))[0, 0].detach().numpy()
         streamed = downsample_2x(sink.frames[i].image, seq.shape)
         assert np.isfinite(streamed).all()
         np.testing.assert_allclose(streamed, expected, rtol=2e-3, atol=1e-5)
-        previous = binned
-    assert np.abs(expected - binned).max() > 1e-3  # the gate did mix
+        previous = frame.binned
+    assert np.abs(expected - frame.binned).max() > 1e-3  # the gate did mix
 
 
 def test_fitting_writes_a_gate_that_loads_and_refuses_evaluation_seeds(tmp_path: Path) -> None:
@@ -100,11 +125,11 @@ def test_fitting_writes_a_gate_that_loads_and_refuses_evaluation_seeds(tmp_path:
     from rmbvideo.scenes.random_scenes import EVAL_SEED_START
     from rmbvideo.train.raw_gate import RawGateRecipe, fit_raw_gate
 
-    recipe = RawGateRecipe(gate=RawGateConfig(hidden=4, tfi_reach=30), capture=TINY, pans=1, videos=0,
+    recipe = RawGateRecipe(gate=RawGateConfig(hidden=4, tfi_reach=30, long_window=8), capture=TINY, pans=1, videos=0,
                            resets=("zero",), pixels=200, steps=30)
     weights = fit_raw_gate(recipe, tmp_path / "gate.safetensors", model=_tiny_model(tmp_path / "m.safetensors"))
     gate, card = load_raw_gate(weights)
-    assert gate.config == recipe.gate and len(card.data["captures"]) == 1
+    assert gate.config == recipe.gate and len(card.data["captures"]) == 1 and "TFI-8" in card.description
     assert np.isfinite([card.metrics["fit_mse"], card.metrics["fit_mse_without_gate"]]).all()
     with pytest.raises(ValueError, match="evaluation seed"):
         simulate_sequence(EVAL_SEED_START, TINY, training=True)
@@ -197,6 +222,16 @@ def test_display_referred_streams_are_spikezoo_simulator_streams_only() -> None:
     assert [display_referred(seq) for seq in made] == [True] * 5 and made[-1].name.startswith("video-display")
 
 
+def test_train_raw_gate_refuses_a_long_window_not_longer_than_the_first(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-m", "rmbvideo", "train-raw-gate", "--tfi-window", "8", "--long-window",
+                           "4", "-o", str(tmp_path / "g.safetensors"), "--quiet"], capture_output=True, text=True)
+    assert proc.returncode == 2 and "long_window" in proc.stderr and "Traceback" not in proc.stderr
+    assert not list(tmp_path.iterdir())
+
+
 def test_the_gates_tfi_window_is_kept_in_its_card_and_absent_at_zero() -> None:
     """A gate's TFI-M window survives its card; a card from before the window existed (no key) reads 0; the recipe's
     defaults make the shipped gate's architecture (``rmbvideo train-raw-gate`` with no options refits it)."""
@@ -209,3 +244,7 @@ def test_the_gates_tfi_window_is_kept_in_its_card_and_absent_at_zero() -> None:
     assert "tfi_window" not in RawGateConfig().to_dict() and RawGateConfig.from_dict({"hidden": 16}).tfi_window == 0
     with pytest.raises(ValueError, match="tfi_window"):
         RawGateConfig(tfi_window=-1)
+    config = RawGateConfig(tfi_window=4, long_window=16)
+    assert RawGateConfig.from_dict(config.to_dict()) == config and "long_window" not in RawGateConfig().to_dict()
+    with pytest.raises(ValueError, match="long_window"):
+        RawGateConfig(tfi_window=8, long_window=8)

@@ -124,11 +124,14 @@ def train_detail(out_dir: Path, minutes: float, resume: bool, channels: int | No
 @click.option("--tfi-window", type=click.IntRange(min=0), default=None,
               help="Central raw planes of the gate's TFI (TFI-M: the whole intervals covering them; 0: one interval) "
                    "[default: the recipe's, 4].")
+@click.option("--long-window", type=click.IntRange(min=0), default=None,
+              help="Central raw planes of a second TFI candidate, more than --tfi-window (0: none) [default: the "
+                   "recipe's].")
 @quiet_option
 @verbose_option
 def train_raw_gate(out: Path, model: Path | None, steps: int | None, seed: int | None, loss: str | None,
                    display_videos: int | None, display_scenes: int | None, tfi_window: int | None,
-                   quiet: bool) -> None:
+                   long_window: int | None, quiet: bool) -> None:
     """Fit the raw-interval gate of 1-bit captures on simulated captures of training seeds (CPU, one thread)."""
     from dataclasses import replace
 
@@ -140,7 +143,10 @@ def train_raw_gate(out: Path, model: Path | None, steps: int | None, seed: int |
     chosen = (("steps", steps), ("seed", seed), ("loss", loss), ("display_videos", display_videos),
               ("display_scenes", display_scenes))
     recipe = RawGateRecipe(**{k: v for k, v in chosen if v is not None})
-    if tfi_window is not None:
-        recipe = replace(recipe, gate=replace(recipe.gate, tfi_window=tfi_window))
+    windows = {k: v for k, v in (("tfi_window", tfi_window), ("long_window", long_window)) if v is not None}
+    try:
+        recipe = replace(recipe, gate=replace(recipe.gate, **windows))
+    except ValueError as error:
+        raise click.BadParameter(str(error), param_hint="--long-window") from None
     weights = fit_raw_gate(recipe, out, model=model, progress=progress_enabled(quiet))
     click.echo(f"{weights}: install it as models/raw-gate.safetensors (+ .json) to use it")

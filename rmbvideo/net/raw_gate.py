@@ -5,8 +5,10 @@ still resolve (on the development pans TFI on the raw capture, 2x2-averaged, has
 between 0.003 and 0.03 of a threshold per plane), while TFI is far noisier everywhere else. A small per-pixel
 network reads a few features of the two images (their levels and ratio, their local roughness, how much the
 binned frame changed since the last one, the convention) and gives the share of TFI in the output: 0 keeps
-RMB-Net's frame. Both images are light at the binned size; TFI is read as light per raw pixel (``tfi_light``)
-before its 2x2 average, as the evaluation reads it.
+RMB-Net's frame. With a ``long_window`` the gate has a second TFI candidate over more central planes (steadier where
+nothing moves, smeared where things do) and three more features (its level, its ratio to the first TFI: motion, its
+roughness); the shares of the three images are a softmax. All images are light at the binned size; TFI is read as
+light per raw pixel (``tfi_light``) before its 2x2 average, as the evaluation reads it.
 """
 
 from __future__ import annotations
@@ -23,6 +25,8 @@ from rmbvideo.net.blend import box_intensity
 #: Per-pixel inputs of the gate, in this order (``gate_features``).
 FEATURES = ("binned level", "TFI level", "log ratio", "TFI roughness", "binned roughness", "binned change",
             "rate convention")
+#: The features a gate with a ``long_window`` reads after ``FEATURES``.
+LONG_FEATURES = ("long TFI level", "long/short TFI log ratio", "long TFI roughness")
 #: Initial bias of the gate's logit: a new gate keeps RMB-Net's frame (TFI's share about 0.05).
 INITIAL_LOGIT = -3.0
 
@@ -31,22 +35,34 @@ INITIAL_LOGIT = -3.0
 class RawGateConfig:
     """``hidden``: width of the per-pixel network; ``tfi_reach``: raw planes TFI searches on each side of a frame's
     centre (``rmbvideo.recon.classical.Tfi``'s ``max_reach``; 200 reads down to about 1/400 of a spike a plane);
-    ``tfi_window``: its central planes (``Tfi``'s ``window``: 0 one interval, M the whole intervals covering M)."""
+    ``tfi_window``: its central planes (``Tfi``'s ``window``: 0 one interval, M the whole intervals covering M);
+    ``long_window``: the central planes of a second TFI candidate (0: none; else more than ``tfi_window``)."""
 
     hidden: int = 16
     tfi_reach: int = 200
     tfi_window: int = 0
+    long_window: int = 0
 
     def __post_init__(self) -> None:
         if self.hidden < 1 or self.tfi_reach < 1 or self.tfi_window < 0:
             raise ValueError(f"hidden and tfi_reach must be >= 1 and tfi_window >= 0, got {self.hidden}, "
                              f"{self.tfi_reach}, {self.tfi_window}")
+        if self.long_window and self.long_window <= self.tfi_window:
+            raise ValueError(f"long_window must be 0 or more than tfi_window ({self.tfi_window}), got "
+                             f"{self.long_window}")
+
+    @property
+    def candidates(self) -> int:
+        """How many TFI images the gate mixes into RMB-Net's frame (1, or 2 with a ``long_window``)."""
+        return 2 if self.long_window else 1
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dictionary (no ``tfi_window`` key at 0: cards written before it existed stay as they are)."""
+        """JSON-ready dictionary (no ``tfi_window`` or ``long_window`` key at 0: cards written before they existed
+        stay as they are)."""
         out = asdict(self)
-        if not self.tfi_window:
-            del out["tfi_window"]
+        for key in ("tfi_window", "long_window"):
+            if not out[key]:
+                del out[key]
         return out
 
     @classmethod
@@ -74,14 +90,17 @@ def _roughness(image: torch.Tensor) -> torch.Tensor:
     return torch.log((spread + 1e-4) / (mean + 1e-3))
 
 
-def gate_features(binned: torch.Tensor, tfi: torch.Tensor, previous: torch.Tensor,
-                  convention: float) -> torch.Tensor:
+def gate_features(binned: torch.Tensor, tfi: torch.Tensor, previous: torch.Tensor, convention: float,
+                  long_tfi: torch.Tensor | None = None) -> torch.Tensor:
     """(B, len(FEATURES), H, W) from the binned frame, the 2x2-averaged TFI light and the previous binned frame
-    (B,1,H,W each, linear, >= 0); ``convention``: 0 a reset-to-zero pixel, 1 the rate convention."""
-    return torch.cat([torch.log(binned + 1e-4), torch.log(tfi + 1e-4), torch.log((tfi + 1e-3) / (binned + 1e-3)),
-                      _roughness(tfi), _roughness(binned),
-                      torch.log((binned - previous).abs() / (binned + 1e-3) + 1e-3),
-                      torch.full_like(binned, float(convention))], dim=1)
+    (B,1,H,W each, linear, >= 0); ``convention``: 0 a reset-to-zero pixel, 1 the rate convention. With ``long_tfi``
+    (the long-window candidate, alike) the ``LONG_FEATURES`` follow."""
+    features = [torch.log(binned + 1e-4), torch.log(tfi + 1e-4), torch.log((tfi + 1e-3) / (binned + 1e-3)),
+                _roughness(tfi), _roughness(binned), torch.log((binned - previous).abs() / (binned + 1e-3) + 1e-3),
+                torch.full_like(binned, float(convention))]
+    if long_tfi is not None:
+        features += [torch.log(long_tfi + 1e-4), torch.log((long_tfi + 1e-3) / (tfi + 1e-3)), _roughness(long_tfi)]
+    return torch.cat(features, dim=1)
 
 
 class RawGate(nn.Module):
@@ -90,23 +109,32 @@ class RawGate(nn.Module):
     def __init__(self, config: RawGateConfig = RawGateConfig()) -> None:
         super().__init__()
         self.config = config
-        count = len(FEATURES)
+        count = len(FEATURES) + (len(LONG_FEATURES) if config.long_window else 0)
         self.register_buffer("feature_mean", torch.zeros(count))
         self.register_buffer("feature_std", torch.ones(count))
-        self.body = nn.Sequential(nn.Conv2d(count, config.hidden, 1), nn.ReLU(), nn.Conv2d(config.hidden, 1, 1))
+        self.body = nn.Sequential(nn.Conv2d(count, config.hidden, 1), nn.ReLU(),
+                                  nn.Conv2d(config.hidden, config.candidates, 1))
         with torch.no_grad():
             self.body[-1].bias.fill_(INITIAL_LOGIT)
 
     def share(self, features: torch.Tensor) -> torch.Tensor:
-        """TFI's share (B,1,H,W) in [0, 1] from ``gate_features``."""
+        """The TFI candidates' shares (B, candidates, H, W), each in [0, 1] and together at most 1, from
+        ``gate_features``: a sigmoid of one logit, or a softmax of the logits beside RMB-Net's fixed 0."""
         scale = self.feature_std.clamp(min=1e-6).reshape(1, -1, 1, 1)
-        return torch.sigmoid(self.body((features - self.feature_mean.reshape(1, -1, 1, 1)) / scale))
+        logits = self.body((features - self.feature_mean.reshape(1, -1, 1, 1)) / scale)
+        if self.config.candidates == 1:
+            return torch.sigmoid(logits)
+        return torch.softmax(torch.cat([torch.zeros_like(logits[:, :1]), logits], dim=1), dim=1)[:, 1:]
 
-    def forward(self, binned: torch.Tensor, tfi: torch.Tensor, previous: torch.Tensor,
-                convention: float) -> torch.Tensor:
+    def forward(self, binned: torch.Tensor, tfi: torch.Tensor, previous: torch.Tensor, convention: float,
+                long_tfi: torch.Tensor | None = None) -> torch.Tensor:
         """The frame (B,1,H,W), linear, >= 0 and finite: ``binned`` where the gate keeps it, ``tfi`` (light, 2x2-
-        averaged) where it trusts it; ``previous`` is the binned frame before (the frame itself at a clip's start)."""
-        clean = [torch.nan_to_num(x.float(), nan=0.0, posinf=0.0, neginf=0.0).clamp(min=0.0)
-                 for x in (binned, tfi, previous)]
-        share = self.share(gate_features(*clean, convention))
-        return (1.0 - share) * clean[0] + share * clean[1]
+        averaged) and ``long_tfi`` (the long-window candidate, with a ``long_window`` only) where it trusts them;
+        ``previous`` is the binned frame before (the frame itself at a clip's start)."""
+        if (long_tfi is None) != (not self.config.long_window):
+            raise ValueError("long_tfi must be given exactly when the gate has a long_window")
+        images = (binned, tfi, previous) + ((long_tfi,) if long_tfi is not None else ())
+        clean = [torch.nan_to_num(x.float(), nan=0.0, posinf=0.0, neginf=0.0).clamp(min=0.0) for x in images]
+        share = self.share(gate_features(*clean[:3], convention, *clean[3:]))
+        candidates = torch.cat([clean[1], *clean[3:]], dim=1)
+        return (1.0 - share.sum(1, keepdim=True)) * clean[0] + (share * candidates).sum(1, keepdim=True)

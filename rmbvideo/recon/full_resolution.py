@@ -194,19 +194,19 @@ class FullResolution:
         self._binner = StreamBinner()
         windows = detail.config.windows if detail is not None else (settings.window,)
         # TFI for the detail stage and for the gate: one search over the longer reach gives both (``Tfi``'s
-        # ``shorter``), unless the gate's TFI counts central planes (``tfi_window``): then it has a search of its own
+        # ``shorter``), except a gate's TFI over central planes (``tfi_window``, ``long_window``): a search of its own
         detail_reach = detail.config.interval_reach if detail is not None else 0
-        gate_reach = self.raw_gate.config.tfi_reach if self.raw_gate is not None else 0
-        gate_window = self.raw_gate.config.tfi_window if self.raw_gate is not None else 0
-        shared_reach = gate_reach if not gate_window else 0
+        gate = self.raw_gate.config if self.raw_gate is not None else None
+        gate_windows = (gate.tfi_window, gate.long_window)[:gate.candidates] if gate is not None else ()
+        shared_reach = gate.tfi_reach if gate is not None and 0 in gate_windows else 0
         reaches = sorted({r for r in (detail_reach, shared_reach) if r})
         tfi = dict(max_reach=reaches[-1], shorter=tuple(reaches[:-1])) if reaches else None
+        gate_tfi = [dict(max_reach=gate.tfi_reach, window=w) for w in gate_windows if w]
         # where each reader's planes are among a frame's raw rates (the windows' TFP, TFI at each reach, the gate's)
         self._detail_planes = [*range(len(windows)), *([len(windows) + reaches.index(detail_reach)]
                                                        if detail_reach else [])]
-        self._gate_plane = (len(windows) + reaches.index(gate_reach) if shared_reach
-                            else len(windows) + len(reaches) if gate_reach else None)
-        gate_tfi = [dict(max_reach=gate_reach, window=gate_window)] if gate_reach and gate_window else []
+        own = iter(range(len(windows) + len(reaches), len(windows) + len(reaches) + len(gate_tfi)))
+        self._gate_planes = [len(windows) + reaches.index(shared_reach) if not w else next(own) for w in gate_windows]
         # on a GPU the raw stream's rates are made there too (``rmbvideo.recon.device_rates``: the same frames)
         if rates_on_device is None:
             rates_on_device = rates_on_device_by_default(self.device)
@@ -302,7 +302,7 @@ class FullResolution:
                           for store in self._fine]) for index, c in zip(ready, coarse)]
         if self.raw_gate is not None:
             began = time.perf_counter()
-            gated = self._gated([c.image for c in coarse], [r[self._gate_plane] for r in rates])
+            gated = self._gated([c.image for c in coarse], [[r[k] for k in self._gate_planes] for r in rates])
             coarse = [Frame(index=c.index, time_s=c.time_s, image=image) for c, image in zip(coarse, gated)]
             self.stage_seconds["raw gate"] = self.stage_seconds.get("raw gate", 0.0) + time.perf_counter() - began
         rates = [[r[k] for k in self._detail_planes] for r in rates]
@@ -316,9 +316,9 @@ class FullResolution:
         # Frames one side made and the other never will (edges of the clip) are dropped at flush.
         return [Frame(index=index, time_s=c.time_s, image=image) for index, c, image in zip(ready, coarse, images)]
 
-    def _gated(self, coarse: list[np.ndarray], tfis: list[Any]) -> list[np.ndarray]:
-        """Each binned frame mixed with its raw TFI (read as RMB-Net reads light, 2x2-averaged) by the gate, in order;
-        the previous binned frame is the one before the gate (the frame itself at a clip's start)."""
+    def _gated(self, coarse: list[np.ndarray], tfis: list[list[Any]]) -> list[np.ndarray]:
+        """Each binned frame mixed with its raw TFI candidates (read as RMB-Net reads light, 2x2-averaged) by the
+        gate, in order; the previous binned frame is the one before the gate (the frame itself at a clip's start)."""
         import torch
         import torch.nn.functional as F
 
@@ -327,12 +327,12 @@ class FullResolution:
         convention, tabulated = self._reading
         out = []
         with compute_threads(self.threads), torch.inference_mode():
-            for image, tfi in zip(coarse, tfis):
+            for image, candidates in zip(coarse, tfis):
                 binned = torch.from_numpy(np.ascontiguousarray(image, np.float32))[None, None]
                 previous = binned if self._previous is None else torch.from_numpy(self._previous)[None, None]
-                rate = torch.as_tensor(tfi).float().cpu()[None, None]
-                light = F.avg_pool2d(tfi_light(rate, convention, tabulated), 2)
-                out.append(self.raw_gate(binned, light, previous, convention)[0, 0].numpy())
+                light = [F.avg_pool2d(tfi_light(torch.as_tensor(tfi).float().cpu()[None, None], convention,
+                                                tabulated), 2) for tfi in candidates]
+                out.append(self.raw_gate(binned, light[0], previous, convention, *light[1:])[0, 0].numpy())
                 self._previous = np.ascontiguousarray(image, np.float32)
         return out
 

@@ -27,7 +27,7 @@ from rmbvideo.evaluate.heldout import (FULL, VIDEO_KINDS, HeldoutConfig, Sequenc
                                        simulate_video_sequence)
 from rmbvideo.evaluate.metrics import robust_scale
 from rmbvideo.mulaw import mu_law
-from rmbvideo.net.raw_gate import FEATURES, RawGate, RawGateConfig, gate_features
+from rmbvideo.net.raw_gate import RawGate, RawGateConfig, gate_features
 from rmbvideo.net.weights import ModelCard, default_model_path, model_readout, save_model
 from rmbvideo.scenes.video import VideoSceneRanges
 
@@ -96,24 +96,42 @@ def training_sequences(recipe: RawGateRecipe) -> Iterator[Sequence]:
                                       replace(recipe.capture, reset="zero"), training=True)
 
 
-def frame_triples(seq: Sequence, model: Path, reach: int, precision: str = "auto",
-                  window: int = 0) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Per frame of ``seq`` (in order): RMB-Net's binned frame (at ``precision``, ``reconstruct``'s policy by default),
-    raw TFI (over ``window`` central planes) read as light and 2x2-averaged, and the ground truth, as the evaluation
-    makes them."""
+@dataclass(frozen=True)
+class GateFrame:
+    """One frame as the gate reads it: RMB-Net's binned frame, raw TFI (and the long-window TFI when the gate has
+    one) read as light and 2x2-averaged, and the ground truth (clipped at saturation)."""
+
+    binned: np.ndarray
+    tfi: np.ndarray
+    truth: np.ndarray
+    long_tfi: np.ndarray | None = None
+
+    @property
+    def candidates(self) -> tuple[np.ndarray, ...]:
+        """The TFI images the gate mixes in, in its order."""
+        return (self.tfi,) if self.long_tfi is None else (self.tfi, self.long_tfi)
+
+
+def gate_frames(seq: Sequence, model: Path, gate: RawGateConfig, precision: str = "auto") -> list[GateFrame]:
+    """Per frame of ``seq`` (in order), what ``gate`` reads, as the evaluation makes it: RMB-Net's binned frame (at
+    ``precision``, ``reconstruct``'s policy by default) and raw TFI over the gate's windows."""
     network = MethodSpec("RMB-Net", "rmbnet", {"model": str(model), "input_mode": "binned", "threads": 1,
                                                "precision": precision}, model_readout(model))
-    tfi = MethodSpec("TFI (raw)", "tfi", {"step": 20, "max_reach": reach, "window": window}, raw=True)
     binned = {f.index: f.image for f in run_frames(network, seq)[0]}
-    raw = {f.index: f.image for f in run_frames(tfi, seq)[0]}
-    return [(binned[i], raw[i], np.minimum(seq.gt[i], SATURATION)) for i in sorted(set(binned) & set(raw))]
+    raws = []
+    for window in (gate.tfi_window, gate.long_window)[:gate.candidates]:
+        tfi = MethodSpec("TFI (raw)", "tfi", {"step": 20, "max_reach": gate.tfi_reach, "window": window}, raw=True)
+        raws.append({f.index: f.image for f in run_frames(tfi, seq)[0]})
+    shared = sorted(set(binned).intersection(*raws))
+    return [GateFrame(binned[i], raws[0][i], np.minimum(seq.gt[i], SATURATION), raws[1][i] if len(raws) > 1 else None)
+            for i in shared]
 
 
 @dataclass(frozen=True)
 class GateSamples:
-    """Pixels the gate is fitted on: ``features`` (N, len(FEATURES)); ``binned``, ``tfi`` and ``truth`` (N,) divided
-    by their frame's robust truth scale; ``display`` (N,) True on display-referred captures; ``captures`` their
-    names."""
+    """Pixels the gate is fitted on: ``features`` (N, the gate's feature count); ``binned`` and ``truth`` (N,) and
+    ``tfi`` (N, candidates) divided by their frame's robust truth scale; ``display`` (N,) True on display-referred
+    captures; ``captures`` their names."""
 
     features: np.ndarray
     binned: np.ndarray
@@ -129,22 +147,25 @@ def display_referred(seq: Sequence) -> bool:
     return sequence_convention(seq) == "spikezoo" and json.loads(seq.description or "{}").get("reset") != "subtract"
 
 
-def _samples(seq: Sequence, triples: list, recipe: RawGateRecipe,
+def _samples(seq: Sequence, frames: list[GateFrame], recipe: RawGateRecipe,
              rng: np.random.Generator) -> tuple[np.ndarray, ...]:
-    """Features, binned, TFI and truth at ``recipe.pixels`` pixels of every frame, the images divided by the truth's
-    robust scale (as the evaluation's metrics divide them)."""
+    """Features, binned, TFI candidates and truth at ``recipe.pixels`` pixels of every frame, the images divided by
+    the truth's robust scale (as the evaluation's metrics divide them)."""
     convention = float(sequence_convention(seq) != "physical")
+    tensor = lambda x: torch.from_numpy(np.ascontiguousarray(x, np.float32))[None, None]  # noqa: E731
     out: list[list[np.ndarray]] = [[], [], [], []]
-    previous = triples[0][0]
-    for binned, tfi, truth in triples:
-        images = [torch.from_numpy(np.ascontiguousarray(x, np.float32))[None, None] for x in (binned, tfi, previous)]
-        features = gate_features(*images, convention)[0].reshape(len(FEATURES), -1).numpy()
-        pick = rng.integers(0, binned.size, recipe.pixels)
-        scale = robust_scale(truth)
+    previous = frames[0].binned
+    for frame in frames:
+        features = gate_features(tensor(frame.binned), tensor(frame.tfi), tensor(previous), convention,
+                                 *(tensor(x) for x in frame.candidates[1:]))[0]
+        features = features.reshape(features.shape[0], -1).numpy()
+        pick = rng.integers(0, frame.binned.size, recipe.pixels)
+        scale = robust_scale(frame.truth)
         out[0].append(features[:, pick].T)
-        for k, image in enumerate((binned, tfi, truth), start=1):
-            out[k].append((image / scale).ravel()[pick].astype(np.float32))
-        previous = binned
+        out[1].append((frame.binned / scale).ravel()[pick].astype(np.float32))
+        out[2].append(np.stack([(x / scale).ravel()[pick] for x in frame.candidates], axis=1).astype(np.float32))
+        out[3].append((frame.truth / scale).ravel()[pick].astype(np.float32))
+        previous = frame.binned
     return tuple(np.concatenate(x) for x in out)
 
 
@@ -155,8 +176,7 @@ def gather_samples(recipe: RawGateRecipe, model: Path, progress: bool = False) -
     display: list[np.ndarray] = []
     names = []
     for seq in tqdm(training_sequences(recipe), desc="captures", unit="capture", disable=not progress):
-        triples = frame_triples(seq, model, recipe.gate.tfi_reach, window=recipe.gate.tfi_window)
-        parts.append(_samples(seq, triples, recipe, rng))
+        parts.append(_samples(seq, gate_frames(seq, model, recipe.gate), recipe, rng))
         display.append(np.full(len(parts[-1][1]), display_referred(seq)))
         names.append(seq.name)
     features, binned, tfi, truth = (np.concatenate(x) for x in zip(*parts))
@@ -187,16 +207,15 @@ def fit_gate(samples: GateSamples, recipe: RawGateRecipe, progress: bool = False
         gate.feature_std.copy_(features.std(0))
     optimiser = torch.optim.Adam(gate.body.parameters(), lr=recipe.lr)
     x = features.T[None, :, :, None]  # the pixels as a (1, F, P, 1) image: the gate's 1x1 convolutions per pixel
+    mix = lambda share: (1.0 - share.sum(1)) * binned + (share * tfi).sum(1)  # noqa: E731
     for _ in tqdm(range(recipe.steps), desc="fitting", unit="step", disable=not progress):
-        share = gate.share(x)[0, 0, :, 0]
-        loss = gate_loss((1.0 - share) * binned + share * tfi, truth, display, recipe.loss)
+        loss = gate_loss(mix(gate.share(x)[0, :, :, 0].T), truth, display, recipe.loss)
         optimiser.zero_grad()
         loss.backward()
         optimiser.step()
     metrics = {}
     with torch.no_grad():
-        share = gate.share(x)[0, 0, :, 0]
-        for suffix, image in (("", (1.0 - share) * binned + share * tfi), ("_without_gate", binned)):
+        for suffix, image in (("", mix(gate.share(x)[0, :, :, 0].T)), ("_without_gate", binned)):
             metrics[f"fit_mse{suffix}"] = float(gate_loss(image, truth, display, "mu-law"))
             if bool(display.any()):
                 metrics[f"fit_display_linear_mse{suffix}"] = float(((image - truth)[display] ** 2).mean())
@@ -218,6 +237,7 @@ def fit_raw_gate(recipe: RawGateRecipe, out: Path, model: Path | None = None, pr
         description="Raw-interval gate of 1-bit captures: RMB-Net's binned frame mixed per pixel with raw TFI "
                     + (f"over the whole intervals covering {recipe.gate.tfi_window} central planes (TFI-"
                        f"{recipe.gate.tfi_window}) " if recipe.gate.tfi_window else "")
+                    + (f"and TFI-{recipe.gate.long_window} " if recipe.gate.long_window else "")
                     + "(rmbvideo.net.raw_gate), fitted to the binned RMB-Net named in data.",
         training={**{k: v for k, v in asdict(recipe).items() if k not in ("gate", "capture")},
                   "capture": {k: v for k, v in asdict(recipe.capture).items() if k in ("width", "height", "readouts")},

@@ -55,6 +55,26 @@ def pairs(seq) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     return out
 
 
+def _tensor(image: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(np.ascontiguousarray(image, np.float32))[None, None]
+
+
+def apply_gate(gate, frames: list, code: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """The gate's mixed frames and its total TFI share per frame (``rmbvideo.train.raw_gate.GateFrame``s in order),
+    each with the binned frame before it (the frame itself at the start), as ``reconstruct`` mixes them."""
+    from rmbvideo.net.raw_gate import gate_features
+
+    mixed, shares, previous = [], [], frames[0].binned
+    with torch.no_grad():
+        for frame in frames:
+            x = [_tensor(frame.binned), _tensor(frame.tfi), _tensor(previous), code,
+                 *(_tensor(v) for v in frame.candidates[1:])]
+            mixed.append(gate(*x)[0, 0].numpy())
+            shares.append(gate.share(gate_features(*x))[0].sum(0).numpy())
+            previous = frame.binned
+    return mixed, shares
+
+
 def development() -> list:
     """Every development sequence: 16 random scenes and the video kinds with the paper's pixel, and the set again
     with a pixel reset by subtraction (never the held-out seeds)."""
@@ -133,7 +153,7 @@ def fitted(path: str, which: str) -> None:
     scored (mean over the scored frames, each divided by its truth's robust scale)."""
     from rmbvideo.evaluate.real_video import scaled_psnr
     from rmbvideo.net.weights import default_model_path, load_raw_gate
-    from rmbvideo.train.raw_gate import display_referred, frame_triples
+    from rmbvideo.train.raw_gate import display_referred, gate_frames
 
     torch.set_num_threads(1)
     gate = load_raw_gate(path)[0]
@@ -148,15 +168,9 @@ def fitted(path: str, which: str) -> None:
     for reset, sequences in sets.items():
         rows = []
         for seq in sequences:
-            triples = frame_triples(seq, default_model_path("binned"), gate.config.tfi_reach,
-                                    window=gate.config.tfi_window)
-            code = float(sequence_convention(seq) != "physical")
-            gated, previous = [], triples[0][0]
-            with torch.no_grad():
-                for binned, tfi, _ in triples:
-                    x = [torch.from_numpy(np.ascontiguousarray(v, np.float32))[None, None] for v in (binned, tfi, previous)]
-                    gated.append(gate(*x, code)[0, 0].numpy())
-                    previous = binned
+            frames = gate_frames(seq, default_model_path("binned"), gate.config)
+            triples = [(f.binned, f.tfi, f.truth) for f in frames]
+            gated = apply_gate(gate, frames, float(sequence_convention(seq) != "physical"))[0]
             scored = seq.scored_frames
             row = [score_frames({i: triples[i][k] for i in scored}, seq)[0] for k in (0, 1)]
             row.append(score_frames({i: gated[i] for i in scored}, seq)[0])
@@ -277,7 +291,8 @@ def cost(repeats: int = 5) -> None:
     with torch.inference_mode():
         began = time.perf_counter()
         for k in range(100):
-            gate(binned[k : k + 1], binned[k : k + 1] * 1.1, binned[k - 1 : k] if k else binned[:1], 0.0)
+            gate(binned[k : k + 1], binned[k : k + 1] * 1.1, binned[k - 1 : k] if k else binned[:1], 0.0,
+                 *([binned[k : k + 1] * 1.2] if gate.config.long_window else []))
     print(f"gate alone: {10 * (time.perf_counter() - began):.2f} ms a frame")
 
 
@@ -286,9 +301,8 @@ def picture(out: str = "models/figures/raw-gate.png") -> None:
     the gate's share of TFI (black 0, white 1) and the mixed frame, each tone-mapped as the evaluation's pictures
     (mu-law of the frame over the truth's robust scale)."""
     from rmbvideo.mulaw import mu_law as curve
-    from rmbvideo.net.raw_gate import gate_features
     from rmbvideo.net.weights import default_model_path, default_raw_gate_path, load_raw_gate
-    from rmbvideo.train.raw_gate import frame_triples
+    from rmbvideo.train.raw_gate import gate_frames
 
     torch.set_num_threads(1)
     gate = load_raw_gate(default_raw_gate_path())[0]
@@ -296,15 +310,10 @@ def picture(out: str = "models/figures/raw-gate.png") -> None:
                  if s.name in ("random-1000002", "dark-100")]
     rows = []
     for seq in sequences:
-        triples = frame_triples(seq, default_model_path("binned"), gate.config.tfi_reach,
-                                window=gate.config.tfi_window)
-        i = len(triples) // 2
-        binned, tfi, truth = triples[i]
-        x = [torch.from_numpy(np.ascontiguousarray(v, np.float32))[None, None] for v in (binned, tfi, triples[i - 1][0])]
-        code = float(sequence_convention(seq) != "physical")
-        with torch.no_grad():
-            share = gate.share(gate_features(*x, code))[0, 0].numpy()
-            mixed = gate(*x, code)[0, 0].numpy()
+        frames = gate_frames(seq, default_model_path("binned"), gate.config)
+        i = len(frames) // 2
+        binned, tfi, truth = frames[i].binned, frames[i].tfi, frames[i].truth
+        mixed, share = (x[-1] for x in apply_gate(gate, frames[i - 1:i + 1], float(sequence_convention(seq) != "physical")))
         scale = robust_scale(truth)
         tone = lambda im: (255 * np.clip(curve(np.clip(im / scale, 0, 1), 5000.0), 0, 1)).astype(np.uint8)  # noqa: E731
         tiles = [tone(truth), tone(binned), tone(tfi), (255 * share).astype(np.uint8), tone(mixed)]
@@ -322,7 +331,7 @@ def edges(path: str | None = None) -> None:
     from rmbvideo.evaluate.metrics import mu_law_psnr
     from rmbvideo.evaluate.video_checks import FRAME_STEP, best_time_offset_ms, video_scene_of
     from rmbvideo.net.weights import default_model_path, default_raw_gate_path, load_raw_gate
-    from rmbvideo.train.raw_gate import frame_triples
+    from rmbvideo.train.raw_gate import gate_frames
 
     torch.set_num_threads(1)
     gate = load_raw_gate(path or default_raw_gate_path())[0]
@@ -330,23 +339,16 @@ def edges(path: str | None = None) -> None:
           "| offset ms first: binned / gated | last | middle |")
     print("|---|---:|---:|---:|---:|---:|---:|")
     for seq in load_video_heldout(False):
-        triples = frame_triples(seq, default_model_path("binned"), gate.config.tfi_reach,
-                                window=gate.config.tfi_window)
-        code = float(sequence_convention(seq) != "physical")
-        scores, gated, previous = [], [], triples[0][0]
-        with torch.no_grad():
-            for binned, tfi, truth in triples:
-                x = [torch.from_numpy(np.ascontiguousarray(v, np.float32))[None, None] for v in (binned, tfi, previous)]
-                gated.append(gate(*x, code)[0, 0].numpy())
-                scores.append((mu_law_psnr(binned, truth), mu_law_psnr(gated[-1], truth)))
-                previous = binned
+        frames = gate_frames(seq, default_model_path("binned"), gate.config)
+        gated = apply_gate(gate, frames, float(sequence_convention(seq) != "physical"))[0]
+        scores = [(mu_law_psnr(f.binned, f.truth), mu_law_psnr(g, f.truth)) for f, g in zip(frames, gated)]
         median = np.median(np.array(scores), axis=0)
         cells = [f"{a:.2f} / {b:.2f}" for a, b in (scores[0], median, scores[-1])]
-        scene, count = video_scene_of(seq), len(triples)
+        scene, count = video_scene_of(seq), len(frames)
         for i in (0, count - 1, count // 2):  # evaluate's edge_report: frame i's centre is raw plane 2 step i + step
             plane = 2 * FRAME_STEP * i + FRAME_STEP
             cells.append(" / ".join(f"{best_time_offset_ms(image, scene, plane):+.2f}"
-                                    for image in (triples[i][0], gated[i])))
+                                    for image in (frames[i].binned, gated[i])))
         print(f"| {seq.name} | " + " | ".join(cells) + " |", flush=True)
 
 

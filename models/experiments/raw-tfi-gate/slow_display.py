@@ -27,7 +27,7 @@ from rmbvideo.evaluate.heldout import FULL, simulate_video_sequence
 from rmbvideo.net.raw_gate import RawGateConfig
 from rmbvideo.net.weights import ModelCard, default_model_path, save_model
 from rmbvideo.train.raw_gate import (VIDEO_DISPLAY, GateSamples, RawGateRecipe, display_referred, fit_gate,
-                                     frame_triples, gather_samples, _samples)
+                                     gate_frames, gather_samples, _samples)
 
 FIRST_SEED = 740_000
 #: The gate these figures were fitted with reads plain TFI (the recipe's default became TFI-4 since).
@@ -68,7 +68,7 @@ def gather(out: str, captures: int = 6) -> None:
     for j in range(captures):
         seq = simulate_video_sequence(FIRST_SEED + j, VIDEO_DISPLAY, FULL, training=True)
         assert display_referred(seq)
-        parts.append(_samples(seq, frame_triples(seq, model, recipe.gate.tfi_reach), recipe, rng))
+        parts.append(_samples(seq, gate_frames(seq, model, recipe.gate), recipe, rng))
         names.append(seq.name)
     extra = [np.concatenate(x) for x in zip(*parts)]
     np.savez(out, features=np.concatenate([base.features, extra[0]]), binned=np.concatenate([base.binned, extra[1]]),
