@@ -126,7 +126,7 @@ def test_fitting_writes_a_gate_that_loads_and_refuses_evaluation_seeds(tmp_path:
     from rmbvideo.train.raw_gate import RawGateRecipe, fit_raw_gate
 
     recipe = RawGateRecipe(gate=RawGateConfig(hidden=4, tfi_reach=30, long_window=8), capture=TINY, pans=1, videos=0,
-                           resets=("zero",), pixels=200, steps=30)
+                           resets=("zero",), display_videos=0, display_scenes=0, pixels=200, steps=30)
     weights = fit_raw_gate(recipe, tmp_path / "gate.safetensors", model=_tiny_model(tmp_path / "m.safetensors"))
     gate, card = load_raw_gate(weights)
     assert gate.config == recipe.gate and len(card.data["captures"]) == 1 and "TFI-8" in card.description

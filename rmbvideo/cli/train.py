@@ -118,15 +118,15 @@ def train_detail(out_dir: Path, minutes: float, resume: bool, channels: int | No
 @click.option("--loss", type=click.Choice(["mu-law", "mu-law+display-linear"]), default=None,
               help="What the gate is fitted to [default: the recipe's, mu-law].")
 @click.option("--display-videos", type=click.IntRange(min=0), default=None,
-              help="Sequences of every physical video kind simulated again in spikezoo's convention [default 0].")
+              help="Sequences of every physical video kind simulated again in spikezoo's convention [default 2].")
 @click.option("--display-scenes", type=click.IntRange(min=0), default=None,
-              help="Sequences of the training scenes' video ranges in spikezoo's convention [default 0].")
+              help="Sequences of the training scenes' video ranges in spikezoo's convention [default 6].")
 @click.option("--tfi-window", type=click.IntRange(min=0), default=None,
               help="Central raw planes of the gate's TFI (TFI-M: the whole intervals covering them; 0: one interval) "
                    "[default: the recipe's, 4].")
 @click.option("--long-window", type=click.IntRange(min=0), default=None,
               help="Central raw planes of a second TFI candidate, more than --tfi-window (0: none) [default: the "
-                   "recipe's].")
+                   "recipe's, 16].")
 @quiet_option
 @verbose_option
 def train_raw_gate(out: Path, model: Path | None, steps: int | None, seed: int | None, loss: str | None,

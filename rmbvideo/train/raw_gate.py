@@ -1,12 +1,12 @@
 """Fitting the raw-interval gate (``rmbvideo.net.raw_gate``) to the shipped RMB-Net, on simulated 1-bit captures of
 training seeds: panorama pans and the video kinds of the evaluation (fast, dark, fast-dark, spikezoo-fast,
 low-contrast), each with both pixels (reset to zero, reset by subtraction). Every capture is run as the evaluation
-runs it: RMB-Net on the binned stream, TFI on the raw planes (TFI-M over the gate's ``tfi_window``) read as light
-and 2x2-averaged; the gate is fitted on
-pixels drawn from every frame to the mixed frame's mu-law error against the exact ground truth (the recipe can add
-the linear error of display-referred captures, spikezoo's 8-bit video values, as real video is scored, and
-display-referred captures of every kind of motion: tried, not shipped, ``models/experiments/raw-tfi-gate/results.md``).
-About half an hour of simulation and fitting on one core; the same seeds give the same gate.
+runs it: RMB-Net on the binned stream, TFI on the raw planes (TFI-M over the gate's ``tfi_window``, and over its
+``long_window``) read as light and 2x2-averaged; display-referred captures (spikezoo's 8-bit video values) of every
+kind of motion join them. The gate is fitted on pixels drawn from every frame to the mixed frame's mu-law error
+against the exact ground truth (the recipe can add the linear error of display-referred captures, as real video is
+scored: tried, not shipped, ``models/experiments/raw-tfi-gate/results.md``).
+About 45 minutes of simulation and fitting on one core; the same seeds give the same gate.
 """
 
 from __future__ import annotations
@@ -51,15 +51,17 @@ class RawGateRecipe:
     fast) and ``display_scenes`` of the training scenes' own video ranges in that convention (mostly slow, as video
     mostly is), from training seed ``first_seed`` on, each of ``capture``'s size and length (the held-out set's);
     ``pixels`` drawn per frame, ``steps`` of Adam at ``lr`` on ``loss`` (one of ``GATE_LOSSES``), initial weights from
-    ``seed``. The gate's TFI counts the whole intervals covering 4 central planes (TFI-4, the shipped gate's)."""
+    ``seed``. The defaults are the shipped gate's: TFI over the whole intervals covering 4 central planes (TFI-4) and
+    over 16 (TFI-16), two display-referred twins of every physical video kind and six display-referred captures of
+    the training scenes' video ranges."""
 
-    gate: RawGateConfig = RawGateConfig(tfi_window=4)
+    gate: RawGateConfig = RawGateConfig(tfi_window=4, long_window=16)
     capture: HeldoutConfig = FULL
     pans: int = 6
     videos: int = 2
     resets: tuple[str, ...] = ("zero", "subtract")
-    display_videos: int = 0
-    display_scenes: int = 0
+    display_videos: int = 2
+    display_scenes: int = 6
     first_seed: int = 700_000
     pixels: int = 2000
     steps: int = 2000

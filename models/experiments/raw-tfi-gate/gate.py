@@ -13,6 +13,8 @@ figure for deciding whether to build and train the candidate, never a model to s
     python models/experiments/raw-tfi-gate/gate.py cost           # what the gate costs a frame, one thread
     python models/experiments/raw-tfi-gate/gate.py picture        # models/figures/raw-gate.png: where it mixes
     python models/experiments/raw-tfi-gate/gate.py edges [PATH]   # the clips' first and last frames, with and without
+    python models/experiments/raw-tfi-gate/gate.py mixes ../shared/data/spikezoo-base   # the best constant mixes of the
+                                                                    # binned default and TFI-M per stream (an oracle)
 """
 
 import sys
@@ -225,6 +227,35 @@ def real(path: str, folder: str) -> None:
     print(f"| mean gain | | | {np.mean(gains):+.2f} |")
 
 
+def mixes(folder: str) -> None:
+    """How much more a gate could take from TFI-M on real video: per stream, the binned default's frame mixed with
+    TFI-4, TFI-8 or TFI-16 (and with TFI-4 and TFI-16 together) by the best constant share in steps of 0.1, each image
+    first scaled onto the reference by least squares; an oracle of the validation streams, never a method."""
+    from rmbvideo.evaluate.real_video import (RAW_STEP, RealRow, binned_reference, find_streams, real_video_rows,
+                                              reconstruct_frame, scaled_psnr)
+
+    torch.set_num_threads(1)
+    network = next(row for row in real_video_rows() if row.name == "RMB-Net")
+    steps = np.linspace(0.0, 1.0, 11)
+    print("| stream | default (binned) | TFI-4: alone / best mix @ share | TFI-8 | TFI-16 | TFI-4 + TFI-16 @ shares |")
+    print("|---|---:|---:|---:|---:|---:|")
+    for stream in find_streams(Path(folder)):
+        reference = binned_reference(stream)
+        onto = lambda x: x * float((x * reference).sum() / max(float((x * x).sum()), 1e-12))  # noqa: E731
+        binned = onto(reconstruct_frame(stream, network))
+        tfi = {m: onto(reconstruct_frame(stream, RealRow(f"TFI-{m}", "tfi", {"step": RAW_STEP, "window": m,
+                                                                              "max_reach": 200}, raw=True)))
+               for m in (4, 8, 16)}
+        cells = [f"{scaled_psnr(binned, reference):.2f}"]
+        for image in tfi.values():
+            best = max((scaled_psnr((1 - s) * binned + s * image, reference), s) for s in steps)
+            cells.append(f"{scaled_psnr(image, reference):.2f} / {best[0]:.2f} @ {best[1]:.1f}")
+        both = max((scaled_psnr((1 - a - c) * binned + a * tfi[4] + c * tfi[16], reference), a, c)
+                   for a in steps for c in steps if a + c <= 1.0 + 1e-9)
+        cells.append(f"{both[0]:.2f} @ {both[1]:.1f}, {both[2]:.1f}")
+        print(f"| {stream.name} | " + " | ".join(cells) + " |", flush=True)
+
+
 def car(path: str, out: str = "models/figures/car-raw-gate.png") -> None:
     """A real camera's capture with and without the shipped gate (no ground truth): the middle frame's fine grain
     (high-pass standard deviation over the level) on the bright, smooth car body, and a zoom of it (top: without)."""
@@ -363,6 +394,8 @@ if __name__ == "__main__":
         cost()
     elif len(sys.argv) > 1 and sys.argv[1] == "car":
         car(sys.argv[2])
+    elif len(sys.argv) > 1 and sys.argv[1] == "mixes":
+        mixes(sys.argv[2])
     elif len(sys.argv) > 1 and sys.argv[1] == "real":
         real(sys.argv[2], sys.argv[3])
     else:
