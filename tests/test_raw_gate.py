@@ -234,11 +234,19 @@ def test_train_raw_gate_refuses_a_long_window_not_longer_than_the_first(tmp_path
 
 def test_the_gates_tfi_window_is_kept_in_its_card_and_absent_at_zero() -> None:
     """A gate's TFI-M window survives its card; a card from before the window existed (no key) reads 0; the recipe's
-    defaults make the shipped gate's architecture (``rmbvideo train-raw-gate`` with no options refits it)."""
+    defaults make the shipped gate: its architecture and what it was fitted on (``rmbvideo train-raw-gate`` with no
+    options refits it)."""
+    from dataclasses import asdict
+
     from rmbvideo.net.weights import default_raw_gate_path, load_raw_gate
     from rmbvideo.train.raw_gate import RawGateRecipe
 
-    assert RawGateRecipe().gate == load_raw_gate(default_raw_gate_path())[0].config
+    gate, card = load_raw_gate(default_raw_gate_path())
+    recipe = RawGateRecipe()
+    assert recipe.gate == gate.config
+    recorded = {k: v for k, v in card.training.items() if k in asdict(recipe) and k not in ("gate", "capture")}
+    assert len(recorded) >= 10 and recorded == {k: (list(v) if isinstance(v, tuple) else v)
+                                                for k, v in asdict(recipe).items() if k in recorded}
     config = RawGateConfig(hidden=4, tfi_reach=30, tfi_window=8)
     assert RawGateConfig.from_dict(config.to_dict()) == config
     assert "tfi_window" not in RawGateConfig().to_dict() and RawGateConfig.from_dict({"hidden": 16}).tfi_window == 0

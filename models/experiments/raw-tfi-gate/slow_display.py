@@ -60,7 +60,7 @@ def speeds(folder: str) -> None:
 def gather(out: str, captures: int = 6) -> None:
     """The ``--display-videos 2`` recipe's samples, then ``captures`` of ``VIDEO_DISPLAY`` (its own pixel draws)."""
     torch.set_num_threads(1)
-    recipe = RawGateRecipe(gate=PLAIN_TFI, display_videos=2)
+    recipe = RawGateRecipe(gate=PLAIN_TFI, display_videos=2, display_scenes=0)
     model = default_model_path("binned")
     base = gather_samples(recipe, model)
     rng = np.random.default_rng(1)
