@@ -198,8 +198,31 @@ def test_the_gate_loss_adds_the_linear_error_of_display_referred_pixels_only() -
     assert float(gate_loss(mixed, truth, torch.zeros(4, dtype=torch.bool), "mu-law+display-linear")) == pytest.approx(
         float(mu_mse))
     assert tuple(next(p for p in train_raw_gate.params if p.name == "loss").type.choices) == GATE_LOSSES
+    # the options' help states the recipe's defaults (written out there: the CLI does not import the recipe to list)
+    recipe = RawGateRecipe()
+    defaults = {"loss": recipe.loss, "steps": recipe.steps, "display_videos": recipe.display_videos,
+                "display_scenes": recipe.display_scenes, "tfi_window": recipe.gate.tfi_window,
+                "long_window": recipe.gate.long_window}
+    for name, value in defaults.items():
+        text = next(p for p in train_raw_gate.params if p.name == name).help
+        assert text.rstrip("].").endswith(f" {value}"), (name, text)
     with pytest.raises(ValueError, match="loss"):
         RawGateRecipe(loss="linear")
+
+
+def test_fitting_refuses_tfi_samples_not_shaped_by_the_gates_candidates() -> None:
+    """Candidates as (pixels,) would broadcast against the (pixels, 1) shares into a (pixels, pixels) mix."""
+    from rmbvideo.train.raw_gate import GateSamples, RawGateRecipe, fit_gate
+
+    rng = np.random.default_rng(0)
+    flat = GateSamples(rng.random((50, len(FEATURES))), rng.random(50), rng.random(50), rng.random(50),
+                       np.zeros(50, bool), ("x",))
+    recipe = RawGateRecipe(gate=RawGateConfig(hidden=4), steps=2)
+    with pytest.raises(ValueError, match="samples.tfi"):
+        fit_gate(flat, recipe)
+    gate, metrics = fit_gate(GateSamples(flat.features, flat.binned, flat.tfi[:, None], flat.truth, flat.display,
+                                         flat.captures), recipe)
+    assert np.isfinite(metrics["fit_mse"])
 
 
 def test_display_referred_streams_are_spikezoo_simulator_streams_only() -> None:

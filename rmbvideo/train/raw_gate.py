@@ -201,6 +201,8 @@ def fit_gate(samples: GateSamples, recipe: RawGateRecipe, progress: bool = False
     MSE with and without it."""
     features, binned, tfi, truth = (torch.from_numpy(np.ascontiguousarray(x, np.float32))
                                     for x in (samples.features, samples.binned, samples.tfi, samples.truth))
+    if tfi.shape != (len(truth), recipe.gate.candidates):  # (N,) would broadcast against the shares into (N, N)
+        raise ValueError(f"samples.tfi must be (pixels, {recipe.gate.candidates}), got {tuple(tfi.shape)}")
     display = torch.from_numpy(samples.display)
     torch.manual_seed(recipe.seed)
     gate = RawGate(recipe.gate)
