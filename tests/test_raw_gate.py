@@ -12,7 +12,8 @@ import torch.nn.functional as F
 from rmbvideo.evaluate.heldout import HeldoutConfig, simulate_sequence
 from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.model import RmbNet
-from rmbvideo.net.raw_gate import FEATURES, LONG_FEATURES, RawGate, RawGateConfig, gate_features, tfi_light
+from rmbvideo.net.raw_gate import (FEATURES, FRAME_FEATURES, LONG_FEATURES, RawGate, RawGateConfig, gate_features,
+                                   tfi_light)
 from rmbvideo.net.weights import ModelCard, save_model
 
 TINY = HeldoutConfig(count=1, width=48, height=40, readouts=60, edge_readouts=20)
@@ -23,14 +24,15 @@ def _tiny_model(path: Path) -> Path:
     return save_model(path, RmbNet(RmbNetConfig(w=1, width=0.25, convention_input=True)), ModelCard(name="tiny"))
 
 
-def _mixing_gate(tfi_window: int = 0, long_window: int = 0) -> RawGate:
+def _mixing_gate(tfi_window: int = 0, long_window: int = 0, frame_features: bool = False) -> RawGate:
     """A gate that mixes (shares spread around a half, or a third each), so a fault in what it is given shows in the
     output."""
     torch.manual_seed(3)
-    gate = RawGate(RawGateConfig(hidden=4, tfi_reach=30, tfi_window=tfi_window, long_window=long_window))
+    gate = RawGate(RawGateConfig(hidden=4, tfi_reach=30, tfi_window=tfi_window, long_window=long_window,
+                                 frame_features=frame_features))
     with torch.no_grad():
         gate.body[-1].bias.zero_()
-        gate.feature_mean.copy_(torch.tensor([-3.0, -3.0, 0.0, -2.0, -2.0, -3.0, 0.0, -3.0, 0.0, -2.0][
+        gate.feature_mean.copy_(torch.tensor([-3.0, -3.0, 0.0, -2.0, -2.0, -3.0, 0.0, -3.0, 0.0, -2.0, -2.0, -2.0][
             :len(gate.feature_mean)]))
     return gate
 
@@ -79,13 +81,14 @@ def test_a_gate_with_a_long_window_mixes_three_images_by_shares_that_sum_to_at_m
         _mixing_gate()(binned, tfi, binned, 1.0, long_tfi)
 
 
-@pytest.mark.parametrize("tfi_window, long_window", [(0, 0), (8, 0), (0, 8)])
+@pytest.mark.parametrize("tfi_window, long_window, frame_features", [(0, 0, False), (8, 0, False), (0, 8, False),
+                                                                     (4, 8, True)])
 def test_full_resolution_mixes_each_binned_frame_as_the_fitting_reads_it(tmp_path: Path, tfi_window: int,
-                                                                         long_window: int) -> None:
+                                                                         long_window: int, frame_features: bool) -> None:
     """Streamed at full resolution, 2x2-averaged, the frames are the gate applied to exactly what the fitting reads:
     RMB-Net's binned frames and raw TFI (TFI-M with a ``tfi_window``: a search of its own beside the detail
     stage's plain TFI; with a ``long_window`` a second candidate of its own) read as light, with the previous binned
-    frame (itself at the start)."""
+    frame (itself at the start); with ``frame_features`` each frame's own disagreement over the whole frame."""
     from rmbvideo.evaluate.harness import SIMULATED_RESPONSE, downsample_2x, sequence_convention
     from rmbvideo.recon.full_resolution import FullResolution
     from rmbvideo.recon.methods import make_reconstructor
@@ -96,7 +99,7 @@ def test_full_resolution_mixes_each_binned_frame_as_the_fitting_reads_it(tmp_pat
 
     seq = simulate_sequence(123, TINY, training=True)
     model = _tiny_model(tmp_path / "m.safetensors")
-    gate = _mixing_gate(tfi_window, long_window)
+    gate = _mixing_gate(tfi_window, long_window, frame_features)
     convention = sequence_convention(seq)
     # fp32 on both sides: on a host with bf16 the two runs' frame batches would round differently
     engine = make_reconstructor("rmbnet", model=str(model), input_mode="binned", threads=1, convention=convention,
@@ -120,13 +123,40 @@ def test_full_resolution_mixes_each_binned_frame_as_the_fitting_reads_it(tmp_pat
     assert np.abs(expected - frame.binned).max() > 1e-3  # the gate did mix
 
 
+def test_frame_features_are_each_frames_own_and_move_the_shares() -> None:
+    """The frame features are one value over a frame, read from that frame alone (a batch of two frames gives each the
+    features it has alone), and larger where TFI disagrees more with the binned frame; they change the shares."""
+    torch.manual_seed(0)
+    binned = torch.rand(2, 1, 12, 16) * 0.5 + 0.1
+    tfi = binned * torch.tensor([1.0, 2.0]).reshape(2, 1, 1, 1) * (1 + 0.1 * torch.rand(2, 1, 12, 16))
+    long_tfi = binned * (1 + 0.05 * torch.rand(2, 1, 12, 16))
+    both = gate_features(binned, tfi, binned, 1.0, long_tfi, frame=True)
+    assert both.shape[1] == len(FEATURES) + len(LONG_FEATURES) + len(FRAME_FEATURES)
+    assert both.shape[1] == RawGateConfig(long_window=8, frame_features=True).feature_count
+    for k in range(2):
+        alone = gate_features(binned[k:k + 1], tfi[k:k + 1], binned[k:k + 1], 1.0, long_tfi[k:k + 1], frame=True)
+        torch.testing.assert_close(both[k:k + 1], alone)
+    frame = both[:, -len(FRAME_FEATURES):]
+    assert (frame.amax(dim=(2, 3)) == frame.amin(dim=(2, 3))).all() and frame[1, 0, 0, 0] > frame[0, 0, 0, 0] + 1.0
+    assert torch.equal(both[:, :-len(FRAME_FEATURES)], gate_features(binned, tfi, binned, 1.0, long_tfi))
+    gate = _mixing_gate(4, 8, frame_features=True)
+    with torch.no_grad():
+        gate.body[0].weight[:, -2:] += 3.0  # lean on the frame features, so a change in them shows
+        share = gate.share(both)
+        changed = both.clone()
+        changed[:, -len(FRAME_FEATURES):] += 2.0
+        assert (gate.share(changed) - share).abs().max() > 0.01
+        assert torch.isfinite(gate(binned, tfi, binned, 1.0, long_tfi)).all()
+
+
 def test_fitting_writes_a_gate_that_loads_and_refuses_evaluation_seeds(tmp_path: Path) -> None:
     from rmbvideo.net.weights import load_raw_gate
     from rmbvideo.scenes.random_scenes import EVAL_SEED_START
     from rmbvideo.train.raw_gate import RawGateRecipe, fit_raw_gate
 
-    recipe = RawGateRecipe(gate=RawGateConfig(hidden=4, tfi_reach=30, long_window=8), capture=TINY, pans=1, videos=0,
-                           resets=("zero",), display_videos=0, display_scenes=0, pixels=200, steps=30)
+    recipe = RawGateRecipe(gate=RawGateConfig(hidden=4, tfi_reach=30, long_window=8, frame_features=True),
+                           capture=TINY, pans=1, videos=0, resets=("zero",), display_videos=0, display_scenes=0,
+                           pixels=200, steps=30)
     weights = fit_raw_gate(recipe, tmp_path / "gate.safetensors", model=_tiny_model(tmp_path / "m.safetensors"))
     gate, card = load_raw_gate(weights)
     assert gate.config == recipe.gate and len(card.data["captures"]) == 1 and "TFI-8" in card.description
@@ -202,7 +232,8 @@ def test_the_gate_loss_adds_the_linear_error_of_display_referred_pixels_only() -
     recipe = RawGateRecipe()
     defaults = {"loss": recipe.loss, "steps": recipe.steps, "display_videos": recipe.display_videos,
                 "display_scenes": recipe.display_scenes, "tfi_window": recipe.gate.tfi_window,
-                "long_window": recipe.gate.long_window}
+                "long_window": recipe.gate.long_window, "pixels": recipe.pixels,
+                "frame_features": "on" if recipe.gate.frame_features else "off"}
     for name, value in defaults.items():
         text = next(p for p in train_raw_gate.params if p.name == name).help
         assert text.rstrip("].").endswith(f" {value}"), (name, text)
@@ -275,7 +306,8 @@ def test_the_gates_tfi_window_is_kept_in_its_card_and_absent_at_zero() -> None:
     assert "tfi_window" not in RawGateConfig().to_dict() and RawGateConfig.from_dict({"hidden": 16}).tfi_window == 0
     with pytest.raises(ValueError, match="tfi_window"):
         RawGateConfig(tfi_window=-1)
-    config = RawGateConfig(tfi_window=4, long_window=16)
+    config = RawGateConfig(tfi_window=4, long_window=16, frame_features=True)
     assert RawGateConfig.from_dict(config.to_dict()) == config and "long_window" not in RawGateConfig().to_dict()
+    assert "frame_features" not in RawGateConfig(tfi_window=4, long_window=16).to_dict()
     with pytest.raises(ValueError, match="long_window"):
         RawGateConfig(tfi_window=8, long_window=8)

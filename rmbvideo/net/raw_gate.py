@@ -7,7 +7,10 @@ network reads a few features of the two images (their levels and ratio, their lo
 binned frame changed since the last one, the convention) and gives the share of TFI in the output: 0 keeps
 RMB-Net's frame. With a ``long_window`` the gate has a second TFI candidate over more central planes (steadier where
 nothing moves, smeared where things do) and three more features (its level, its ratio to the first TFI: motion, its
-roughness); the shares of the three images are a softmax. All images are light at the binned size; TFI is read as
+roughness); the shares of the three images are a softmax. With ``frame_features`` it also reads how far the
+candidates disagree over the whole frame: far in a dark, noisy frame (TFI's shot noise) or one where much moves (the
+long TFI smears), little where TFI reads the whole frame well (the real-video streams: 0.03-0.05 against 0.03-0.6 on
+the simulated captures), which a pixel's own features, seeing only its neighbourhood, cannot tell. All images are light at the binned size; TFI is read as
 light per raw pixel (``tfi_light``) before its 2x2 average, as the evaluation reads it.
 """
 
@@ -27,6 +30,9 @@ FEATURES = ("binned level", "TFI level", "log ratio", "TFI roughness", "binned r
             "rate convention")
 #: The features a gate with a ``long_window`` reads after ``FEATURES``.
 LONG_FEATURES = ("long TFI level", "long/short TFI log ratio", "long TFI roughness")
+#: The features a gate with ``frame_features`` reads last, the same at every pixel of a frame: the frame's mean
+#: absolute log ratio of TFI to the binned frame, and (with a ``long_window``) of the long TFI to the first.
+FRAME_FEATURES = ("frame TFI/binned disagreement", "frame long/short TFI disagreement")
 #: Initial bias of the gate's logit: a new gate keeps RMB-Net's frame (TFI's share about 0.05).
 INITIAL_LOGIT = -3.0
 
@@ -36,12 +42,14 @@ class RawGateConfig:
     """``hidden``: width of the per-pixel network; ``tfi_reach``: raw planes TFI searches on each side of a frame's
     centre (``rmbvideo.recon.classical.Tfi``'s ``max_reach``; 200 reads down to about 1/400 of a spike a plane);
     ``tfi_window``: its central planes (``Tfi``'s ``window``: 0 one interval, M the whole intervals covering M);
-    ``long_window``: the central planes of a second TFI candidate (0: none; else more than ``tfi_window``)."""
+    ``long_window``: the central planes of a second TFI candidate (0: none; else more than ``tfi_window``);
+    ``frame_features``: whether the gate also reads the ``FRAME_FEATURES``."""
 
     hidden: int = 16
     tfi_reach: int = 200
     tfi_window: int = 0
     long_window: int = 0
+    frame_features: bool = False
 
     def __post_init__(self) -> None:
         if self.hidden < 1 or self.tfi_reach < 1 or self.tfi_window < 0:
@@ -56,11 +64,17 @@ class RawGateConfig:
         """How many TFI images the gate mixes into RMB-Net's frame (1, or 2 with a ``long_window``)."""
         return 2 if self.long_window else 1
 
+    @property
+    def feature_count(self) -> int:
+        """How many features the gate reads per pixel (``gate_features``)."""
+        frame = (1 + bool(self.long_window)) if self.frame_features else 0
+        return len(FEATURES) + (len(LONG_FEATURES) if self.long_window else 0) + frame
+
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dictionary (no ``tfi_window`` or ``long_window`` key at 0: cards written before they existed
-        stay as they are)."""
+        """JSON-ready dictionary (no ``tfi_window``, ``long_window`` or ``frame_features`` key at 0 or False: cards
+        written before they existed stay as they are)."""
         out = asdict(self)
-        for key in ("tfi_window", "long_window"):
+        for key in ("tfi_window", "long_window", "frame_features"):
             if not out[key]:
                 del out[key]
         return out
@@ -90,16 +104,25 @@ def _roughness(image: torch.Tensor) -> torch.Tensor:
     return torch.log((spread + 1e-4) / (mean + 1e-3))
 
 
+def _frame_disagreement(log_ratio: torch.Tensor) -> torch.Tensor:
+    """log of the mean over each frame of |``log_ratio``| (B,1,H,W), as a (B,1,H,W) image."""
+    return torch.log(log_ratio.abs().mean(dim=(2, 3), keepdim=True) + 1e-3).expand_as(log_ratio)
+
+
 def gate_features(binned: torch.Tensor, tfi: torch.Tensor, previous: torch.Tensor, convention: float,
-                  long_tfi: torch.Tensor | None = None) -> torch.Tensor:
-    """(B, len(FEATURES), H, W) from the binned frame, the 2x2-averaged TFI light and the previous binned frame
+                  long_tfi: torch.Tensor | None = None, frame: bool = False) -> torch.Tensor:
+    """(B, features, H, W) from the binned frame, the 2x2-averaged TFI light and the previous binned frame
     (B,1,H,W each, linear, >= 0); ``convention``: 0 a reset-to-zero pixel, 1 the rate convention. With ``long_tfi``
-    (the long-window candidate, alike) the ``LONG_FEATURES`` follow."""
+    (the long-window candidate, alike) the ``LONG_FEATURES`` follow, and with ``frame`` the ``FRAME_FEATURES``."""
     features = [torch.log(binned + 1e-4), torch.log(tfi + 1e-4), torch.log((tfi + 1e-3) / (binned + 1e-3)),
                 _roughness(tfi), _roughness(binned), torch.log((binned - previous).abs() / (binned + 1e-3) + 1e-3),
                 torch.full_like(binned, float(convention))]
     if long_tfi is not None:
         features += [torch.log(long_tfi + 1e-4), torch.log((long_tfi + 1e-3) / (tfi + 1e-3)), _roughness(long_tfi)]
+    if frame:  # the log ratios are features 2 (TFI over binned) and, with a long window, len(FEATURES) + 1
+        features.append(_frame_disagreement(features[2]))
+        if long_tfi is not None:
+            features.append(_frame_disagreement(features[len(FEATURES) + 1]))
     return torch.cat(features, dim=1)
 
 
@@ -109,7 +132,7 @@ class RawGate(nn.Module):
     def __init__(self, config: RawGateConfig = RawGateConfig()) -> None:
         super().__init__()
         self.config = config
-        count = len(FEATURES) + (len(LONG_FEATURES) if config.long_window else 0)
+        count = config.feature_count
         self.register_buffer("feature_mean", torch.zeros(count))
         self.register_buffer("feature_std", torch.ones(count))
         self.body = nn.Sequential(nn.Conv2d(count, config.hidden, 1), nn.ReLU(),
@@ -135,6 +158,6 @@ class RawGate(nn.Module):
             raise ValueError("long_tfi must be given exactly when the gate has a long_window")
         images = (binned, tfi, previous) + ((long_tfi,) if long_tfi is not None else ())
         clean = [torch.nan_to_num(x.float(), nan=0.0, posinf=0.0, neginf=0.0).clamp(min=0.0) for x in images]
-        share = self.share(gate_features(*clean[:3], convention, *clean[3:]))
+        share = self.share(gate_features(*clean[:3], convention, *clean[3:], frame=self.config.frame_features))
         candidates = torch.cat([clean[1], *clean[3:]], dim=1)
         return (1.0 - share.sum(1, keepdim=True)) * clean[0] + (share * candidates).sum(1, keepdim=True)

@@ -52,10 +52,10 @@ class RawGateRecipe:
     mostly is), from training seed ``first_seed`` on, each of ``capture``'s size and length (the held-out set's);
     ``pixels`` drawn per frame, ``steps`` of Adam at ``lr`` on ``loss`` (one of ``GATE_LOSSES``), initial weights from
     ``seed``. The defaults are the shipped gate's: TFI over the whole intervals covering 4 central planes (TFI-4) and
-    over 16 (TFI-16), two display-referred twins of every physical video kind and six display-referred captures of
-    the training scenes' video ranges."""
+    over 16 (TFI-16), read with the frame features (``rmbvideo.net.raw_gate.FRAME_FEATURES``), two display-referred
+    twins of every physical video kind and six display-referred captures of the training scenes' video ranges."""
 
-    gate: RawGateConfig = RawGateConfig(tfi_window=4, long_window=16)
+    gate: RawGateConfig = RawGateConfig(tfi_window=4, long_window=16, frame_features=True)
     capture: HeldoutConfig = FULL
     pans: int = 6
     videos: int = 2
@@ -159,7 +159,7 @@ def _samples(seq: Sequence, frames: list[GateFrame], recipe: RawGateRecipe,
     previous = frames[0].binned
     for frame in frames:
         features = gate_features(tensor(frame.binned), tensor(frame.tfi), tensor(previous), convention,
-                                 *(tensor(x) for x in frame.candidates[1:]))[0]
+                                 *(tensor(x) for x in frame.candidates[1:]), frame=recipe.gate.frame_features)[0]
         features = features.reshape(features.shape[0], -1).numpy()
         pick = rng.integers(0, frame.binned.size, recipe.pixels)
         scale = robust_scale(frame.truth)

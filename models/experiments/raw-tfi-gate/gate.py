@@ -72,7 +72,7 @@ def apply_gate(gate, frames: list, code: float) -> tuple[list[np.ndarray], list[
             x = [_tensor(frame.binned), _tensor(frame.tfi), _tensor(previous), code,
                  *(_tensor(v) for v in frame.candidates[1:])]
             mixed.append(gate(*x)[0, 0].numpy())
-            shares.append(gate.share(gate_features(*x))[0].sum(0).numpy())
+            shares.append(gate.share(gate_features(*x, frame=gate.config.frame_features))[0].sum(0).numpy())
             previous = frame.binned
     return mixed, shares
 
