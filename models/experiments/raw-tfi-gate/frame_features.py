@@ -9,7 +9,7 @@ fitted`` / ``real``'s numbers). Run from the repository root, one thread:
 
     python models/experiments/raw-tfi-gate/frame_features.py cache DIR ../shared/data/spikezoo-base   # ~25 min
     python models/experiments/raw-tfi-gate/frame_features.py compare DIR [SEED]     # ~10 min a variant
-    python models/experiments/raw-tfi-gate/frame_features.py fit DIR OUT.safetensors   # ~35 min (2,000 pixels a frame)
+    python models/experiments/raw-tfi-gate/frame_features.py fit DIR OUT.safetensors   # ~50 min (2,000 pixels a frame)
     python models/experiments/raw-tfi-gate/frame_features.py score DIR GATE development|heldout|real
 """
 
