@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from rmbvideo.chunks import RmbChunk, SpikeChunk
-from rmbvideo.recon.classical import Tfi, Tfp, Tfw, tfw_l, tfw_s
+from rmbvideo.recon.classical import BlockScans, Tfi, Tfp, Tfw, push_by_block, tfw_l, tfw_s
 from rmbvideo.sensor.readout import RmbReadout
 
 RATE = 20000.0
@@ -229,6 +229,31 @@ def test_tfi_window_counts_the_spikes_between_the_spikes_around_the_central_plan
     if window == 0:
         _same(_run(Tfi(step=11, max_reach=13), _spikes(planes, 17, start)),
               _run(Tfi(step=11, max_reach=13, window=0), _spikes(planes, 17, start)))
+
+
+@pytest.mark.parametrize("size", [1, 50, 143])
+def test_tfi_windows_sharing_block_scans_give_their_own_frames_and_scan_each_block_once(size):
+    """TFI searches of other windows and reaches fed the same chunks block by block read one ``BlockScans``: each
+    gives the reference's frames bit for bit, and every block of planes is scanned once between them."""
+    planes = _random_planes(t=143, h=3, w=4, seed=3)
+    planes[:, 0, 0] = 0
+    scans = BlockScans()
+    searches = [Tfi(step=11, max_reach=13, window=w, scans=scans) for w in (0, 4, 9)]
+    searches.append(Tfi(step=11, max_reach=30, shorter=(13,), window=4, scans=scans))
+    frames = [[] for _ in searches]
+    for chunk in _spikes(planes, size, 7):
+        for out, new in zip(frames, push_by_block(searches, chunk)):
+            out += new
+        scans.clear()
+    for out, tfi in zip(frames, searches):
+        out += tfi.flush()
+    for window, out in zip((0, 4, 9), frames):
+        expected = _tfi_m_reference(planes, 7, step=11, reach=13, window=window)
+        assert [f.index for f in out] == sorted(expected)
+        assert all(np.array_equal(f.image, expected[f.index]) for f in out)
+    _same(frames[3], _run(Tfi(step=11, max_reach=30, shorter=(13,), window=4), _spikes(planes, size, 7)))
+    blocks = sum(-(-len(c.planes) // 64) for c in _spikes(planes, size, 7))
+    assert scans.computed == blocks
 
 
 def test_tfi_window_reads_a_regular_pixel_exactly_where_one_interval_cannot():

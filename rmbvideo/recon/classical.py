@@ -332,6 +332,40 @@ class Tfp:
         return Frame(index=total.index, time_s=total.centre / self._rate_hz, image=image)
 
 
+class BlockScans:
+    """The last block's ``Tfi`` scan, kept for the next ``Tfi`` pushed the same planes: several TFI searches over one
+    stream (the detail stage's, a gate's two windows), fed block by block (``push_by_block``), then scan each block
+    once. ``clear`` drops it once every search has read the chunk, so it holds no memory between chunks."""
+
+    def __init__(self) -> None:
+        self._key: tuple[int, int, int] | None = None
+        self._scan: tuple[np.ndarray, np.ndarray] | None = None
+        self.computed = 0  # blocks scanned (a check that the searches share them)
+
+    def get(self, planes: np.ndarray, start: int,
+            scan: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+        """``scan(planes)`` of the block at plane ``start``, computed once for the same planes."""
+        key = (start, len(planes), planes.__array_interface__["data"][0])
+        if key != self._key or self._scan is None:
+            self._key, self._scan = key, scan(planes)
+            self.computed += 1
+        return self._scan
+
+    def clear(self) -> None:
+        self._key = self._scan = None
+
+
+def push_by_block(searches: Sequence[Tfi], chunk: SpikeChunk) -> list[list[Frame]]:
+    """Each search's frames from ``chunk``, pushed one block of planes at a time to every search in turn, so that
+    searches sharing a ``BlockScans`` scan each block once (a search's frames are the same for any chunking)."""
+    out: list[list[Frame]] = [[] for _ in searches]
+    for b0 in range(0, len(chunk.planes), _TFI_BLOCK_PLANES):
+        block = SpikeChunk(chunk.planes[b0 : b0 + _TFI_BLOCK_PLANES], chunk.start + b0, chunk.rate_hz)
+        for frames, search in zip(out, searches):
+            frames += search.push(block)
+    return out
+
+
 class Tfi:
     """Texture from inter-spike interval: 1 / (interval between the spikes around each frame time); with a
     ``window`` of M planes, the rate over the whole intervals that cover the frame's central M planes.
@@ -351,11 +385,15 @@ class Tfi:
     ``shorter``: further reaches below ``max_reach`` read from the same search (each frame's image is then
     (len(shorter) + 1, H, W): each of them, then ``max_reach``), exactly what a ``Tfi`` of that reach gives, for the
     cost of one search: the spikes around a frame within the shorter reach are the same ones.
+
+    ``scans``: a ``BlockScans`` shared with other ``Tfi`` pushed the same chunks (other windows), so each block's
+    running first/last spike offsets are computed once.
     """
 
     input_kind: ClassVar[InputKind] = "spikes"
 
-    def __init__(self, step: int = 20, max_reach: int = 200, shorter: tuple[int, ...] = (), window: int = 0) -> None:
+    def __init__(self, step: int = 20, max_reach: int = 200, shorter: tuple[int, ...] = (), window: int = 0,
+                 scans: BlockScans | None = None) -> None:
         if step < 1 or max_reach < 1 or window < 0:
             raise ValueError(f"step and max_reach must be >= 1 and window >= 0, got step={step}, "
                              f"max_reach={max_reach}, window={window}")
@@ -365,6 +403,7 @@ class Tfi:
         self.max_reach = max_reach
         self.window = window
         self.shorter = tuple(shorter)
+        self._scans = scans
         self._first: int | None = None
         self._pos = 0
         self._rate_hz = 0.0
@@ -421,6 +460,13 @@ class Tfi:
         return ((1.0 if spikes is None else spikes) / interval).astype(np.float32)
 
     @staticmethod
+    def _fill_next(nxt: np.ndarray, first: np.ndarray, start: int, limit: int) -> None:
+        """Where ``nxt`` has no spike yet (-1) and the block's ``first`` spike offset (uint8, ``_scan``) is at most
+        ``limit``, set ``nxt`` to ``start`` + that offset: one masked add, no int64 copy of the offsets."""
+        take = (first <= limit) & (nxt < 0)
+        np.add(first, np.int64(start), out=nxt, where=take)
+
+    @staticmethod
     def _scan(planes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per plane of a block, the last spike at or before it as its offset + 1 (0: none) and the first spike at
         or after it as its offset (_NONE_IN_BLOCK: none); uint8 offsets (fast accumulates)."""
@@ -439,12 +485,7 @@ class Tfi:
         count = len(planes)
         if count == 0:
             return
-        last_in, first_from = self._scan(planes)
-
-        def first_spike(lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
-            """Absolute first spike in planes lo..hi of this block, and where there is one."""
-            found = self._int64(first_from[lo - start])
-            return start + found, found <= hi - start
+        last_in, first_from = self._scan(planes) if self._scans is None else self._scans.get(planes, start, self._scan)
 
         m = self.window
 
@@ -455,9 +496,7 @@ class Tfi:
                 spikes += self._count(planes[lo - start : hi - start + 1])
             lo, hi = max(r + m + 1, start), min(r + m + self.max_reach, start + count - 1)
             if lo <= hi:
-                found, hit = first_spike(lo, hi)
-                take = hit & (nxt < 0)
-                nxt[take] = found[take]
+                self._fill_next(nxt, first_from[lo - start], start, hi - start)
 
         for r, _, nxt, spikes in self._pending.values():  # pending frames: this block's part of each
             search(r, nxt, spikes)

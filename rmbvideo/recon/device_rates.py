@@ -126,6 +126,11 @@ class DeviceTfi(Tfi):
     def _count(planes: torch.Tensor) -> torch.Tensor:
         return planes.sum(dim=0, dtype=torch.int64)
 
+    @staticmethod
+    def _fill_next(nxt: torch.Tensor, first: torch.Tensor, start: int, limit: int) -> None:
+        take = (first <= limit) & (nxt < 0)
+        nxt[take] = first[take].to(torch.int64) + start
+
     def _image(self, interval: torch.Tensor, spikes: torch.Tensor | None = None) -> np.ndarray | torch.Tensor:
         return _image((1.0 if spikes is None else spikes.double()) / interval.double(), self._on_device)
 

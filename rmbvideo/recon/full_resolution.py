@@ -37,7 +37,7 @@ import numpy as np
 
 from rmbvideo.chunks import Frame, SpikeChunk
 from rmbvideo.io.dat import PackedChunk
-from rmbvideo.recon.classical import Tfi, Tfp
+from rmbvideo.recon.classical import BlockScans, Tfi, Tfp, push_by_block
 from rmbvideo.sensor.binning import StreamBinner
 from rmbvideo.sensor.readout import RmbReadout
 from rmbvideo.threads import default_threads, compute_threads
@@ -194,7 +194,8 @@ class FullResolution:
         self._binner = StreamBinner()
         windows = detail.config.windows if detail is not None else (settings.window,)
         # TFI for the detail stage and for the gate: one search over the longer reach gives both (``Tfi``'s
-        # ``shorter``), except a gate's TFI over central planes (``tfi_window``, ``long_window``): a search of its own
+        # ``shorter``), except a gate's TFI over central planes (``tfi_window``, ``long_window``): a search of its own,
+        # which reads the others' scan of each block (``BlockScans``)
         detail_reach = detail.config.interval_reach if detail is not None else 0
         gate = self.raw_gate.config if self.raw_gate is not None else None
         gate_windows = (gate.tfi_window, gate.long_window)[:gate.candidates] if gate is not None else ()
@@ -223,9 +224,11 @@ class FullResolution:
             self._rates += [DeviceTfi(step=step, on_device=on_device, **tfi)] if tfi else []
             self._rates += [DeviceTfi(step=step, on_device=on_device, **options) for options in gate_tfi]
         else:
+            # the TFI searches (the detail stage's, the gate's windows) scan each block of planes once between them
+            self._scans = BlockScans()
             self._rates = [Tfp(window=w, step=step) for w in windows]
-            self._rates += [Tfi(step=step, **tfi)] if tfi else []
-            self._rates += [Tfi(step=step, **options) for options in gate_tfi]
+            self._rates += [Tfi(step=step, scans=self._scans, **tfi)] if tfi else []
+            self._rates += [Tfi(step=step, scans=self._scans, **options) for options in gate_tfi]
         # whether a raw-rate method on the CPU reads decoded planes (TFI; TFP sums the stored bits)
         self._rates_decode = self._rates_device is None and not all(getattr(r, "accepts_packed", False)
                                                                     for r in self._rates)
@@ -279,7 +282,12 @@ class FullResolution:
 
             planes = to_device(chunk, self._rates_device)
             return [rate.push(planes) for rate in self._rates]
-        return [rate.push(chunk if getattr(rate, "accepts_packed", False) else spikes) for rate in self._rates]
+        searches = [rate for rate in self._rates if isinstance(rate, Tfi)]
+        by_block = iter(push_by_block(searches, spikes)) if searches else iter(())
+        frames = [next(by_block) if isinstance(rate, Tfi) else
+                  rate.push(chunk if getattr(rate, "accepts_packed", False) else spikes) for rate in self._rates]
+        self._scans.clear()
+        return frames
 
     def _start(self, task: Callable[[], list[list[Frame]]]) -> Future:
         """``task`` (the raw-rate methods' step, in order): in their thread when they have one (their state is theirs

@@ -64,13 +64,7 @@ class _Recorder(RawGate):
 
 def cache(folder: str, streams: str) -> None:
     """Every capture's frames as the gate reads them, one .npz each (the real streams: the reference frame's)."""
-    from rmbvideo.evaluate.real_video import CONVENTION, RAW_STEP, binned_reference, find_streams
-    from rmbvideo.io.dat import DatReader
-    from rmbvideo.net.weights import model_readout
-    from rmbvideo.recon.full_resolution import FullResolution
-    from rmbvideo.recon.methods import make_reconstructor
-    from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
-    from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
+    from rmbvideo.evaluate.real_video import binned_reference, find_streams
 
     out, model = Path(folder), default_model_path("binned")
     out.mkdir(parents=True, exist_ok=True)
@@ -81,17 +75,31 @@ def cache(folder: str, streams: str) -> None:
             for seq in sequences:
                 _save(out / f"{which}-{reset}-{seq.name}.npz", seq, gate_frames(seq, model, WINDOWS))
     for stream in find_streams(Path(streams)):
-        gate = _Recorder(WINDOWS)
-        gate.calls = []
-        engine = make_reconstructor("rmbnet", model=str(model), input_mode="binned", threads=1, convention=CONVENTION)
-        recon = FullResolution(engine, RmbReadout(mode=ReadoutMode(model_readout(model))), step=RAW_STEP, threads=1,
-                               raw_gate=gate)
-        sink = FrameCollector()
-        reconstruct_stream(DatReader(stream.capture, stream.geometry), recon, sink)
-        binned, tfi, previous, long_tfi, convention = gate.calls[sorted(sink.frames).index(stream.frame)]
+        binned, tfi, previous, long_tfi, convention = reference_frame_inputs(stream, model)
         np.savez(out / f"real-{stream.name}.npz", binned=binned, tfi=tfi, previous=previous, long=long_tfi,
                  convention=convention, reference=binned_reference(stream))
         print(f"cached {stream.name}", flush=True)
+
+
+def reference_frame_inputs(stream, model: Path) -> list:  # noqa: ANN001
+    """What the gate reads at a real stream's reference frame in the default job: binned, TFI, previous binned and
+    long TFI images (each (H, W)) and the convention."""
+    from rmbvideo.evaluate.real_video import CONVENTION, RAW_STEP
+    from rmbvideo.io.dat import DatReader
+    from rmbvideo.net.weights import model_readout
+    from rmbvideo.recon.full_resolution import FullResolution
+    from rmbvideo.recon.methods import make_reconstructor
+    from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
+    from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
+
+    gate = _Recorder(WINDOWS)
+    gate.calls = []
+    engine = make_reconstructor("rmbnet", model=str(model), input_mode="binned", threads=1, convention=CONVENTION)
+    recon = FullResolution(engine, RmbReadout(mode=ReadoutMode(model_readout(model))), step=RAW_STEP, threads=1,
+                           raw_gate=gate)
+    sink = FrameCollector()
+    reconstruct_stream(DatReader(stream.capture, stream.geometry), recon, sink)
+    return gate.calls[sorted(sink.frames).index(stream.frame)]
 
 
 def _frames(path: Path) -> tuple[dict, list[GateFrame]]:

@@ -280,15 +280,18 @@ def car(path: str, out: str = "models/figures/car-raw-gate.png") -> None:
 def cost(repeats: int = 5) -> None:
     """The default full-resolution job on a random 400x250 capture of 2,000 planes (100 frames), one thread, with and
     without the gate, alternated; then the gate's parts alone: TFI over 200 planes a side (and over 40, the detail
-    stage's) on the same planes, and the gate on 100 binned frames."""
+    stage's) on the same planes, the gate's two TFI searches each scanning every block and sharing one scan
+    (``BlockScans``; alternated), and the gate on 100 binned frames."""
     import tempfile
     import time
 
     from rmbvideo.chunks import SpikeChunk
     from rmbvideo.io.dat import DatGeometry, write_dat
     from rmbvideo.net.weights import default_raw_gate_path, load_raw_gate
-    from rmbvideo.recon.classical import Tfi
+    from rmbvideo.recon.classical import BlockScans, Tfi, push_by_block
     from rmbvideo.recon.run import reconstruct_frames
+
+    gate_config = load_raw_gate(default_raw_gate_path())[0].config
 
     torch.set_num_threads(1)
     rng = np.random.default_rng(0)
@@ -317,6 +320,21 @@ def cost(repeats: int = 5) -> None:
             frames += tfi.push(SpikeChunk(planes[start : start + 128], start, 20000.0))
         frames += tfi.flush()
         print(f"TFI, reach {reach}: {1000 * (time.perf_counter() - began) / len(frames):.2f} ms a frame")
+    windows = (gate_config.tfi_window, gate_config.long_window)
+    for shared in (False, True, False, True):  # alternated: the host's speed drifts
+        scans = BlockScans() if shared else None
+        searches, began = [Tfi(step=20, max_reach=200, window=w, scans=scans) for w in windows], time.perf_counter()
+        count = 0
+        for start in range(0, len(planes), 128):
+            count += len(push_by_block(searches, SpikeChunk(planes[start : start + 128], start, 20000.0))[0])
+            if scans is not None:
+                scans.clear()
+        for search in searches[1:]:
+            search.flush()
+        count += len(searches[0].flush())
+        how = "one scan of each block" if shared else "each its own scan"
+        print(f"the gate's TFI-{windows[0]} and TFI-{windows[1]}, {how}: "
+              f"{1000 * (time.perf_counter() - began) / count:.2f} ms a frame")
     gate = load_raw_gate(default_raw_gate_path())[0]
     binned = torch.rand(100, 1, 125, 200) * 0.5
     with torch.inference_mode():

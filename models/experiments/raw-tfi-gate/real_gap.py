@@ -9,9 +9,20 @@ windows, none, or the recipe's other loss). Run from the repository root, one th
     python models/experiments/raw-tfi-gate/real_gap.py candidates DIR            # seconds
     python models/experiments/raw-tfi-gate/real_gap.py regions DIR GATE          # seconds
     python models/experiments/raw-tfi-gate/real_gap.py shares DIR GATE           # about a minute
-    python models/experiments/raw-tfi-gate/real_gap.py reds-like DIR             # ~3 min (12 captures)
+    python models/experiments/raw-tfi-gate/real_gap.py reds-like DIR             # ~4 min (18 captures)
     python models/experiments/raw-tfi-gate/real_gap.py window DIR OUT W STREAMS  # ~5 min (train, development, real)
     python models/experiments/raw-tfi-gate/real_gap.py variant DIR SHORT LONG SEED [LOSS]   # ~10 min (LONG 0: none)
+
+and where each method's frame sits in time: the moment a real stream's reference shows (``moment``: TFP over a few
+planes slid plane by plane), the reference frames and simulated scenes' frames replayed as noise-free rigid pans in
+spikezoo's convention and scored as the real streams are (``replay``), the streams read from their second plane, so
+that frame ``plane // 20`` is made at the reference's moment (``shift``), and the cache with TFI-4 and TFI-16 centred
+on the frame time and the real streams' binned frames made at the reference's moment (``centred``):
+
+    python models/experiments/raw-tfi-gate/real_gap.py moment STREAMS                 # seconds
+    python models/experiments/raw-tfi-gate/real_gap.py replay OUT SPEEDS [0.5]        # ~1 min a replay
+    python models/experiments/raw-tfi-gate/real_gap.py shift STREAMS OUT              # seconds
+    python models/experiments/raw-tfi-gate/real_gap.py centred DIR OUT SHIFTED        # ~8 min
 """
 
 import sys
@@ -32,7 +43,8 @@ from rmbvideo.net.weights import default_model_path, load_raw_gate
 from rmbvideo.scenes.video import VideoSceneRanges
 from rmbvideo.train.raw_gate import GateFrame, RawGateRecipe, gate_frames, training_sequences
 
-#: REDS-like display-referred scenes (training seeds 750,000 on and 760,000 on): moving, and mostly still.
+#: REDS-like display-referred scenes (training seeds 750,000, 760,000 and 771,000 on): moving, mostly still, and
+#: rigid pans at 0.15 raw px a plane.
 REDS_LIKE = {
     "reds": (750_000, VideoSceneRanges(camera_speed=(0.05, 0.4), static_probability=0.0, object_speed=(0.05, 0.6),
                                        panorama_probability=0.7, median_rate=(0.1, 0.5), light_probability=0.0,
@@ -40,6 +52,8 @@ REDS_LIKE = {
     "redsstill": (760_000, VideoSceneRanges(camera_speed=(0.02, 0.2), static_probability=0.3,
                                             object_speed=(0.05, 0.4), max_objects=3, panorama_probability=1.0,
                                             median_rate=(0.1, 0.5), light_probability=0.0)),
+    # rigid pans at the real streams' speed (DIS flow 0.12-0.19 raw px a plane, ``slow_display.py speeds``)
+    "pan": (771_000, VideoSceneRanges(pan_probability=1.0, pan_speed=(0.14, 0.16))),
 }
 #: A pixel is still where TFI-16 and TFI-4 agree within 3 %, flat where the truth's 3x3 gradient is below its median.
 STILL_LOG_RATIO = 0.03
@@ -128,6 +142,15 @@ def reds_like(folder: str, count: int = 6) -> None:
             print(f"{seq.name}: binned {psnr[0]:.2f}, TFI-4 {psnr[1]:.2f}, TFI-16 {psnr[2]:.2f}", flush=True)
 
 
+def _cached_captures():  # noqa: ANN202
+    """The training and development captures, each with its file name in the cache (``frame_features.cache``)."""
+    for k, seq in enumerate(training_sequences(RawGateRecipe())):
+        yield seq, f"train-{k:02d}-{seq.name}.npz"
+    for reset in ("zero", "subtract"):
+        for seq in load_development(reset=reset):
+            yield seq, f"development-{reset}-{seq.name}.npz"
+
+
 def _tfi(seq, window: int) -> dict[int, np.ndarray]:  # noqa: ANN001
     spec = MethodSpec("TFI (raw)", "tfi", {"step": 20, "max_reach": 200, "window": window}, raw=True)
     return {f.index: f.image for f in run_frames(spec, seq)[0]}
@@ -150,11 +173,8 @@ def window(folder: str, out: str, w: int, streams: str) -> None:
         d["long"] = np.stack([long[i] for i in index]).astype(np.float32)
         np.savez(dst / path.name, **d)
 
-    for k, seq in enumerate(training_sequences(RawGateRecipe())):
-        redo(seq, src / f"train-{k:02d}-{seq.name}.npz")
-    for reset in ("zero", "subtract"):
-        for seq in load_development(reset=reset):
-            redo(seq, src / f"development-{reset}-{seq.name}.npz")
+    for seq, name in _cached_captures():
+        redo(seq, src / name)
     for stream in find_streams(Path(streams)):
         path = src / f"real-{stream.name}.npz"
         d = dict(np.load(path))
@@ -187,6 +207,128 @@ def variant(folder: str, short: int, long: int, seed: int, loss: str = "mu-law")
           f"{dev['subtract']:+.2f} | {streams} | {real['mean']:.2f} |", flush=True)
 
 
+def moment(streams: str, windows: tuple[int, ...] = (6, 10)) -> None:
+    """Per real stream: PSNR of TFP over ``windows`` planes slid plane by plane around the reference plane, and the
+    vertex of a parabola through the best window position and its neighbours, as a time in planes (plane k spans
+    [k, k+1); frame ``plane // 20`` is made at ``20 * (plane // 20) + 10``)."""
+    from rmbvideo.evaluate.real_video import binned_reference, find_streams
+    from rmbvideo.io.dat import DatReader
+
+    for stream in find_streams(Path(streams)):
+        planes = np.concatenate([c.planes for c in DatReader(stream.capture, stream.geometry).chunks(1000)])
+        reference = binned_reference(stream)
+        h, w = reference.shape
+        for window in windows:
+            starts = range(stream.plane - 10, stream.plane + 6)
+            psnr = np.array([scaled_psnr(planes[a : a + window].reshape(window, h, 2, w, 2).mean((0, 2, 4)),
+                                         reference) for a in starts])
+            k = int(np.clip(np.argmax(psnr), 1, len(psnr) - 2))
+            left, mid, right = psnr[k - 1 : k + 2]
+            vertex = starts[k] + window / 2 + 0.5 * (left - right) / (left - 2 * mid + right)
+            print(f"{stream.name} TFP-{window}: best at time {starts[int(np.argmax(psnr))] + window / 2:.1f}, "
+                  f"vertex {vertex:.2f} (the frame's time {20 * (stream.plane // 20) + 10})")
+
+
+def _replay_images() -> dict[str, np.ndarray]:
+    """The real streams' reference frames and two simulated display-referred scenes' frames (plane 150), in [0, 1]."""
+    from rmbvideo.evaluate.real_video import find_streams
+    from rmbvideo.scenes.video import VideoScene
+    from rmbvideo.train.raw_gate import VIDEO_DISPLAY
+
+    images = {s.name.split("_key")[0]: cv2.imread(str(s.reference), cv2.IMREAD_GRAYSCALE).astype(np.float32) / 255
+              for s in find_streams(Path("../shared/data/spikezoo-base"))}
+    for name, seed, ranges in (("video-display", 740_001, VIDEO_DISPLAY.ranges), ("reds", 750_001, REDS_LIKE["reds"][1])):
+        image = VideoScene(seed, 400, 250, 400, ranges, "spikezoo").render(150)
+        images[f"{name}-{seed}"] = np.clip(image / np.quantile(image, 0.995), 0, 1).astype(np.float32)
+    return images
+
+
+def replay(out: str, speeds: str, half: float = 0.0, mean_rate: float = 0.208) -> None:
+    """Each ``_replay_images`` frame as a 301-plane noise-free stream in spikezoo's convention (mean rate
+    ``mean_rate``: 203_part2's), the frame translated rigidly at each of ``speeds`` raw px a plane (x; 0.3 of it in
+    y) so that plane k shows it at time k + ``half`` - 150 (0.5: the simulator's plane midpoints), written as a
+    ``.dat`` + PNG pair and scored as the real streams are (RMB-Net, TFI-4, TFI-16)."""
+    from rmbvideo.evaluate.real_video import find_streams, real_video_rows, score_stream
+    from rmbvideo.io.dat import DatGeometry, write_dat
+
+    folder = Path(out)
+    folder.mkdir(parents=True, exist_ok=True)
+    rows = [r for r in real_video_rows() if r.name in ("RMB-Net", "TFI-4 (raw, 2x2-avg)", "TFI-16 (raw, 2x2-avg)")]
+    rng = np.random.default_rng(0)
+    print("| frame | speed | RMB-Net | TFI-4 | TFI-16 |\n|---|---:|---:|---:|---:|")
+    for (name, image), speed in [(item, float(v)) for item in _replay_images().items() for v in speeds.split(",")]:
+        charge, planes = rng.random(image.shape), np.zeros((301, *image.shape), np.uint8)
+        for k in range(len(planes)):
+            dx = speed * (k + half - 150)
+            moved = cv2.warpAffine(image, np.float32([[1, 0, dx], [0, 1, 0.3 * dx]]), image.shape[::-1],
+                                   flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+            charge += np.clip(moved * (mean_rate / image.mean()), 0, 1)
+            planes[k] = charge >= 1
+            charge -= planes[k]
+        stem = f"{name}-{speed}-{half}_key_id151"
+        write_dat(folder / f"{stem}.dat", planes, DatGeometry(400, 250))
+        cv2.imwrite(str(folder / f"{stem}.png"), np.clip(image * 255 + 0.5, 0, 255).astype(np.uint8))
+        scores = score_stream(next(s for s in find_streams(folder) if s.name == stem), rows)
+        print(f"| {name} | {speed} | " + " | ".join(f"{scores[r.name].psnr:.2f}" for r in rows) + " |", flush=True)
+
+
+def shift(streams: str, out: str, planes: int = 1) -> None:
+    """Each real stream without its first ``planes`` planes, beside its reference (the same name and ``key_id``):
+    frame ``plane // 20`` is then made ``planes`` planes later in the original stream."""
+    import shutil
+
+    from rmbvideo.evaluate.real_video import find_streams
+    from rmbvideo.io.dat import DatReader, write_dat
+
+    folder = Path(out)
+    folder.mkdir(parents=True, exist_ok=True)
+    for stream in find_streams(Path(streams)):
+        data = np.concatenate([c.planes for c in DatReader(stream.capture, stream.geometry).chunks(1000)])
+        write_dat(folder / stream.capture.name, data[planes:], stream.geometry)
+        shutil.copy(stream.reference, folder / stream.reference.name)
+
+
+def _centred_tfi(seq, window: int) -> dict[int, np.ndarray]:  # noqa: ANN001
+    """TFI-``window`` of ``seq``'s frames (light, 2x2-averaged) with its central planes one plane earlier than
+    ``Tfi`` places them: today's ``Tfi`` on the planes labelled one later, centred on the frame time as TFP is."""
+    from rmbvideo.chunks import SpikeChunk
+    from rmbvideo.evaluate.harness import downsample_2x, rate_as_light, sequence_convention
+    from rmbvideo.evaluate.heldout import RAW_RATE_HZ
+    from rmbvideo.recon.classical import Tfi
+
+    planes = np.unpackbits(seq.raw_packed, axis=-1, bitorder="little")[..., : 2 * seq.shape[1]]
+    search, frames = Tfi(step=20, max_reach=200, window=window), []
+    for a in range(0, len(planes), 128):
+        frames += search.push(SpikeChunk(planes[a : a + 128], a + 1, RAW_RATE_HZ))
+    frames += search.flush()
+    return {f.index: downsample_2x(rate_as_light("tfi", f.image, sequence_convention(seq)), seq.shape) for f in frames}
+
+
+def centred(folder: str, out: str, shifted: str) -> None:
+    """``folder``'s training and development frames with TFI-4 and TFI-16 centred on the frame time
+    (``_centred_tfi``), and the real streams' frames with RMB-Net's binned frame (and the one before) made on the
+    ``shifted`` streams (``shift``: at the reference's moment) and TFI as cached (today's TFI is centred there)."""
+    from rmbvideo.evaluate.real_video import find_streams
+
+    src, dst = Path(folder), Path(out)
+    dst.mkdir(parents=True, exist_ok=True)
+
+    def redo(seq, path: Path) -> None:  # noqa: ANN001
+        d = dict(np.load(path))
+        short, long = _centred_tfi(seq, 4), _centred_tfi(seq, 16)
+        index = sorted(short)[: len(d["tfi"])]
+        d["tfi"], d["long"] = (np.stack([x[i] for i in index]).astype(np.float32) for x in (short, long))
+        np.savez(dst / path.name, **d)
+
+    for seq, name in _cached_captures():
+        redo(seq, src / name)
+    for stream in find_streams(Path(shifted)):
+        binned, _, previous, _, _ = ff.reference_frame_inputs(stream, default_model_path("binned"))
+        d = dict(np.load(src / f"real-{stream.name}.npz"))
+        d["binned"], d["previous"] = binned, previous
+        np.savez(dst / f"real-{stream.name}.npz", **d)
+
+
 if __name__ == "__main__":
     torch.set_num_threads(1)
     command, args = sys.argv[1], sys.argv[2:]
@@ -200,5 +342,13 @@ if __name__ == "__main__":
         reds_like(*args)
     elif command == "window":
         window(args[0], args[1], int(args[2]), args[3])
+    elif command == "moment":
+        moment(*args)
+    elif command == "replay":
+        replay(args[0], args[1], *(float(a) for a in args[2:]))
+    elif command == "shift":
+        shift(*args)
+    elif command == "centred":
+        centred(*args)
     else:
         variant(args[0], int(args[1]), int(args[2]), int(args[3]), *args[4:])
