@@ -9,7 +9,7 @@ windows, none, or the recipe's other loss). Run from the repository root, one th
     python models/experiments/raw-tfi-gate/real_gap.py candidates DIR            # seconds
     python models/experiments/raw-tfi-gate/real_gap.py regions DIR GATE          # seconds
     python models/experiments/raw-tfi-gate/real_gap.py shares DIR GATE           # about a minute
-    python models/experiments/raw-tfi-gate/real_gap.py reds-like DIR             # ~4 min (18 captures)
+    python models/experiments/raw-tfi-gate/real_gap.py reds-like DIR             # ~5 min (24 captures)
     python models/experiments/raw-tfi-gate/real_gap.py window DIR OUT W STREAMS  # ~5 min (train, development, real)
     python models/experiments/raw-tfi-gate/real_gap.py variant DIR SHORT LONG SEED [LOSS]   # ~10 min (LONG 0: none)
 
@@ -43,8 +43,8 @@ from rmbvideo.net.weights import default_model_path, load_raw_gate
 from rmbvideo.scenes.video import VideoSceneRanges
 from rmbvideo.train.raw_gate import GateFrame, RawGateRecipe, gate_frames, training_sequences
 
-#: REDS-like display-referred scenes (training seeds 750,000, 760,000 and 771,000 on): moving, mostly still, and
-#: rigid pans at 0.15 raw px a plane.
+#: REDS-like display-referred scenes (training seeds 750,000, 760,000, 771,000 and 772,000 on): moving, mostly still,
+#: and rigid pans at 0.15 raw px a plane, of any brightness and bright.
 REDS_LIKE = {
     "reds": (750_000, VideoSceneRanges(camera_speed=(0.05, 0.4), static_probability=0.0, object_speed=(0.05, 0.6),
                                        panorama_probability=0.7, median_rate=(0.1, 0.5), light_probability=0.0,
@@ -52,8 +52,11 @@ REDS_LIKE = {
     "redsstill": (760_000, VideoSceneRanges(camera_speed=(0.02, 0.2), static_probability=0.3,
                                             object_speed=(0.05, 0.4), max_objects=3, panorama_probability=1.0,
                                             median_rate=(0.1, 0.5), light_probability=0.0)),
-    # rigid pans at the real streams' speed (DIS flow 0.12-0.19 raw px a plane, ``slow_display.py speeds``)
+    # rigid pans at the real streams' speed (DIS flow 0.12-0.19 raw px a plane, ``slow_display.py speeds``), and as
+    # bright as they are (0.18-0.35 spikes a plane on average), without lights
     "pan": (771_000, VideoSceneRanges(pan_probability=1.0, pan_speed=(0.14, 0.16))),
+    "brightpan": (772_000, VideoSceneRanges(pan_probability=1.0, pan_speed=(0.14, 0.16), median_rate=(0.15, 0.4),
+                                            light_probability=0.0)),
 }
 #: A pixel is still where TFI-16 and TFI-4 agree within 3 %, flat where the truth's 3x3 gradient is below its median.
 STILL_LOG_RATIO = 0.03
