@@ -229,6 +229,8 @@ class FullResolution:
             self._rates = [Tfp(window=w, step=step) for w in windows]
             self._rates += [Tfi(step=step, scans=self._scans, **tfi)] if tfi else []
             self._rates += [Tfi(step=step, scans=self._scans, **options) for options in gate_tfi]
+        # the TFI searches among them, fed block by block (``push_by_block``) so that they share each block's scan
+        self._searches = [rate for rate in self._rates if isinstance(rate, Tfi)]
         # whether a raw-rate method on the CPU reads decoded planes (TFI; TFP sums the stored bits)
         self._rates_decode = self._rates_device is None and not all(getattr(r, "accepts_packed", False)
                                                                     for r in self._rates)
@@ -282,9 +284,9 @@ class FullResolution:
 
             planes = to_device(chunk, self._rates_device)
             return [rate.push(planes) for rate in self._rates]
-        searches = [rate for rate in self._rates if isinstance(rate, Tfi)]
-        by_block = iter(push_by_block(searches, spikes)) if searches else iter(())
-        frames = [next(by_block) if isinstance(rate, Tfi) else
+        # (without TFI the planes may stay undecoded: nothing to push block by block)
+        by_block = iter(push_by_block(self._searches, spikes) if self._searches else ())
+        frames = [next(by_block) if rate in self._searches else
                   rate.push(chunk if getattr(rate, "accepts_packed", False) else spikes) for rate in self._rates]
         self._scans.clear()
         return frames
