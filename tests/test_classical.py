@@ -199,7 +199,7 @@ def _tfi_m_reference(planes: np.ndarray, start: int, step: int, reach: int, wind
             continue
         if centre2 >= 2 * end:
             break
-        p = centre2 // 2 - window // 2
+        p = (centre2 - window + 1) // 2 - 1  # the central planes p+1..p+window: TFP's window
         image = np.empty(planes.shape[1:], np.float32)
         for y, x in np.ndindex(*planes.shape[1:]):
             times = start + np.flatnonzero(planes[:, y, x])
@@ -229,6 +229,25 @@ def test_tfi_window_counts_the_spikes_between_the_spikes_around_the_central_plan
     if window == 0:
         _same(_run(Tfi(step=11, max_reach=13), _spikes(planes, 17, start)),
               _run(Tfi(step=11, max_reach=13, window=0), _spikes(planes, 17, start)))
+
+
+@pytest.mark.parametrize("window", [0, 4, 16])
+@pytest.mark.parametrize("method", ["tfi", "tfp"])
+def test_tfi_and_tfp_frames_are_centred_on_the_frame_time(method, window):
+    """Played backwards about a frame's centre (the data ending at twice its time), a centred method reads the same
+    planes, so the frame is unchanged: TFI-M's central planes are TFP's window of M planes, and plain TFI's
+    interval straddles the frame time, neither a plane late."""
+    if method == "tfp" and window == 0:
+        window = 2  # (an odd window cannot be centred on a frame time between two planes)
+    step, frame = 20, 3
+    planes = _random_planes(t=(2 * frame + 1) * step, h=4, w=5, seed=11)
+    make = (lambda: Tfi(step=step, max_reach=50, window=window)) if method == "tfi" else (
+        lambda: Tfp(window=window, step=step))
+    forward, backward = (next(f for f in _run(make(), _spikes(data, 32)) if f.index == frame)
+                         for data in (planes, planes[::-1].copy()))
+    assert np.array_equal(forward.image, backward.image)
+    later = next(f for f in _run(make(), _spikes(planes[1:], 32)) if f.index == frame)  # one plane later
+    assert not np.array_equal(forward.image, later.image)
 
 
 @pytest.mark.parametrize("size", [1, 50, 143])

@@ -16,11 +16,13 @@ from rmbvideo.evaluate.real_video import (
     RealRow,
     RealStream,
     find_streams,
+    open_stream,
+    reconstruct_frame,
     reference_plane,
     scaled_psnr,
     score_stream,
 )
-from rmbvideo.io.dat import DatGeometry, write_dat
+from rmbvideo.io.dat import DatGeometry, DatReader, write_dat
 from rmbvideo.sensor.conventions import CONVENTIONS
 from rmbvideo.sensor.emission import RateIntegrateFire
 from rmbvideo.train.dataset import SampleSpec, simulate_sample
@@ -166,19 +168,44 @@ def test_reference_plane_from_the_name_or_the_middle(tmp_path):
 
 
 def _spikezoo_pair(folder: Path, name: str, seed: int) -> RealStream:
-    """A spikezoo-like stream (rate 0.6 x intensity, 400x250, 121 planes) and its reference PNG at plane 60."""
+    """A spikezoo-like stream (rate 0.6 x intensity, 400x250, 121 planes) and its reference PNG (``key_id61``: the
+    light at time 61)."""
     scene = VideoScene(seed, 400, 250, 121, VideoSceneRanges(camera_speed=(0.1, 0.1), static_probability=0.0,
                                                              object_speed=(0.05, 0.2)), convention="spikezoo")
     planes = np.concatenate([c.planes for c in capture_planes(scene, 121, 20000.0)])
     write_dat(folder / f"{name}.dat", planes, DatGeometry(400, 250))
-    intensity = np.clip(scene.render(60.5) / SPIKEZOO_RATE, 0, 1)
+    intensity = np.clip(scene.render(61.0) / SPIKEZOO_RATE, 0, 1)
     cv2.imwrite(str(folder / f"{name}.png"), np.round(intensity * 255).astype(np.uint8))
     return find_streams(folder)[0]
 
 
+def test_the_scored_frame_is_made_at_the_references_moment(tmp_path):
+    """``key_id151`` shows the light at time 151 (the end of plane 150): with only planes 150 and 151 lit, TFP over
+    2 planes reads them fully in the scored frame (read from plane 1 on, numbered from 0), and the binned stream read
+    that way is the capture without its first plane, binned."""
+    planes = np.zeros((301, 250, 400), np.uint8)
+    planes[150:152] = 1
+    planes[::7, ::3, ::5] = 1  # texture for the binned comparison, away from the lit planes' values
+    write_dat(tmp_path / "lit_key_id151.dat", planes, DatGeometry(400, 250))
+    cv2.imwrite(str(tmp_path / "lit_key_id151.png"), np.full((250, 400), 200, np.uint8))
+    (stream,) = find_streams(tmp_path)
+    assert (stream.plane, stream.moment, stream.skip, stream.frame) == (150, 151, 1, 7)
+    image = reconstruct_frame(stream, RealRow("TFP-2", "tfp", {"window": 2, "step": 20}, raw=True))
+    assert np.array_equal(image, np.ones_like(image))
+
+    later = tmp_path / "later"
+    later.mkdir()
+    write_dat(later / "c.dat", planes[1:], DatGeometry(400, 250))
+    shifted = list(DatReader(later / "c.dat", DatGeometry(400, 250)).binned_chunks(64))
+    read = list(open_stream(stream).binned_chunks(64))
+    assert [c.start for c in read] == [c.start for c in shifted]
+    for a, b in zip(read, shifted):
+        assert np.array_equal(a.single, b.single) and np.array_equal(a.multi, b.multi)
+
+
 def test_real_video_scoring_at_equal_resolution(tmp_path):
     stream = _spikezoo_pair(tmp_path, "scene_key_id61", seed=21)
-    assert stream.plane == 60 and stream.frame == 3
+    assert stream.plane == 60 and stream.moment == 61 and stream.skip == 11 and stream.frame == 2
     rows = [RealRow("TFW-S", "tfw", {"window": 10, "step": 10}),
             RealRow("TFP-20", "tfp", {"window": 20, "step": 20}, raw=True),
             RealRow("TFP-80", "tfp", {"window": 80, "step": 20}, raw=True)]

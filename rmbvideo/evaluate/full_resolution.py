@@ -33,9 +33,9 @@ from rmbvideo.evaluate.real_video import (
     TFP_WINDOWS,
     RealStream,
     least_squares_gain,
+    open_stream,
     scaled_psnr,
 )
-from rmbvideo.io.dat import DatReader
 from rmbvideo.io.png import write_png
 from rmbvideo.recon.full_resolution import FullResolution, detail_stage, raw_gate_stage, upsample
 from rmbvideo.recon.methods import make_reconstructor
@@ -178,7 +178,7 @@ def score_streams(streams: Seq[RealStream], rows: Seq[FullRow], scores: FullScor
         reference = cv2.imread(str(stream.reference), cv2.IMREAD_GRAYSCALE).astype(np.float32) / 255.0
         psnr, ssim_, pictures = {}, {}, {"reference": reference}
         for row in rows:
-            frames, _, _ = run_row(row, DatReader(stream.capture, stream.geometry), keep=[stream.frame],
+            frames, _, _ = run_row(row, open_stream(stream), keep=[stream.frame],
                                    convention=CONVENTION)
             image = at_full_resolution(row, frames[stream.frame])[: reference.shape[0], : reference.shape[1]]
             scaled = (least_squares_gain(image, reference) * image).astype(np.float32)

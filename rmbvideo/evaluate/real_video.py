@@ -11,8 +11,11 @@ methods on the raw 1-bit capture (TFP at windows 20/41/80/140, TFI) are 2x2 area
 reference is area-averaged to the same size. "best classical on the raw capture" is, per stream,
 the best of those raw rows (an oracle choice of window: the strongest bar there is).
 
-The frame scored is the output frame whose interval holds the reference plane (one frame per 20 raw
-planes, frame i centred at raw plane 20 i + 10).
+The frame scored is made at the reference's moment: a ``key_idK`` reference shows the light at time K in planes
+(plane k spans [k, k + 1), so the end of plane K - 1; on spikezoo's REDS streams TFP slid plane by plane matches the
+reference best there, at 150.8-151.7 for K = 151: ``models/experiments/raw-tfi-gate/real_gap.py moment``). Frame i
+is centred at raw plane 20 i + 10, so the capture is read from plane ``skip`` on, numbered from 0
+(``open_stream``), to put a frame's centre on that moment.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from __future__ import annotations
 import logging
 import math
 import re
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -28,12 +31,14 @@ from typing import Any
 import cv2
 import numpy as np
 
+from rmbvideo.chunks import RmbChunk, SpikeChunk
 from rmbvideo.errors import InputError
 from rmbvideo.evaluate.harness import RMB_ROW, TFI_WINDOWS, rate_as_light
 from rmbvideo.evaluate.metrics import ssim
 from rmbvideo.io.dat import DatGeometry, DatReader
 from rmbvideo.recon.methods import make_reconstructor
 from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
+from rmbvideo.sensor.binning import bin_2x2x2, binned_rmb_chunk
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
 
 log = logging.getLogger(__name__)
@@ -57,9 +62,19 @@ class RealStream:
     geometry: DatGeometry = DatGeometry(400, 250)
 
     @property
+    def moment(self) -> int:
+        """The time the reference shows, in planes: the end of its plane."""
+        return self.plane + 1
+
+    @property
+    def skip(self) -> int:
+        """Planes left unread at the start so that a frame is centred at ``moment`` (0 if it is too early)."""
+        return (self.moment - RAW_STEP // 2) % RAW_STEP if self.moment >= RAW_STEP // 2 else 0
+
+    @property
     def frame(self) -> int:
-        """Index of the output frame whose interval holds the reference plane."""
-        return self.plane // RAW_STEP
+        """Index of the output frame made at the reference's moment, counted from plane ``skip``."""
+        return max(self.moment - self.skip - RAW_STEP // 2, 0) // RAW_STEP
 
 
 @dataclass(frozen=True)
@@ -108,6 +123,37 @@ def find_streams(folder: Path, geometry: DatGeometry = DatGeometry(400, 250)) ->
     return streams
 
 
+class PlanesFrom:
+    """A capture read from raw plane ``skip`` on, its planes numbered from 0: every method's frames are then made
+    ``skip`` planes later in the capture. Binned reading bins the raw planes (any ``skip``, odd too)."""
+
+    def __init__(self, reader: DatReader, skip: int) -> None:
+        self._reader = reader
+        self._skip = skip
+
+    @property
+    def n_planes(self) -> int:
+        return max(self._reader.n_planes - self._skip, 0)
+
+    def chunks(self, chunk_planes: int = 1024, start: int = 0, stop: int | None = None) -> Iterator[SpikeChunk]:
+        """The reader's chunks of planes ``skip + start .. skip + stop``, numbered from ``start``."""
+        stop = self.n_planes if stop is None else stop
+        for chunk in self._reader.chunks(chunk_planes, start + self._skip, stop + self._skip):
+            yield SpikeChunk(chunk.planes, chunk.start - self._skip, chunk.rate_hz)
+
+    def binned_chunks(self, chunk_planes: int = 1024, start: int = 0, stop: int | None = None) -> Iterator[RmbChunk]:
+        """``chunks`` (an even number of planes each) 2x2x2-binned into pure-M chunks."""
+        stop = self.n_planes if stop is None else stop
+        for chunk in self.chunks(chunk_planes, start, stop - (stop - start) % 2):
+            yield binned_rmb_chunk(*bin_2x2x2(chunk.planes), chunk.start, chunk.rate_hz)
+
+
+def open_stream(stream: RealStream) -> DatReader | PlanesFrom:
+    """The stream's capture, read so that frame ``stream.frame`` is made at the reference's moment."""
+    reader = DatReader(stream.capture, stream.geometry)
+    return PlanesFrom(reader, stream.skip) if stream.skip else reader
+
+
 def binned_reference(stream: RealStream) -> np.ndarray:
     """The reference image in [0, 1], area-averaged to the binned size (H/2, W/2)."""
     image = cv2.imread(str(stream.reference), cv2.IMREAD_GRAYSCALE)
@@ -131,8 +177,8 @@ def scaled_psnr(prediction: np.ndarray, reference: np.ndarray) -> float:
 
 
 def reconstruct_frame(stream: RealStream, row: RealRow) -> np.ndarray:
-    """The row's frame at the reference plane, at the binned size (raw rows 2x2 area-averaged)."""
-    reader = DatReader(stream.capture, stream.geometry)
+    """The row's frame at the reference's moment, at the binned size (raw rows 2x2 area-averaged)."""
+    reader = open_stream(stream)
     recon = make_reconstructor(row.method, **row.options)
     sink = FrameCollector(keep=[stream.frame])
     readout = None if row.raw else RmbReadout(mode=ReadoutMode(row.readout))

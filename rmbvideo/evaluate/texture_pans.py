@@ -5,7 +5,8 @@ These clips reproduce their hard case with known content and motion, for choosin
 dead-leaves texture (seeds from the evaluation range, so never a training scene) at a low or a moderate
 contrast around the brightness of REDS footage, panned at 0 to 0.28 raw pixels per plane and turned into
 spikes by spikezoo's rate rule (accumulate 0.6 x the 8-bit value, fire and subtract at 1; no noise).
-Each is written as ``NAME_key_id151.dat`` + ``.png`` (the texture as it stands at plane 150), so
+Each is written as ``NAME_key_id151.dat`` + ``.png``: the texture as it stands at time 151 in planes, where the
+format's reference shows the light (``real_video.RealStream.moment``; each plane shows it at its midpoint), so
 ``real_video.find_streams`` and its scoring read them like any folder of real-video streams.
 """
 
@@ -30,7 +31,7 @@ REFERENCE_PLANE = 150  # "key_id151"
 SPIKEZOO_RATE = 0.6  # spikes per plane at 8-bit value 255
 MEAN_VALUE = 0.59  # 8-bit mean 150, as the REDS stream 200_part3
 SEED_START = EVAL_SEED_START + 2_000_000  # apart from every held-out sequence's seeds
-CACHE_VERSION = 1
+CACHE_VERSION = 2  # 2: the reference at the format's moment (time 151, not plane 150's start)
 _PAD = 100  # texture margin (px) beyond the frame, more than the fastest pan covers
 
 
@@ -74,7 +75,8 @@ def write_texture_pan(pan: TexturePan, folder: Path, geometry: DatGeometry = Dat
     capture = stem.with_suffix(".dat")
     with atomic_path(capture) as temp, DatWriter(temp, geometry) as writer:
         for plane in range(PLANES):
-            shift_x, shift_y = vx * (plane - REFERENCE_PLANE), vy * (plane - REFERENCE_PLANE)
+            elapsed = plane + 0.5 - (REFERENCE_PLANE + 1)  # from the reference's moment to this plane's midpoint
+            shift_x, shift_y = vx * elapsed, vy * elapsed
             warp = np.float32([[1, 0, _PAD - shift_x], [0, 1, _PAD - shift_y]])  # output px -> texture px
             frame = cv2.warpAffine(big, warp, (width, height), flags=cv2.INTER_LANCZOS4 | cv2.WARP_INVERSE_MAP)
             writer.write(emitter.emit_one(SPIKEZOO_RATE * np.clip(frame, 0.0, 1.0))[None])

@@ -370,9 +370,11 @@ class Tfi:
     """Texture from inter-spike interval: 1 / (interval between the spikes around each frame time); with a
     ``window`` of M planes, the rate over the whole intervals that cover the frame's central M planes.
 
-    For frame ``i`` with ``r = floor(c_i)`` the central planes are ``r - M//2 + 1 .. r - M//2 + M`` (none when
-    M = 0); per pixel ``prev`` is the last spike before them (at or before ``p = r - M//2``) and ``next`` the first
-    spike after them, each searched at most ``max_reach`` planes beyond them and never outside the pushed data.
+    For frame ``i`` centred at ``c_i`` (plane k spans [k, k + 1)) the central planes are TFP's window of M planes
+    centred there, ``p + 1 .. p + M`` with ``p = floor(c_i - (M - 1) / 2) - 1`` (none when M = 0: ``prev`` then at or
+    before the plane that ends nearest ``c_i``, ``next`` after it); per pixel ``prev`` is the last spike at or before
+    ``p`` and ``next`` the first spike after the central planes, each searched at most ``max_reach`` planes beyond
+    them and never outside the pushed data.
     Value = (spikes in the central planes + 1) / (next - prev): the spikes from just after ``prev`` up to ``next``
     over the planes they span, so M = 0 is plain TFI. A pixel that fires regularly (the rate convention, no
     noise) reads its rate to within one spike over the span, where TFP's fixed window of the same length is off
@@ -413,8 +415,8 @@ class Tfi:
         self._pending: dict[int, tuple[int, np.ndarray, np.ndarray, np.ndarray | None]] = {}
 
     def _reference(self, i: int) -> int:
-        """The plane ``p`` just before frame ``i``'s central planes (its centre's plane when ``window`` is 0)."""
-        return _centre2(i, self.step) // 2 - self.window // 2
+        """The plane ``p`` just before frame ``i``'s central planes (TFP's window there, so both are centred alike)."""
+        return (_centre2(i, self.step) - self.window + 1) // 2 - 1
 
     def push(self, chunk: SpikeChunk) -> list[Frame]:
         """Consume raw planes; return the frames whose look-ahead is complete."""

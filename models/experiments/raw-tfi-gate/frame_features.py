@@ -84,8 +84,7 @@ def cache(folder: str, streams: str) -> None:
 def reference_frame_inputs(stream, model: Path) -> list:  # noqa: ANN001
     """What the gate reads at a real stream's reference frame in the default job: binned, TFI, previous binned and
     long TFI images (each (H, W)) and the convention."""
-    from rmbvideo.evaluate.real_video import CONVENTION, RAW_STEP
-    from rmbvideo.io.dat import DatReader
+    from rmbvideo.evaluate.real_video import CONVENTION, RAW_STEP, open_stream
     from rmbvideo.net.weights import model_readout
     from rmbvideo.recon.full_resolution import FullResolution
     from rmbvideo.recon.methods import make_reconstructor
@@ -98,7 +97,7 @@ def reference_frame_inputs(stream, model: Path) -> list:  # noqa: ANN001
     recon = FullResolution(engine, RmbReadout(mode=ReadoutMode(model_readout(model))), step=RAW_STEP, threads=1,
                            raw_gate=gate)
     sink = FrameCollector()
-    reconstruct_stream(DatReader(stream.capture, stream.geometry), recon, sink)
+    reconstruct_stream(open_stream(stream), recon, sink)
     return gate.calls[sorted(sink.frames).index(stream.frame)]
 
 

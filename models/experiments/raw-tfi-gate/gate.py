@@ -194,8 +194,8 @@ def real(path: str, folder: str) -> None:
     """A gate file on real-video streams at the binned size, as the real-video table scores every row: the 1-bit
     capture's default path (RMB-Net on the binned stream, the gate, then 2x2 blocks averaged: the detail keeps every
     block's mean, so it is left out) with and without the gate, linear PSNR after a least-squares gain."""
-    from rmbvideo.evaluate.real_video import (CONVENTION, RAW_STEP, binned_reference, find_streams, scaled_psnr)
-    from rmbvideo.io.dat import DatReader
+    from rmbvideo.evaluate.real_video import (CONVENTION, RAW_STEP, binned_reference, find_streams, open_stream,
+                                              scaled_psnr)
     from rmbvideo.net.weights import default_model_path, load_raw_gate, model_readout
     from rmbvideo.recon.full_resolution import FullResolution
     from rmbvideo.recon.methods import make_reconstructor
@@ -217,7 +217,7 @@ def real(path: str, folder: str) -> None:
             recon = FullResolution(engine, RmbReadout(mode=ReadoutMode(model_readout(model))), step=RAW_STEP,
                                    threads=1, raw_gate=raw_gate)
             sink = FrameCollector(keep=[stream.frame])
-            reconstruct_stream(DatReader(stream.capture, stream.geometry), recon, sink)
+            reconstruct_stream(open_stream(stream), recon, sink)
             image = sink.frames[stream.frame].image
             h, w = reference.shape
             scores.append(scaled_psnr(cv2.resize(image[: 2 * h, : 2 * w], (w, h), interpolation=cv2.INTER_AREA),
