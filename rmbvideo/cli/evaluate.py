@@ -41,8 +41,8 @@ def _real_video(folder: Path, model: Path, device: str, out_dir: Path, stem: str
     results = evaluate_streams(streams, real_video_rows(model, device))
     md = out_dir / f"{stem}.md"
     atomic_write_text(md, f"# {title} (reference frame, least-squares gain, binned resolution)\n\n"
-                      + markdown_table(results) + "\nCells: linear PSNR (dB) / SSIM at the reference plane; raw "
-                      "rows are 2x2 area-averaged; the best raw row is chosen per stream.\n")
+                      + markdown_table(results) + "\nCells: linear PSNR (dB) / SSIM of the frame made at the "
+                      "reference's moment; raw rows are 2x2 area-averaged; the best raw row is chosen per stream.\n")
     references = {s.name: binned_reference(s) for s in streams if any(p in s.name for p in pictured)}
     png = write_png(out_dir / f"{stem}.png",
                     comparison_image({name: results[name] for name in references}, references, ["TFW-L", "GC20", "MG20", "RMB-Net", BEST_RAW]))

@@ -107,7 +107,7 @@ def score_sequences(model: Path, sequences: Seq[Sequence], device: str = "cpu",
 
 
 def score_streams(model: Path, streams: Seq[RealStream], device: str = "cpu") -> dict[str, RealScore]:
-    """The frame at each stream's reference plane, gain-scaled, and its linear PSNR (the real-video scorer,
+    """The frame at each stream's reference moment, gain-scaled, and its linear PSNR (the real-video scorer,
     spikezoo's convention)."""
     row = RealRow("candidate", "rmbnet", {**_options(model, device), "convention": CONVENTION}, readout=_readout(model))
     return {s.name: score_stream(s, [row])["candidate"] for s in streams}

@@ -23,6 +23,11 @@ on the frame time and the real streams' binned frames made at the reference's mo
     python models/experiments/raw-tfi-gate/real_gap.py replay OUT SPEEDS [0.5]        # ~1 min a replay
     python models/experiments/raw-tfi-gate/real_gap.py shift STREAMS OUT              # seconds
     python models/experiments/raw-tfi-gate/real_gap.py centred DIR OUT SHIFTED        # ~8 min
+
+and whether the real streams are sharp only every few planes, as a stream rendered from sharp frames with
+interpolated ones between would be (``sharpness``: the detail of a few planes' rate over time):
+
+    python models/experiments/raw-tfi-gate/real_gap.py sharpness STREAMS [WINDOW]     # seconds
 """
 
 import sys
@@ -232,6 +237,31 @@ def moment(streams: str, windows: tuple[int, ...] = (6, 10)) -> None:
                   f"vertex {vertex:.2f} (the frame's time {20 * (stream.plane // 20) + 10})")
 
 
+def sharpness(streams: str, window: int = 8) -> None:
+    """Per stream: the fine detail of TFP over ``window`` planes slid plane by plane (variance of the Laplacian of the
+    rate, Gaussian-smoothed by 1 px), detrended by a 21-plane mean; its strongest period, the times of its local
+    maxima, and where the reference's moment falls on the detail folded at that period (0: at a peak, 0.5: halfway
+    between). A stream rendered from sharp frames with interpolated ones between peaks at every sharp frame."""
+    from rmbvideo.evaluate.real_video import find_streams
+    from rmbvideo.io.dat import DatReader
+
+    print("| stream | period (planes) | modulation | reference's moment: phase | local maxima |\n|---|---:|---:|---:|---|")
+    for stream in find_streams(Path(streams)):
+        planes = DatReader(stream.capture, stream.geometry).read().astype(np.float32)
+        sums = np.concatenate([np.zeros((1, *planes.shape[1:]), np.float32), np.cumsum(planes, axis=0)])
+        detail = np.array([cv2.Laplacian(cv2.GaussianBlur((sums[a + window] - sums[a]) / window, (0, 0), 1.0),
+                                         cv2.CV_32F).var() for a in range(len(planes) - window + 1)])
+        times = np.arange(len(detail)) + window / 2
+        varying = (detail - np.convolve(detail, np.ones(21) / 21, mode="same"))[10:-10]
+        times, spectrum = times[10:-10], np.abs(np.fft.rfft(varying))
+        period = 1.0 / np.fft.rfftfreq(len(varying))[1 + int(np.argmax(spectrum[1:]))]
+        folded = np.exp(2j * np.pi * times / period) @ varying  # the period's phasor: its peak's phase
+        phase = ((stream.moment - np.angle(folded) * period / (2 * np.pi)) / period + 0.5) % 1.0 - 0.5
+        maxima = [f"{times[i]:.0f}" for i in range(7, len(varying) - 7) if varying[i] == varying[i - 7 : i + 8].max()]
+        print(f"| {stream.name} | {period:.1f} | {2 * abs(folded) / len(varying) / detail.mean():.3f} | "
+              f"{phase:+.2f} | {', '.join(maxima)} |", flush=True)
+
+
 def _replay_images() -> dict[str, np.ndarray]:
     """The real streams' reference frames and two simulated display-referred scenes' frames (plane 150), in [0, 1]."""
     from rmbvideo.evaluate.real_video import find_streams
@@ -353,5 +383,7 @@ if __name__ == "__main__":
         shift(*args)
     elif command == "centred":
         centred(*args)
+    elif command == "sharpness":
+        sharpness(args[0], *(int(a) for a in args[1:]))
     else:
         variant(args[0], int(args[1]), int(args[2]), int(args[3]), *args[4:])
