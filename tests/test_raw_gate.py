@@ -156,7 +156,7 @@ def test_fitting_writes_a_gate_that_loads_and_refuses_evaluation_seeds(tmp_path:
 
     recipe = RawGateRecipe(gate=RawGateConfig(hidden=4, tfi_reach=30, long_window=8, frame_features=True),
                            capture=TINY, pans=1, videos=0, resets=("zero",), display_videos=0, display_scenes=0,
-                           pixels=200, steps=30)
+                           still_scenes=0, pixels=200, steps=30)
     weights = fit_raw_gate(recipe, tmp_path / "gate.safetensors", model=_tiny_model(tmp_path / "m.safetensors"))
     gate, card = load_raw_gate(weights)
     assert gate.config == recipe.gate and len(card.data["captures"]) == 1 and "TFI-8" in card.description
@@ -271,9 +271,13 @@ def test_display_referred_streams_are_spikezoo_simulator_streams_only() -> None:
     subtract = simulate_sequence(700_000, replace(TINY, reset="subtract"), training=True)
     assert display_referred(twin) and not display_referred(subtract)
     assert sequence_convention(subtract) == "spikezoo" and not display_referred(simulate_sequence(700_000, TINY, True))
-    recipe = RawGateRecipe(capture=TINY, pans=0, videos=0, resets=(), display_videos=1, display_scenes=1)
-    made = list(training_sequences(recipe))  # every physical kind's twin, then the training scenes' video ranges
-    assert [display_referred(seq) for seq in made] == [True] * 5 and made[-1].name.startswith("video-display")
+    recipe = RawGateRecipe(capture=TINY, pans=0, videos=0, resets=(), display_videos=1, display_scenes=1,
+                           still_scenes=1)
+    made = list(training_sequences(recipe))  # every physical kind's twin, the training scenes' ranges, a still scene
+    assert [display_referred(seq) for seq in made] == [True] * 6 and made[-2].name.startswith("video-display")
+    still = made[-1]
+    assert still.name.startswith("still-display") and all(np.array_equal(still.gt[i], still.gt[0])
+                                                          for i in range(1, len(still.gt)))
 
 
 def test_train_raw_gate_refuses_a_long_window_not_longer_than_the_first(tmp_path: Path) -> None:

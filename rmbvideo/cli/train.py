@@ -121,6 +121,8 @@ def train_detail(out_dir: Path, minutes: float, resume: bool, channels: int | No
               help="Sequences of every physical video kind simulated again in spikezoo's convention [default 2].")
 @click.option("--display-scenes", type=click.IntRange(min=0), default=None,
               help="Sequences of the training scenes' video ranges in spikezoo's convention [default 6].")
+@click.option("--still-scenes", type=click.IntRange(min=0), default=None,
+              help="Sequences of still scenes (a still camera, nothing moving) in spikezoo's convention [default 3].")
 @click.option("--tfi-window", type=click.IntRange(min=0), default=None,
               help="Central raw planes of the gate's TFI (TFI-M: the whole intervals covering them; 0: one interval) "
                    "[default: the recipe's, 4].")
@@ -135,7 +137,8 @@ def train_detail(out_dir: Path, minutes: float, resume: bool, channels: int | No
 @quiet_option
 @verbose_option
 def train_raw_gate(out: Path, model: Path | None, steps: int | None, seed: int | None, loss: str | None,
-                   display_videos: int | None, display_scenes: int | None, tfi_window: int | None,
+                   display_videos: int | None, display_scenes: int | None, still_scenes: int | None,
+                   tfi_window: int | None,
                    long_window: int | None, frame_features: bool | None, pixels: int | None, quiet: bool) -> None:
     """Fit the raw-interval gate of 1-bit captures on simulated captures of training seeds (CPU, one thread)."""
     from dataclasses import replace
@@ -146,7 +149,7 @@ def train_raw_gate(out: Path, model: Path | None, steps: int | None, seed: int |
 
     torch.set_num_threads(1)
     chosen = (("steps", steps), ("seed", seed), ("loss", loss), ("display_videos", display_videos),
-              ("display_scenes", display_scenes), ("pixels", pixels))
+              ("display_scenes", display_scenes), ("still_scenes", still_scenes), ("pixels", pixels))
     recipe = RawGateRecipe(**{k: v for k, v in chosen if v is not None})
     windows = {k: v for k, v in (("tfi_window", tfi_window), ("long_window", long_window),
                                  ("frame_features", frame_features)) if v is not None}

@@ -41,6 +41,10 @@ GATE_LOSSES = ("mu-law", "mu-law+display-linear")
 #: Display-referred captures of the training scenes' own video ranges (camera speed log-uniform 0.005-1.2 raw px a
 #: plane: mostly slow; the real-video streams move 0.12-0.19, ``models/experiments/raw-tfi-gate/slow_display.py``).
 VIDEO_DISPLAY = VideoHeldout("video-display", VideoSceneRanges(), "spikezoo")
+#: Display-referred captures of a still camera over a still scene (no camera motion, shake or movers): without them
+#: the gate mixed TFI-4's grain into still texture (the development clips' still pans lost 5-7 dB to it).
+STILL_DISPLAY = VideoHeldout("still-display", VideoSceneRanges(static_probability=1.0, max_objects=0, shake_px=0.0),
+                             "spikezoo")
 
 
 @dataclass(frozen=True)
@@ -48,12 +52,13 @@ class RawGateRecipe:
     """What the gate is fitted on and how: ``pans`` panorama pans and ``videos`` sequences of every video kind per
     pixel kind in ``resets`` (spikezoo's kind has no reset: once), then ``display_videos`` sequences of every other
     video kind simulated again in spikezoo's convention (display-referred streams of every kind of motion, not only
-    fast) and ``display_scenes`` of the training scenes' own video ranges in that convention (mostly slow, as video
-    mostly is), from training seed ``first_seed`` on, each of ``capture``'s size and length (the held-out set's);
+    fast), ``display_scenes`` of the training scenes' own video ranges in that convention (mostly slow, as video
+    mostly is) and ``still_scenes`` of still scenes in it (``STILL_DISPLAY``), from training seed ``first_seed`` on, each of ``capture``'s size and length (the held-out set's);
     ``pixels`` drawn per frame, ``steps`` of Adam at ``lr`` on ``loss`` (one of ``GATE_LOSSES``), initial weights from
     ``seed``. The defaults are the shipped gate's: TFI over the whole intervals covering 4 central planes (TFI-4) and
     over 16 (TFI-16), read with the frame features (``rmbvideo.net.raw_gate.FRAME_FEATURES``), two display-referred
-    twins of every physical video kind and six display-referred captures of the training scenes' video ranges."""
+    twins of every physical video kind, six display-referred captures of the training scenes' video ranges and
+    three of still scenes."""
 
     gate: RawGateConfig = RawGateConfig(tfi_window=4, long_window=16, frame_features=True)
     capture: HeldoutConfig = FULL
@@ -62,6 +67,7 @@ class RawGateRecipe:
     resets: tuple[str, ...] = ("zero", "subtract")
     display_videos: int = 2
     display_scenes: int = 6
+    still_scenes: int = 3
     first_seed: int = 700_000
     pixels: int = 2000
     steps: int = 2000
@@ -95,6 +101,9 @@ def training_sequences(recipe: RawGateRecipe) -> Iterator[Sequence]:
                                               replace(recipe.capture, reset="zero"), training=True)
     for j in range(recipe.display_scenes):
         yield simulate_video_sequence(recipe.first_seed + 40_000 + j, VIDEO_DISPLAY,
+                                      replace(recipe.capture, reset="zero"), training=True)
+    for j in range(recipe.still_scenes):
+        yield simulate_video_sequence(recipe.first_seed + 80_000 + j, STILL_DISPLAY,
                                       replace(recipe.capture, reset="zero"), training=True)
 
 
