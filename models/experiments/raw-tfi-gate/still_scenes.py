@@ -47,12 +47,13 @@ def _still(first: int, training: bool):  # noqa: ANN202
 
 
 def cache(folder: str, pans: str) -> None:
-    """The still captures of evaluation seeds (``still-*.npz``) and of training seeds (``train-still-*.npz``), and the
-    texture pans' reference frames (``pan-*.npz``, as ``frame_features.cache`` stores the real streams')."""
+    """The still captures of evaluation seeds (``still-*.npz``) and of training seeds (``candidate-still-*.npz``: not
+    ``train-*``, which ``frame_features.py fit`` reads), and the texture pans' reference frames (``pan-*.npz``, as
+    ``frame_features.cache`` stores the real streams')."""
     from rmbvideo.evaluate.real_video import binned_reference, find_streams
 
     out, model = Path(folder), default_model_path("binned")
-    for first, training, prefix in ((EVAL_FIRST, False, "still"), (TRAIN_FIRST, True, "train-still")):
+    for first, training, prefix in ((EVAL_FIRST, False, "still"), (TRAIN_FIRST, True, "candidate-still")):
         for seq, name in _still(first, training):
             ff._save(out / f"{prefix}-{name}.npz", seq, gate_frames(seq, model, ff.WINDOWS))
             print(f"cached {prefix}-{name}", flush=True)
@@ -96,18 +97,19 @@ def score(folder: str, gate: RawGate | str, quiet: bool = False) -> dict[str, fl
 
 
 def variant(folder: str, seed: int, still: str) -> None:
-    """The recipe's gate fitted at ``frame_features.PIXELS`` a frame on the cached recipe captures, with the still
-    training captures whose names contain ``still`` added ("-": all, "none": none, "display": the display-referred
-    ones); its development gains, still and texture-pan gains and real streams."""
+    """The recipe's gate fitted at ``frame_features.PIXELS`` a frame on the cached recipe captures without its still
+    ones, with the candidate still captures whose names contain ``still`` added ("-": all, "none": none, "display":
+    the display-referred ones, which are the recipe's own); its development gains, still and texture-pan gains and
+    real streams."""
     ff._cached_recipe(Path(folder))
-    paths = [p for p in sorted(Path(folder).glob("train-*.npz"))
-             if not p.name.startswith("train-still") or still in p.name]
+    paths = ([p for p in sorted(Path(folder).glob("train-*.npz")) if "still" not in p.name]
+             + [p for p in sorted(Path(folder).glob("candidate-still-*.npz")) if still in p.name])
     recipe_module.training_sequences = lambda recipe: (ff._stand_in(p) for p in paths)
     recipe = RawGateRecipe(pixels=ff.PIXELS, seed=seed)
     gate = recipe_module.fit_gate(recipe_module.gather_samples(recipe, default_model_path("binned")), recipe)[0]
     gate.eval()
     torch.save(gate.state_dict(), Path(folder) / f"gate-still{still}-{seed}.pt")
-    still = "none" if still == "none" else f"{len(paths) - 44} ({still})"
+    still = "none" if still == "none" else f"{sum('still' in p.name for p in paths)} ({still})"
     dev, real = ff.score(folder, gate, "development", quiet=True), ff.score(folder, gate, "real", quiet=True)
     stills = score(folder, gate, quiet=True)
     streams = " / ".join(f"{v:.2f}" for k, v in real.items() if k != "mean")
