@@ -42,7 +42,7 @@ def test_classical_peak_rss_independent_of_length(tmp_path, method, startup_env)
 def test_rmbnet_peak_rss_independent_of_length(tmp_path, startup_env):
     torch.manual_seed(0)
     model = save_model(tmp_path / "tiny", RmbNet(RmbNetConfig(w=1, width=0.25)), ModelCard(name="tiny"))
-    short, long = peaks(tmp_path, 1024, ["--method", "rmbnet", "--model", str(model), "--device", "cpu",
+    short, long = peaks(tmp_path, 640, ["--method", "rmbnet", "--model", str(model), "--device", "cpu",
                                         "--chunk-planes", "256"], startup_env)
     assert long < 1.10 * short, (short, long)
 
