@@ -232,7 +232,7 @@ def test_the_gate_loss_adds_the_linear_error_of_display_referred_pixels_only() -
     recipe = RawGateRecipe()
     defaults = {"loss": recipe.loss, "steps": recipe.steps, "display_videos": recipe.display_videos,
                 "display_scenes": recipe.display_scenes, "tfi_window": recipe.gate.tfi_window,
-                "long_window": recipe.gate.long_window, "pixels": recipe.pixels,
+                "long_window": recipe.gate.long_window, "pixels": recipe.pixels, "restarts": recipe.restarts,
                 "frame_features": "on" if recipe.gate.frame_features else "off"}
     for name, value in defaults.items():
         text = next(p for p in train_raw_gate.params if p.name == name).help
@@ -255,6 +255,32 @@ def test_fitting_refuses_tfi_samples_not_shaped_by_the_gates_candidates() -> Non
                                          flat.captures), recipe)
     assert np.isfinite(metrics["fit_mse"])
 
+
+
+def test_the_fit_keeps_the_restart_of_lowest_loss() -> None:
+    """Fits from several initial weights can end in different places (one uses the long candidate, another never
+    does): the restart kept is the one whose loss on the drawn pixels is lowest, and its gate is that fit's."""
+    from rmbvideo.train.raw_gate import GateSamples, RawGateRecipe, fit_gate, gate_loss
+
+    rng = np.random.default_rng(1)
+    n, config = 400, RawGateConfig(hidden=3, long_window=8)
+    truth = rng.random(n)
+    samples = GateSamples(rng.standard_normal((n, config.feature_count)), truth + 0.3 * rng.standard_normal(n),
+                          np.stack([truth + 0.2 * rng.standard_normal(n), truth + 0.1 * rng.standard_normal(n)], 1),
+                          truth, np.zeros(n, bool), ("x",))
+    gate, metrics = fit_gate(samples, RawGateRecipe(gate=config, steps=40, restarts=3))
+    losses = [metrics[f"fit_loss_restart_{k}"] for k in range(3)]
+    assert metrics["restart"] == int(np.argmin(losses)) and len(set(losses)) == 3
+    with torch.no_grad():
+        features = torch.from_numpy(samples.features.astype(np.float32)).T[None, :, :, None]
+        share = gate.share(features)[0, :, :, 0].T
+        mixed = (1 - share.sum(1)) * torch.from_numpy(samples.binned.astype(np.float32)) + (
+            share * torch.from_numpy(samples.tfi.astype(np.float32))).sum(1)
+        kept = float(gate_loss(mixed, torch.from_numpy(truth.astype(np.float32)), torch.zeros(n, dtype=torch.bool),
+                               "mu-law"))
+    assert kept == pytest.approx(min(losses), rel=1e-5)
+    with pytest.raises(ValueError, match="restarts"):
+        RawGateRecipe(restarts=0)
 
 def test_display_referred_streams_are_spikezoo_simulator_streams_only() -> None:
     """The linear term's pixels: spikezoo's noise-free streams (the video kind and the recipe's display-referred

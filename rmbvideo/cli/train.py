@@ -133,13 +133,17 @@ def train_detail(out_dir: Path, minutes: float, resume: bool, channels: int | No
               help="Whether the gate also reads how far its candidates disagree over the whole frame [default: the "
                    "recipe's, on].")
 @click.option("--pixels", type=click.IntRange(min=1), default=None,
-              help="Pixels drawn from every frame of the simulated captures [default: the recipe's, 2000].")
+              help="Pixels drawn from every frame of the simulated captures [default: the recipe's, 500].")
+@click.option("--restarts", type=click.IntRange(min=1), default=None,
+              help="Fits from different initial weights; the one of lowest loss on the drawn pixels is kept "
+                   "[default: the recipe's, 4].")
 @quiet_option
 @verbose_option
 def train_raw_gate(out: Path, model: Path | None, steps: int | None, seed: int | None, loss: str | None,
                    display_videos: int | None, display_scenes: int | None, still_scenes: int | None,
                    tfi_window: int | None,
-                   long_window: int | None, frame_features: bool | None, pixels: int | None, quiet: bool) -> None:
+                   long_window: int | None, frame_features: bool | None, pixels: int | None, restarts: int | None,
+                   quiet: bool) -> None:
     """Fit the raw-interval gate of 1-bit captures on simulated captures of training seeds (CPU, one thread)."""
     from dataclasses import replace
 
@@ -149,7 +153,8 @@ def train_raw_gate(out: Path, model: Path | None, steps: int | None, seed: int |
 
     torch.set_num_threads(1)
     chosen = (("steps", steps), ("seed", seed), ("loss", loss), ("display_videos", display_videos),
-              ("display_scenes", display_scenes), ("still_scenes", still_scenes), ("pixels", pixels))
+              ("display_scenes", display_scenes), ("still_scenes", still_scenes), ("pixels", pixels),
+              ("restarts", restarts))
     recipe = RawGateRecipe(**{k: v for k, v in chosen if v is not None})
     windows = {k: v for k, v in (("tfi_window", tfi_window), ("long_window", long_window),
                                  ("frame_features", frame_features)) if v is not None}

@@ -69,13 +69,16 @@ class RawGateRecipe:
     display_scenes: int = 6
     still_scenes: int = 3
     first_seed: int = 700_000
-    pixels: int = 2000
+    pixels: int = 500
     steps: int = 2000
-    lr: float = 3e-3
+    lr: float = 1e-2
+    restarts: int = 4
     loss: str = "mu-law"
     seed: int = 0
 
     def __post_init__(self) -> None:
+        if self.restarts < 1:
+            raise ValueError(f"restarts must be >= 1, got {self.restarts}")
         if self.loss not in GATE_LOSSES:
             raise ValueError(f"loss must be one of {GATE_LOSSES}, got {self.loss!r}")
 
@@ -206,27 +209,36 @@ def gate_loss(mixed: torch.Tensor, truth: torch.Tensor, display: torch.Tensor, l
 
 
 def fit_gate(samples: GateSamples, recipe: RawGateRecipe, progress: bool = False) -> tuple[RawGate, dict[str, float]]:
-    """A gate fitted to ``samples`` by the recipe's Adam steps and loss; also the mu-law and display-referred linear
-    MSE with and without it."""
+    """A gate fitted to ``samples`` by the recipe's Adam steps and loss, from ``recipe.restarts`` initial weights
+    (seeds ``recipe.seed`` on), keeping the fit of lowest loss on the samples; also the mu-law and display-referred
+    linear MSE with and without it, and each restart's final loss."""
     features, binned, tfi, truth = (torch.from_numpy(np.ascontiguousarray(x, np.float32))
                                     for x in (samples.features, samples.binned, samples.tfi, samples.truth))
     if tfi.shape != (len(truth), recipe.gate.candidates):  # (N,) would broadcast against the shares into (N, N)
         raise ValueError(f"samples.tfi must be (pixels, {recipe.gate.candidates}), got {tuple(tfi.shape)}")
     display = torch.from_numpy(samples.display)
-    torch.manual_seed(recipe.seed)
-    gate = RawGate(recipe.gate)
-    with torch.no_grad():
-        gate.feature_mean.copy_(features.mean(0))
-        gate.feature_std.copy_(features.std(0))
-    optimiser = torch.optim.Adam(gate.body.parameters(), lr=recipe.lr)
     x = features.T[None, :, :, None]  # the pixels as a (1, F, P, 1) image: the gate's 1x1 convolutions per pixel
     mix = lambda share: (1.0 - share.sum(1)) * binned + (share * tfi).sum(1)  # noqa: E731
-    for _ in tqdm(range(recipe.steps), desc="fitting", unit="step", disable=not progress):
-        loss = gate_loss(mix(gate.share(x)[0, :, :, 0].T), truth, display, recipe.loss)
-        optimiser.zero_grad()
-        loss.backward()
-        optimiser.step()
-    metrics = {}
+    fits: list[tuple[float, RawGate]] = []
+    for restart in range(recipe.restarts):
+        torch.manual_seed(recipe.seed + restart)
+        gate = RawGate(recipe.gate)
+        with torch.no_grad():
+            gate.feature_mean.copy_(features.mean(0))
+            gate.feature_std.copy_(features.std(0))
+        optimiser = torch.optim.Adam(gate.body.parameters(), lr=recipe.lr)
+        for _ in tqdm(range(recipe.steps), desc=f"fitting ({restart + 1}/{recipe.restarts})", unit="step",
+                      disable=not progress):
+            loss = gate_loss(mix(gate.share(x)[0, :, :, 0].T), truth, display, recipe.loss)
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+        with torch.no_grad():
+            fits.append((float(gate_loss(mix(gate.share(x)[0, :, :, 0].T), truth, display, recipe.loss)), gate))
+        log.info("raw gate: restart %d of %d, loss %.6g", restart + 1, recipe.restarts, fits[-1][0])
+    best = min(range(len(fits)), key=lambda k: fits[k][0])
+    gate = fits[best][1]
+    metrics = {"restart": float(best), **{f"fit_loss_restart_{k}": loss for k, (loss, _) in enumerate(fits)}}
     with torch.no_grad():
         for suffix, image in (("", mix(gate.share(x)[0, :, :, 0].T)), ("_without_gate", binned)):
             metrics[f"fit_mse{suffix}"] = float(gate_loss(image, truth, display, "mu-law"))
