@@ -5,8 +5,9 @@ runs it: RMB-Net on the binned stream, TFI on the raw planes (TFI-M over the gat
 ``long_window``) read as light and 2x2-averaged; display-referred captures (spikezoo's 8-bit video values) of every
 kind of motion join them. The gate is fitted on pixels drawn from every frame to the mixed frame's mu-law error
 against the exact ground truth (the recipe can add the linear error of display-referred captures, as real video is
-scored: tried, not shipped, ``models/experiments/raw-tfi-gate/results.md``).
-About 45 minutes of simulation and fitting on one core; the same seeds give the same gate.
+scored: tried, not shipped, ``models/experiments/raw-tfi-gate/results.md``), from several initial weights: fits end
+either never mixing the long TFI or mixing it where nothing moves within its span, and the one of lowest loss is kept.
+About 50 minutes of simulation and fitting on one core; the same seeds give the same gate.
 """
 
 from __future__ import annotations
