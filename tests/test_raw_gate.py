@@ -256,7 +256,6 @@ def test_fitting_refuses_tfi_samples_not_shaped_by_the_gates_candidates() -> Non
     assert np.isfinite(metrics["fit_mse"])
 
 
-
 def test_the_fit_keeps_the_restart_of_lowest_loss() -> None:
     """Fits from several initial weights can end in different places (one uses the long candidate, another never
     does): the restart kept is the one whose loss on the drawn pixels is lowest, and its gate is that fit's."""
@@ -270,7 +269,8 @@ def test_the_fit_keeps_the_restart_of_lowest_loss() -> None:
                           truth, np.zeros(n, bool), ("x",))
     gate, metrics = fit_gate(samples, RawGateRecipe(gate=config, steps=40, restarts=3))
     losses = [metrics[f"fit_loss_restart_{k}"] for k in range(3)]
-    assert metrics["restart"] == int(np.argmin(losses)) and len(set(losses)) == 3
+    # the best fit is the middle one here, so keeping the first or the last restart would fail
+    assert metrics["restart"] == int(np.argmin(losses)) == 1 and len(set(losses)) == 3
     with torch.no_grad():
         features = torch.from_numpy(samples.features.astype(np.float32)).T[None, :, :, None]
         share = gate.share(features)[0, :, :, 0].T
@@ -281,6 +281,7 @@ def test_the_fit_keeps_the_restart_of_lowest_loss() -> None:
     assert kept == pytest.approx(min(losses), rel=1e-5)
     with pytest.raises(ValueError, match="restarts"):
         RawGateRecipe(restarts=0)
+
 
 def test_display_referred_streams_are_spikezoo_simulator_streams_only() -> None:
     """The linear term's pixels: spikezoo's noise-free streams (the video kind and the recipe's display-referred

@@ -141,9 +141,8 @@ def train_detail(out_dir: Path, minutes: float, resume: bool, channels: int | No
 @verbose_option
 def train_raw_gate(out: Path, model: Path | None, steps: int | None, seed: int | None, loss: str | None,
                    display_videos: int | None, display_scenes: int | None, still_scenes: int | None,
-                   tfi_window: int | None,
-                   long_window: int | None, frame_features: bool | None, pixels: int | None, restarts: int | None,
-                   quiet: bool) -> None:
+                   tfi_window: int | None, long_window: int | None, frame_features: bool | None, pixels: int | None,
+                   restarts: int | None, quiet: bool) -> None:
     """Fit the raw-interval gate of 1-bit captures on simulated captures of training seeds (CPU, one thread)."""
     from dataclasses import replace
 

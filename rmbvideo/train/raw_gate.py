@@ -54,12 +54,13 @@ class RawGateRecipe:
     pixel kind in ``resets`` (spikezoo's kind has no reset: once), then ``display_videos`` sequences of every other
     video kind simulated again in spikezoo's convention (display-referred streams of every kind of motion, not only
     fast), ``display_scenes`` of the training scenes' own video ranges in that convention (mostly slow, as video
-    mostly is) and ``still_scenes`` of still scenes in it (``STILL_DISPLAY``), from training seed ``first_seed`` on, each of ``capture``'s size and length (the held-out set's);
-    ``pixels`` drawn per frame, ``steps`` of Adam at ``lr`` on ``loss`` (one of ``GATE_LOSSES``), initial weights from
-    ``seed``. The defaults are the shipped gate's: TFI over the whole intervals covering 4 central planes (TFI-4) and
-    over 16 (TFI-16), read with the frame features (``rmbvideo.net.raw_gate.FRAME_FEATURES``), two display-referred
-    twins of every physical video kind, six display-referred captures of the training scenes' video ranges and
-    three of still scenes."""
+    mostly is) and ``still_scenes`` of still scenes in it (``STILL_DISPLAY``), from training seed ``first_seed`` on,
+    each of ``capture``'s size and length (the held-out set's); ``pixels`` drawn per frame, ``steps`` of Adam at ``lr``
+    on ``loss`` (one of ``GATE_LOSSES``) from ``restarts`` initial weights (seeds ``seed`` on), the fit of lowest loss
+    kept (``fit_gate``). The defaults are the shipped gate's: TFI over the whole intervals covering 4 central planes
+    (TFI-4) and over 16 (TFI-16), read with the frame features (``rmbvideo.net.raw_gate.FRAME_FEATURES``), two
+    display-referred twins of every physical video kind, six display-referred captures of the training scenes' video
+    ranges and three of still scenes; four restarts at 500 pixels a frame."""
 
     gate: RawGateConfig = RawGateConfig(tfi_window=4, long_window=16, frame_features=True)
     capture: HeldoutConfig = FULL

@@ -35,16 +35,11 @@ def long_share(folder: str, gate) -> list[float]:  # noqa: ANN001
 
 def main(folder: str, seed: int, steps: int, lr: float) -> None:
     ff._cached_recipe(Path(folder))
-    recipe = RawGateRecipe(pixels=ff.PIXELS, seed=seed, steps=steps, lr=lr)
+    recipe = RawGateRecipe(pixels=ff.PIXELS, seed=seed, steps=steps, lr=lr, restarts=1)  # one fit
     gate = recipe_module.fit_gate(recipe_module.gather_samples(recipe, default_model_path("binned")), recipe)[0]
     gate.eval()
-    dev, real = ff.score(folder, gate, "development", quiet=True), ff.score(folder, gate, "real", quiet=True)
-    stills = still_scenes.score(folder, gate, quiet=True)
-    streams = " / ".join(f"{v:.2f}" for k, v in real.items() if k != "mean")
     share = " / ".join(f"{s:.3f}" for s in long_share(folder, gate))
-    print(f"| seed {seed}, {steps} steps, lr {lr:g} | {dev['zero']:+.2f} / {dev['subtract']:+.2f} | "
-          f"{stills['still']:+.2f} | {stills['pan']:+.2f} | {streams} | {real['mean']:.2f} | {share} |", flush=True)
-
+    print(f"| seed {seed}, {steps} steps, lr {lr:g} | {still_scenes.scores_row(folder, gate)} | {share} |", flush=True)
 
 if __name__ == "__main__":
     torch.set_num_threads(1)

@@ -202,7 +202,7 @@ def variant(folder: str, short: int, long: int, seed: int, loss: str = "mu-law")
         cached = recipe_module.gate_frames
         recipe_module.gate_frames = lambda *a, **k: [GateFrame(f.binned, f.tfi, f.truth) for f in cached(*a, **k)]
     config = RawGateConfig(tfi_window=short, long_window=long, frame_features=True)
-    recipe = RawGateRecipe(gate=config, pixels=ff.PIXELS, seed=seed, loss=loss)
+    recipe = RawGateRecipe(gate=config, pixels=ff.PIXELS, seed=seed, loss=loss, **ff.ONE_FIT)
     gate = recipe_module.fit_gate(recipe_module.gather_samples(recipe, default_model_path("binned")), recipe)[0]
     gate.eval()
     if not long:  # scored through a gate that is handed no long candidate

@@ -5,7 +5,9 @@ label) and the shipped gate's TFI-16 share (black 0, white 1), on a crop at twic
 
     git show 6c1a9f5:models/raw-gate.safetensors > /tmp/old-gate.safetensors
     git show 6c1a9f5:models/raw-gate.json > /tmp/old-gate.json
-    python models/experiments/raw-tfi-gate/real_shares.py DIR /tmp/old-gate.safetensors   # -> models/figures/raw-gate-real.png
+    python models/experiments/raw-tfi-gate/real_shares.py DIR /tmp/old-gate.safetensors
+
+writes ``models/figures/raw-gate-real.png``.
 """
 
 import sys
@@ -30,13 +32,17 @@ def main(folder: str, before: str) -> None:
         d = np.load(f"{folder}/real-{name}.npz")
         ref = d["reference"]
         ims = [ref, d["binned"], d["long"]]
-        labels = ["reference", "binned %.2f" % scaled_psnr(d["binned"], ref), "TFI-16 %.2f" % scaled_psnr(d["long"], ref)]
+        labels = ["reference", f"binned {scaled_psnr(d['binned'], ref):.2f}",
+                  f"TFI-16 {scaled_psnr(d['long'], ref):.2f}"]
+        images = [T(d[k]) for k in ("binned", "tfi", "previous", "long")]
+        features = gate_features(*images[:3], float(d["convention"]), images[3], frame=True)
         for gname, g in gates.items():
             with torch.no_grad():
-                m = g(T(d["binned"]), T(d["tfi"]), T(d["previous"]), float(d["convention"]), T(d["long"]))[0, 0].numpy()
-                f = gate_features(T(d["binned"]), T(d["tfi"]), T(d["previous"]), float(d["convention"]), T(d["long"]), frame=True)
-                share = g.share(f)[0, 1].numpy()
-            ims.append(m); labels.append(f"{gname} {scaled_psnr(m, ref):.2f}")
+                shares = g.share(features)[0].numpy()  # TFI-4's and TFI-16's
+            mixed = (1 - shares.sum(0)) * d["binned"] + shares[0] * d["tfi"] + shares[1] * d["long"]
+            share = shares[1]
+            ims.append(mixed)
+            labels.append(f"{gname} {scaled_psnr(mixed, ref):.2f}")
         ims.append(share); labels.append("this gate: TFI-16 share")
         tiles = []
         for im, lab in zip(ims, labels):

@@ -60,7 +60,8 @@ def speeds(folder: str) -> None:
 def gather(out: str, captures: int = 6) -> None:
     """The ``--display-videos 2`` recipe's samples, then ``captures`` of ``VIDEO_DISPLAY`` (its own pixel draws)."""
     torch.set_num_threads(1)
-    recipe = RawGateRecipe(gate=PLAIN_TFI, display_videos=2, display_scenes=0)
+    recipe = RawGateRecipe(gate=PLAIN_TFI, display_videos=2, display_scenes=0, still_scenes=0, pixels=2000, lr=3e-3,
+                           restarts=1)  # the recipe these figures were made with
     model = default_model_path("binned")
     base = gather_samples(recipe, model)
     rng = np.random.default_rng(1)
@@ -82,7 +83,7 @@ def fit(samples_path: str, loss: str, out: str) -> None:
     z = np.load(samples_path)
     samples = GateSamples(z["features"], z["binned"], z["tfi"], z["truth"], z["display"],
                           tuple(str(n) for n in z["names"]))
-    gate, metrics = fit_gate(samples, RawGateRecipe(gate=PLAIN_TFI, loss=loss))
+    gate, metrics = fit_gate(samples, RawGateRecipe(gate=PLAIN_TFI, loss=loss, lr=3e-3, restarts=1))
     print(metrics)
     save_model(Path(out), gate, ModelCard(name=Path(out).stem, description="slow_display.py experiment",
                                           training={"loss": loss}, data={"captures": list(samples.captures)},

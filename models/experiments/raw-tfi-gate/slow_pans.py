@@ -47,15 +47,11 @@ def variant(folder: str, seed: int) -> None:
           "| real streams | real mean |\n|---|---:|---:|---:|---:|---:|")
     for label, paths in (("recipe", recipe_paths), (f"recipe + {len(pans)} slow pans", recipe_paths + pans)):
         recipe_module.training_sequences = lambda recipe, paths=paths: (ff._stand_in(p) for p in paths)
-        recipe = RawGateRecipe(pixels=ff.PIXELS, seed=seed)
+        recipe = RawGateRecipe(pixels=ff.PIXELS, seed=seed, **ff.ONE_FIT)
         gate = recipe_module.fit_gate(recipe_module.gather_samples(recipe, default_model_path("binned")), recipe)[0]
         gate.eval()
         torch.save(gate.state_dict(), Path(folder) / f"gate-slowpans-{len(paths)}-{seed}.pt")
-        dev, real = ff.score(folder, gate, "development", quiet=True), ff.score(folder, gate, "real", quiet=True)
-        stills = still_scenes.score(folder, gate, quiet=True)
-        streams = " / ".join(f"{v:.2f}" for k, v in real.items() if k != "mean")
-        print(f"| {label} ({seed}) | {dev['zero']:+.2f} / {dev['subtract']:+.2f} | {stills['still']:+.2f} "
-              f"| {stills['pan']:+.2f} | {streams} | {real['mean']:.2f} |", flush=True)
+        print(f"| {label} ({seed}) | {still_scenes.scores_row(folder, gate)} |", flush=True)
 
 
 if __name__ == "__main__":

@@ -105,16 +105,22 @@ def variant(folder: str, seed: int, still: str) -> None:
     paths = ([p for p in sorted(Path(folder).glob("train-*.npz")) if "still" not in p.name]
              + [p for p in sorted(Path(folder).glob("candidate-still-*.npz")) if still in p.name])
     recipe_module.training_sequences = lambda recipe: (ff._stand_in(p) for p in paths)
-    recipe = RawGateRecipe(pixels=ff.PIXELS, seed=seed)
+    recipe = RawGateRecipe(pixels=ff.PIXELS, seed=seed, **ff.ONE_FIT)
     gate = recipe_module.fit_gate(recipe_module.gather_samples(recipe, default_model_path("binned")), recipe)[0]
     gate.eval()
     torch.save(gate.state_dict(), Path(folder) / f"gate-still{still}-{seed}.pt")
     still = "none" if still == "none" else f"{sum('still' in p.name for p in paths)} ({still})"
+    print(f"| still captures: {still}, seed {seed} | {scores_row(folder, gate)} |", flush=True)
+
+
+def scores_row(folder: str, gate: RawGate) -> str:
+    """A variant's table cells: development gains (both pixels), still-capture and texture-pan gains, the real
+    streams and their mean."""
     dev, real = ff.score(folder, gate, "development", quiet=True), ff.score(folder, gate, "real", quiet=True)
     stills = score(folder, gate, quiet=True)
     streams = " / ".join(f"{v:.2f}" for k, v in real.items() if k != "mean")
-    print(f"| still captures: {still}, seed {seed} | {dev['zero']:+.2f} / {dev['subtract']:+.2f} "
-          f"| {stills['still']:+.2f} | {stills['pan']:+.2f} | {streams} | {real['mean']:.2f} |", flush=True)
+    return (f"{dev['zero']:+.2f} / {dev['subtract']:+.2f} | {stills['still']:+.2f} | {stills['pan']:+.2f} | "
+            f"{streams} | {real['mean']:.2f}")
 
 
 if __name__ == "__main__":
