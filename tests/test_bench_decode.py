@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from rmbvideo.bench.decode import GOAL_PLANES_PER_S, TARGET_PLANES_PER_S, bench_decode, main
+from rmbvideo.sensor.binning import COMPILED
 
 
 def test_bench_decode_small_run(capsys) -> None:
@@ -10,8 +11,10 @@ def test_bench_decode_small_run(capsys) -> None:
     assert result["bit_exact"] is True
     assert 0.25 < result["firing_rate"] < 0.35
     assert result["fused"]["planes"] == 66 and result["plain"]["planes"] == 66
-    for name in ("fused", "plain", "per_plane_loop"):
+    for name in ("fused", "fused_numpy", "plain", "per_plane_loop"):
         assert result[name]["planes_per_s"] > 0
+    assert result["fused_numpy"]["planes"] == 66 and result["kernel"] == ("compiled" if COMPILED else "numpy")
+    assert result["fused_vs_numpy"] == result["fused"]["planes_per_s"] / result["fused_numpy"]["planes_per_s"]
     assert result["fused_vs_plain"] == result["fused"]["planes_per_s"] / result["plain"]["planes_per_s"]
     assert result["meets_target"] == (result["fused"]["planes_per_s"] >= TARGET_PLANES_PER_S)
     assert result["meets_goal"] == (result["fused"]["planes_per_s"] >= GOAL_PLANES_PER_S)

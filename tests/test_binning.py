@@ -8,7 +8,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rmbvideo.chunks import SpikeChunk
-from rmbvideo.sensor.binning import MULTI_LEVEL, StreamBinner, bin_2x2x2, bin_packed
+from rmbvideo.sensor.binning import COMPILED, MULTI_LEVEL, StreamBinner, bin_2x2x2, bin_packed
+
+#: both paths of ``bin_packed``: numpy everywhere, the compiled kernel where the install built it
+PATHS = [
+    pytest.param(False, id="numpy"),
+    pytest.param(True, id="compiled", marks=pytest.mark.skipif(not COMPILED, reason="no compiled kernel built")),
+]
 
 
 def reference_bin(planes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -82,9 +88,11 @@ def test_kept_pixel_is_top_left_of_first_plane() -> None:
     ],
 )
 @pytest.mark.parametrize("rate", [0.05, 0.5, 0.97])
-def test_fused_path_is_bit_exact(shape: tuple[int, int, int], header_cols: int, flip: bool, rate: float) -> None:
+@pytest.mark.parametrize("compiled", PATHS)
+def test_fused_path_is_bit_exact(shape: tuple[int, int, int], header_cols: int, flip: bool, rate: float,
+                                 compiled: bool) -> None:
     planes = random_planes(np.random.default_rng(shape[0] * 100 + shape[1]), shape, rate)
-    single, multi = bin_packed(pack_stored(planes, header_cols, flip), shape[2], flip)
+    single, multi = bin_packed(pack_stored(planes, header_cols, flip), shape[2], flip, compiled=compiled)
     ref_single, ref_multi = reference_bin(planes)
     assert single.shape == ref_single.shape and multi.shape == ref_multi.shape
     np.testing.assert_array_equal(single, ref_single)
@@ -92,19 +100,21 @@ def test_fused_path_is_bit_exact(shape: tuple[int, int, int], header_cols: int, 
 
 
 @pytest.mark.parametrize("flip", [True, False])
-def test_fused_path_every_bin_pattern_at_every_byte_position(flip: bool) -> None:
+@pytest.mark.parametrize("compiled", PATHS)
+def test_fused_path_every_bin_pattern_at_every_byte_position(flip: bool, compiled: bool) -> None:
     """All 256 patterns of a bin's 8 bits, each in all four bins of a stored byte (the SWAR lanes)."""
     patterns = np.repeat(np.arange(256, dtype=np.uint8), 4)  # bin k holds pattern k // 4, lane k % 4
     bits = np.unpackbits(patterns[:, None], axis=1, bitorder="little").reshape(-1, 2, 2, 2)  # (bin, t, i, j)
     planes = bits.transpose(1, 2, 0, 3).reshape(2, 2, 2 * len(patterns))
-    single, multi = bin_packed(pack_stored(planes, 0, flip), planes.shape[2], flip)
+    single, multi = bin_packed(pack_stored(planes, 0, flip), planes.shape[2], flip, compiled=compiled)
     np.testing.assert_array_equal(multi[0, 0], np.minimum(bits.sum(axis=(1, 2, 3)), MULTI_LEVEL))
     np.testing.assert_array_equal(single[0, 0], bits[:, 0, 0, 0])
 
 
-def test_fused_path_spans_several_blocks() -> None:
+@pytest.mark.parametrize("compiled", PATHS)
+def test_fused_path_spans_several_blocks(compiled: bool) -> None:
     planes = random_planes(np.random.default_rng(7), (133, 10, 64), 0.4)  # > 2 fused blocks, odd T
-    fused = bin_packed(pack_stored(planes, 0, True), 64, True)
+    fused = bin_packed(pack_stored(planes, 0, True), 64, True, compiled=compiled)
     plain = bin_2x2x2(planes)
     np.testing.assert_array_equal(fused[0], plain[0])
     np.testing.assert_array_equal(fused[1], plain[1])
@@ -115,6 +125,37 @@ def test_fused_path_rejects_unaligned_width() -> None:
         bin_packed(np.zeros((2, 4, 2), np.uint8), 12, True)
 
 
+@pytest.mark.parametrize("compiled", PATHS)
+def test_fused_path_reads_strided_input_and_fills_a_reused_output(compiled: bool) -> None:
+    """A non-contiguous view (every other stored plane) and an ``out`` holding an earlier chunk's bins."""
+    planes = random_planes(np.random.default_rng(9), (12, 6, 16), 0.5)
+    stored = pack_stored(planes, 8, True)
+    out = np.full((2, 3, 3, 8), 255, np.uint8)
+    single, multi = bin_packed(stored[::2], 16, True, out=out, compiled=compiled)
+    ref_single, ref_multi = reference_bin(planes[::2])
+    np.testing.assert_array_equal(single, ref_single)
+    np.testing.assert_array_equal(multi, ref_multi)
+    assert single.base is out or np.shares_memory(single, out)
+
+
+@pytest.mark.skipif(not COMPILED, reason="no compiled kernel built")
+def test_compiled_kernel_rejects_buffers_that_do_not_fit_the_geometry() -> None:
+    """The kernel checks sizes itself: a wrong call is a ValueError, never a write out of bounds."""
+    from rmbvideo.sensor import _packed_bins
+
+    packed = np.zeros((4, 6, 3), np.uint8)
+    single, multi = np.zeros((2, 3, 8), np.uint8), np.zeros((2, 3, 8), np.uint8)
+    _packed_bins.bin_packed(packed, single, multi, 4, 6, 3, 2, 0, True)  # fits
+    with pytest.raises(ValueError, match="sizes"):
+        _packed_bins.bin_packed(packed, single[:1], multi, 4, 6, 3, 2, 0, True)
+    with pytest.raises(ValueError, match="sizes"):
+        _packed_bins.bin_packed(packed[:2], single, multi, 4, 6, 3, 2, 0, True)
+    with pytest.raises(ValueError, match="geometry"):
+        _packed_bins.bin_packed(packed, single, multi, 3, 6, 3, 2, 0, True)
+    with pytest.raises((TypeError, ValueError)):  # a strided view: the kernel takes contiguous buffers only
+        _packed_bins.bin_packed(packed, np.zeros((2, 3, 16), np.uint8)[:, :, ::2], multi, 4, 6, 3, 2, 0, True)
+
+
 @settings(max_examples=40, deadline=None)
 @given(
     t=st.integers(0, 9),
@@ -123,10 +164,12 @@ def test_fused_path_rejects_unaligned_width() -> None:
     header_bytes=st.integers(0, 2),
     flip=st.booleans(),
     seed=st.integers(0, 2**16),
+    compiled=st.sampled_from([False, True] if COMPILED else [False]),
 )
-def test_fused_equals_plain_property(t: int, h: int, w_bytes: int, header_bytes: int, flip: bool, seed: int) -> None:
+def test_fused_equals_plain_property(t: int, h: int, w_bytes: int, header_bytes: int, flip: bool, seed: int,
+                                     compiled: bool) -> None:
     planes = random_planes(np.random.default_rng(seed), (t, h, 8 * w_bytes), 0.5)
-    fused = bin_packed(pack_stored(planes, 8 * header_bytes, flip), 8 * w_bytes, flip)
+    fused = bin_packed(pack_stored(planes, 8 * header_bytes, flip), 8 * w_bytes, flip, compiled=compiled)
     plain = bin_2x2x2(planes)
     np.testing.assert_array_equal(fused[0], plain[0])
     np.testing.assert_array_equal(fused[1], plain[1])

@@ -22,7 +22,14 @@ import numpy as np
 from rmbvideo.chunks import RmbChunk, SpikeChunk
 from rmbvideo.image_pool import ImagePool
 
+try:  # the compiled kernel, built at install where a C compiler is available (setup.py)
+    from rmbvideo.sensor import _packed_bins
+except ImportError:  # pragma: no cover - depends on the install
+    _packed_bins = None
+
 MULTI_LEVEL = 7
+#: whether ``bin_packed`` runs the compiled kernel (built at install where a C compiler was found)
+COMPILED = _packed_bins is not None
 #: raw pixel-planes behind one binned count (2 x 2 pixels x 2 planes): its Bernoulli trials
 BIN_TRIALS = 8
 # Planes decoded per block by the fused path: keeps the intermediates in cache and memory bounded.
@@ -57,13 +64,14 @@ def bin_2x2x2(planes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def bin_packed(packed: np.ndarray, image_width: int, flip: bool,
-               out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+               out: np.ndarray | None = None, compiled: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Decode and bin packed ``.dat`` planes in one pass, without unpacking them to bits.
 
     ``packed`` is (T, H, row_bytes) uint8 as stored (LSB-first bits, rows upside down when
     ``flip``); the first ``image_width`` columns of each row are the image, the rest a header.
     Needs ``image_width % 8 == 0`` (byte-aligned rows). Bit-exact with ``bin_2x2x2`` of the
-    decoded planes; the speed comes from SWAR arithmetic on whole bytes (4 bins per byte).
+    decoded planes; the speed comes from SWAR arithmetic on whole bytes (4 bins per byte), in
+    the compiled kernel (``COMPILED``) unless ``compiled=False`` or none was built, else in numpy.
     ``out``, when given, is a (2, T//2, H//2, image_width//2) uint8 array
     that receives ``single`` and ``multi`` (the returned views of it), e.g. a reused one.
     """
@@ -82,9 +90,13 @@ def bin_packed(packed: np.ndarray, image_width: int, flip: bool,
     elif out.shape != (2, t2, h2, image_width // 2) or out.dtype != np.uint8 or not out.flags.c_contiguous:
         raise ValueError(f"out must be a contiguous (2, {t2}, {h2}, {image_width // 2}) uint8 array")
     single, multi = out
-    # Each image byte becomes 4 output bytes: written through uint32 views.
     if single.size == 0:
         return single, multi
+    if _packed_bins is not None and compiled:
+        _packed_bins.bin_packed(np.ascontiguousarray(packed[: 2 * t2]), single, multi, 2 * t2, height, row_bytes,
+                                image_bytes, first_row, flip)
+        return single, multi
+    # Each image byte becomes 4 output bytes: written through uint32 views.
     single32 = single.view(np.uint32)
     multi32 = multi.view(np.uint32)
     # Within each stored row pair, the image's top row is the stored second row when flipped.
