@@ -9,8 +9,8 @@ from setuptools import Extension, setup
 setup(
     ext_modules=[
         Extension(
-            "rmbvideo.sensor._packed_bins",
-            sources=["rmbvideo/sensor/_packed_bins.c"],
+            "rmbvideo.sensor._packed",
+            sources=["rmbvideo/sensor/_packed.c"],
             extra_compile_args=["-O3"],
             optional=True,
         )

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from rmbvideo.bench.decode import GOAL_PLANES_PER_S, TARGET_PLANES_PER_S, bench_decode, main
-from rmbvideo.sensor.binning import COMPILED
+from rmbvideo.sensor.compiled import COMPILED
 
 
 def test_bench_decode_small_run(capsys) -> None:

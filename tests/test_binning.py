@@ -8,7 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rmbvideo.chunks import SpikeChunk
-from rmbvideo.sensor.binning import COMPILED, MULTI_LEVEL, StreamBinner, bin_2x2x2, bin_packed
+from rmbvideo.sensor.binning import MULTI_LEVEL, StreamBinner, bin_2x2x2, bin_packed
+from rmbvideo.sensor.compiled import COMPILED
 
 #: both paths of ``bin_packed``: numpy everywhere, the compiled kernel where the install built it
 PATHS = [
@@ -141,19 +142,19 @@ def test_fused_path_reads_strided_input_and_fills_a_reused_output(compiled: bool
 @pytest.mark.skipif(not COMPILED, reason="no compiled kernel built")
 def test_compiled_kernel_rejects_buffers_that_do_not_fit_the_geometry() -> None:
     """The kernel checks sizes itself: a wrong call is a ValueError, never a write out of bounds."""
-    from rmbvideo.sensor import _packed_bins
+    from rmbvideo.sensor import _packed
 
     packed = np.zeros((4, 6, 3), np.uint8)
     single, multi = np.zeros((2, 3, 8), np.uint8), np.zeros((2, 3, 8), np.uint8)
-    _packed_bins.bin_packed(packed, single, multi, 4, 6, 3, 2, 0, True)  # fits
+    _packed.bin_packed(packed, single, multi, 4, 6, 3, 2, 0, True)  # fits
     with pytest.raises(ValueError, match="sizes"):
-        _packed_bins.bin_packed(packed, single[:1], multi, 4, 6, 3, 2, 0, True)
+        _packed.bin_packed(packed, single[:1], multi, 4, 6, 3, 2, 0, True)
     with pytest.raises(ValueError, match="sizes"):
-        _packed_bins.bin_packed(packed[:2], single, multi, 4, 6, 3, 2, 0, True)
+        _packed.bin_packed(packed[:2], single, multi, 4, 6, 3, 2, 0, True)
     with pytest.raises(ValueError, match="geometry"):
-        _packed_bins.bin_packed(packed, single, multi, 3, 6, 3, 2, 0, True)
+        _packed.bin_packed(packed, single, multi, 3, 6, 3, 2, 0, True)
     with pytest.raises((TypeError, ValueError)):  # a strided view: the kernel takes contiguous buffers only
-        _packed_bins.bin_packed(packed, np.zeros((2, 3, 16), np.uint8)[:, :, ::2], multi, 4, 6, 3, 2, 0, True)
+        _packed.bin_packed(packed, np.zeros((2, 3, 16), np.uint8)[:, :, ::2], multi, 4, 6, 3, 2, 0, True)
 
 
 @settings(max_examples=40, deadline=None)

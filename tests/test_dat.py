@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from rmbvideo.errors import InputError, OutputError
-from rmbvideo.io.dat import DatGeometry, DatReader, DatWriter, write_dat
+from rmbvideo.image_pool import ImagePool
+from rmbvideo.io.dat import DatGeometry, DatReader, DatWriter, unpack_planes, write_dat
 from rmbvideo.sensor.binning import StreamBinner, bin_2x2x2
 
 
@@ -91,6 +92,38 @@ def test_round_trip_with_odd_chunkings(tmp_path: Path, geometry: DatGeometry) ->
     chunks = list(reader.chunks(chunk_planes=5, start=2))
     assert [c.start for c in chunks] == [2, 7, 12]
     np.testing.assert_array_equal(np.concatenate([c.planes for c in chunks]), planes[2:])
+
+
+@pytest.mark.parametrize("geometry", [DatGeometry(16, 6), DatGeometry(32, 5, header_cols=16), DatGeometry(10, 4, 3)])
+def test_decoded_chunks_are_reused_only_once_released(tmp_path: Path, geometry: DatGeometry) -> None:
+    """Reading decodes into arrays reused once nothing holds them (no page faults per chunk): a chunk kept stays
+    as it was while later ones are read, a released one's memory decodes the next; several of numpy's blocks."""
+    planes = random_planes(2, (150, geometry.height, geometry.image_width))
+    path = tmp_path / "reuse.dat"
+    write_dat(path, planes, geometry)
+    reader = DatReader(path, geometry)
+    kept = [c.planes for c in reader.chunks(chunk_planes=70)]  # every chunk held: none may be written again
+    for k, chunk in enumerate(kept):
+        np.testing.assert_array_equal(chunk, planes[70 * k : 70 * (k + 1)])
+    first = reader.read(0, 70)
+    address = first.ctypes.data
+    del first, kept
+    again = reader.read(70, 140)
+    np.testing.assert_array_equal(again, planes[70:140])
+    assert again.ctypes.data == address  # the released chunk's memory, not a fresh allocation
+    packed = next(reader.packed_chunks(70, 0, 70))
+    pool = ImagePool()
+    np.testing.assert_array_equal(packed.unpack(pool).planes, planes[:70])
+    np.testing.assert_array_equal(packed.unpack().planes, planes[:70])
+
+
+def test_unpack_planes_checks_its_output(tmp_path: Path) -> None:
+    geometry = DatGeometry(16, 6)
+    packed = np.zeros((3, geometry.plane_bytes), np.uint8)
+    with pytest.raises(ValueError, match="contiguous"):
+        unpack_planes(packed, geometry, np.zeros((3, 6, 8), np.uint8))
+    with pytest.raises(ValueError, match="contiguous"):
+        unpack_planes(packed, geometry, np.zeros((3, 6, 32), np.uint8)[:, :, ::2])
 
 
 def test_header_columns_are_written_as_zeros(tmp_path: Path) -> None:

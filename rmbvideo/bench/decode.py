@@ -21,7 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from rmbvideo.io.dat import DatGeometry, DatReader, DatWriter
-from rmbvideo.sensor.binning import COMPILED, bin_2x2x2, bin_packed
+from rmbvideo.sensor.binning import bin_2x2x2, bin_packed
+from rmbvideo.sensor.compiled import COMPILED
 
 TARGET_PLANES_PER_S = 20000.0
 #: the speed issue's goal on one core: five times a 20 kHz camera, so a method has the rest of the core

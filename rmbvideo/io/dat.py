@@ -33,6 +33,9 @@ DEFAULT_RATE_HZ = 20000.0
 #: Plane rates a capture may have: anything outside is a typo (and would make times absurd or infinite).
 MIN_RATE_HZ, MAX_RATE_HZ = 1.0, 1e9
 _WRITE_BLOCK_PLANES = 1024
+_UNPACK_BLOCK_PLANES = 32  # planes numpy decodes at a time (3.2 MB of bits at 400x250)
+#: decoded chunks kept for reuse: two 1,024-plane chunks at 400x250 (a consumer holds one while the next is read)
+DECODED_POOL_BYTES = 256 << 20
 
 
 @dataclass(frozen=True)
@@ -80,13 +83,24 @@ COMMON_GEOMETRIES: tuple[DatGeometry, ...] = (
 )
 
 
-def unpack_planes(packed: np.ndarray, geometry: DatGeometry) -> np.ndarray:
-    """Stored plane bytes (T, plane_bytes) -> (T, H, image_width) uint8 0/1 planes in image orientation."""
+def unpack_planes(packed: np.ndarray, geometry: DatGeometry, out: np.ndarray | None = None) -> np.ndarray:
+    """Stored plane bytes (T, plane_bytes) -> (T, H, image_width) uint8 0/1 planes in image orientation.
+
+    ``out``, when given, is a contiguous array of that shape and type to fill (e.g. a reused one: a fresh
+    100 MB chunk costs its page faults every time). Decoded ``_UNPACK_BLOCK_PLANES`` at a time, so the
+    intermediate bits stay small and in cache.
+    """
     g = geometry
-    bits = np.unpackbits(packed, axis=1, bitorder="little").reshape(len(packed), g.height, g.width)
-    if g.flip:
-        bits = bits[:, ::-1]
-    return np.ascontiguousarray(bits[:, :, : g.image_width])
+    shape = (len(packed), g.height, g.image_width)
+    if out is None:
+        out = np.empty(shape, np.uint8)
+    elif out.shape != shape or out.dtype != np.uint8 or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a contiguous {shape} uint8 array, got {out.shape} {out.dtype}")
+    for b in range(0, len(packed), _UNPACK_BLOCK_PLANES):
+        block = packed[b : b + _UNPACK_BLOCK_PLANES]
+        bits = np.unpackbits(block, axis=1, bitorder="little").reshape(len(block), g.height, g.width)
+        out[b : b + len(block)] = bits[:, ::-1, : g.image_width] if g.flip else bits[:, :, : g.image_width]
+    return out
 
 
 @dataclass
@@ -103,9 +117,12 @@ class PackedChunk:
     def stop(self) -> int:
         return self.start + len(self.data)
 
-    def unpack(self) -> SpikeChunk:
-        """The same planes decoded into a ``SpikeChunk`` (image orientation, header dropped)."""
-        return SpikeChunk(planes=unpack_planes(self.data, self.geometry), start=self.start, rate_hz=self.rate_hz)
+    def unpack(self, pool: ImagePool | None = None) -> SpikeChunk:
+        """The same planes decoded into a ``SpikeChunk`` (image orientation, header dropped), into an array taken
+        from ``pool`` when given (one its earlier chunks no longer use: no page faults per chunk)."""
+        out = None if pool is None else pool.take((len(self.data), self.geometry.height, self.geometry.image_width),
+                                                   np.uint8)
+        return SpikeChunk(planes=unpack_planes(self.data, self.geometry, out), start=self.start, rate_hz=self.rate_hz)
 
 
 def _geometry_hint(size: int) -> str:
@@ -154,6 +171,7 @@ class DatReader:
             )
         self._file = RecordFile(self.path, plane_bytes, self._n_planes)
         self._binned = ImagePool()  # binned chunks' arrays, reused once released (no page faults per chunk)
+        self._decoded = ImagePool(DECODED_POOL_BYTES)  # decoded planes likewise
 
     def close(self) -> None:
         """Close the file (reading after this is an error)."""
@@ -200,7 +218,8 @@ class DatReader:
     def read(self, start: int = 0, stop: int | None = None) -> np.ndarray:
         """Planes ``start..stop-1`` as (T, H, image_width) uint8 0/1 in image orientation."""
         start, stop = self._range(start, stop)
-        return unpack_planes(self._file.read(start, stop, scratch=True), self.geometry)
+        out = self._decoded.take((stop - start, self.geometry.height, self.geometry.image_width), np.uint8)
+        return unpack_planes(self._file.read(start, stop, scratch=True), self.geometry, out)
 
     def chunks(self, chunk_planes: int = 1024, start: int = 0, stop: int | None = None) -> Iterator[SpikeChunk]:
         """Consecutive ``SpikeChunk``s of at most ``chunk_planes`` planes covering ``start..stop``."""

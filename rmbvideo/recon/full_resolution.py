@@ -36,7 +36,8 @@ from typing import Any, ClassVar
 import numpy as np
 
 from rmbvideo.chunks import Frame, SpikeChunk
-from rmbvideo.io.dat import PackedChunk
+from rmbvideo.image_pool import ImagePool
+from rmbvideo.io.dat import DECODED_POOL_BYTES, PackedChunk
 from rmbvideo.recon.classical import BlockScans, Tfi, Tfp, push_by_block
 from rmbvideo.sensor.binning import StreamBinner
 from rmbvideo.sensor.readout import RmbReadout
@@ -192,6 +193,7 @@ class FullResolution:
         # resolved once, as the RMB-Net engine does: the policy, not the load of each frame's moment
         self.threads = threads if threads is not None else default_threads()
         self._binner = StreamBinner()
+        self._decoded = ImagePool(DECODED_POOL_BYTES)  # decoded chunks, reused once released
         windows = detail.config.windows if detail is not None else (settings.window,)
         # TFI for the detail stage and for the gate: one search over the longer reach gives both (``Tfi``'s
         # ``shorter``), except a gate's TFI over central planes (``tfi_window``, ``long_window``): a search of its own,
@@ -247,7 +249,7 @@ class FullResolution:
         stored = isinstance(chunk, PackedChunk) and chunk.geometry.byte_aligned
         # decoded on the CPU only where a method there needs the planes (the binning of other geometries, TFI)
         decode = not stored or self._rates_decode
-        spikes = chunk.unpack() if decode and isinstance(chunk, PackedChunk) else chunk
+        spikes = chunk.unpack(self._decoded) if decode and isinstance(chunk, PackedChunk) else chunk
         rates = self._start(lambda: self._push_rates(chunk, spikes))
         if stored:
             g = chunk.geometry

@@ -21,15 +21,9 @@ import numpy as np
 
 from rmbvideo.chunks import RmbChunk, SpikeChunk
 from rmbvideo.image_pool import ImagePool
-
-try:  # the compiled kernel, built at install where a C compiler is available (setup.py)
-    from rmbvideo.sensor import _packed_bins
-except ImportError:  # pragma: no cover - depends on the install
-    _packed_bins = None
+from rmbvideo.sensor.compiled import KERNELS
 
 MULTI_LEVEL = 7
-#: whether ``bin_packed`` runs the compiled kernel (built at install where a C compiler was found)
-COMPILED = _packed_bins is not None
 #: raw pixel-planes behind one binned count (2 x 2 pixels x 2 planes): its Bernoulli trials
 BIN_TRIALS = 8
 # Planes decoded per block by the fused path: keeps the intermediates in cache and memory bounded.
@@ -71,7 +65,7 @@ def bin_packed(packed: np.ndarray, image_width: int, flip: bool,
     ``flip``); the first ``image_width`` columns of each row are the image, the rest a header.
     Needs ``image_width % 8 == 0`` (byte-aligned rows). Bit-exact with ``bin_2x2x2`` of the
     decoded planes; the speed comes from SWAR arithmetic on whole bytes (4 bins per byte), in
-    the compiled kernel (``COMPILED``) unless ``compiled=False`` or none was built, else in numpy.
+    the compiled kernel (``compiled.COMPILED``) unless ``compiled=False`` or none was built, else in numpy.
     ``out``, when given, is a (2, T//2, H//2, image_width//2) uint8 array
     that receives ``single`` and ``multi`` (the returned views of it), e.g. a reused one.
     """
@@ -92,8 +86,8 @@ def bin_packed(packed: np.ndarray, image_width: int, flip: bool,
     single, multi = out
     if single.size == 0:
         return single, multi
-    if _packed_bins is not None and compiled:
-        _packed_bins.bin_packed(np.ascontiguousarray(packed[: 2 * t2]), single, multi, 2 * t2, height, row_bytes,
+    if KERNELS is not None and compiled:
+        KERNELS.bin_packed(np.ascontiguousarray(packed[: 2 * t2]), single, multi, 2 * t2, height, row_bytes,
                                 image_bytes, first_row, flip)
         return single, multi
     # Each image byte becomes 4 output bytes: written through uint32 views.

@@ -1,13 +1,13 @@
 /* Decode and bin packed .dat planes 2x2x2 in one pass: the compiled kernel of
- * rmbvideo.sensor.binning.bin_packed (bit for bit the same as its numpy path, which stays the
- * fallback where no C compiler was available at install).
+ * rmbvideo.sensor.binning.bin_packed, built at install where a C compiler is available (bit for
+ * bit the same as its numpy form, which stays the fallback where none was).
  *
  * Each stored byte holds 8 pixels of a row, LSB first. The 4 bytes at one column of 2 planes x
  * 2 rows make 4 bins: their pair counts are added in 4-bit fields (SWAR), clamped to 7 and
  * spread to 4 output bytes (one uint32 word); the kept pixel is bit 2m of the first plane's
  * image-top-row byte.
- * The loop is plain C over bytes, written so the compiler vectorises it; it takes buffers
- * (no numpy headers at build time) and runs without the GIL.
+ * The loop is plain C over bytes, written so the compiler vectorises it; it takes buffers (no
+ * numpy headers at build time) and runs without the GIL.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -124,8 +124,8 @@ static PyMethodDef methods[] = {
 };
 
 static struct PyModuleDef module = {
-    PyModuleDef_HEAD_INIT, "_packed_bins",
+    PyModuleDef_HEAD_INIT, "_packed",
     "Compiled decode+bin of packed .dat planes (see rmbvideo.sensor.binning).", -1, methods,
 };
 
-PyMODINIT_FUNC PyInit__packed_bins(void) { return PyModule_Create(&module); }
+PyMODINIT_FUNC PyInit__packed(void) { return PyModule_Create(&module); }
