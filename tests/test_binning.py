@@ -233,3 +233,15 @@ def test_stream_binner_bins_stored_bytes_as_it_bins_decoded_planes(sizes: list[i
         np.testing.assert_array_equal(a.multi, b.multi)
     with pytest.raises(ValueError, match="one kind"):
         binner.push(SpikeChunk(planes[:2], start=51, rate_hz=20000.0))
+
+
+@pytest.mark.skipif(not COMPILED, reason="no compiled kernel built")
+def test_a_build_of_another_version_is_not_used(monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
+    """A kernel built from older sources (a tree updated without reinstalling) falls back to numpy, with a warning."""
+    from rmbvideo.sensor import _packed, compiled
+
+    assert compiled._load() is _packed
+    monkeypatch.setattr(_packed, "VERSION", compiled.KERNELS_VERSION + 1)
+    with caplog.at_level("WARNING"):
+        assert compiled._load() is None
+    assert "reinstall" in caplog.text

@@ -128,4 +128,16 @@ static struct PyModuleDef module = {
     "Compiled decode+bin of packed .dat planes (see rmbvideo.sensor.binning).", -1, methods,
 };
 
-PyMODINIT_FUNC PyInit__packed(void) { return PyModule_Create(&module); }
+/* Raised with every change of a kernel's arguments or results: Python uses a build of another version (a
+ * source tree updated without reinstalling) as if none were built (rmbvideo.sensor.compiled). */
+#define KERNELS_VERSION 1
+
+PyMODINIT_FUNC PyInit__packed(void)
+{
+    PyObject *m = PyModule_Create(&module);
+    if (m != NULL && PyModule_AddIntConstant(m, "VERSION", KERNELS_VERSION) < 0) {
+        Py_DECREF(m);
+        return NULL;
+    }
+    return m;
+}
