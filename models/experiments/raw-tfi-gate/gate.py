@@ -376,17 +376,19 @@ def edges(path: str | None = None) -> None:
     """The held-out video clips' first, median and last frames (mu-law PSNR, every frame scored as ``evaluate``'s
     checks do) of RMB-Net's binned frames and of the gated ones: the gate at a clip's edge, where the binned frame's
     change since the last is zero (the first frame is its own previous); then the moment each edge frame shows
-    (``evaluate``'s offset search), binned and gated."""
+    (``evaluate``'s offset search), binned and gated; then the edge's own cost as ``evaluate``'s checks measure it:
+    the middle frame made mid-clip against the same frame made as a clip's first (the streams cut to start there)
+    and as its last, binned and gated."""
     from rmbvideo.evaluate.metrics import mu_law_psnr
-    from rmbvideo.evaluate.video_checks import FRAME_STEP, best_time_offset_ms, video_scene_of
+    from rmbvideo.evaluate.video_checks import FRAME_STEP, best_time_offset_ms, clip_frames, video_scene_of
     from rmbvideo.net.weights import default_model_path, default_raw_gate_path, load_raw_gate
     from rmbvideo.train.raw_gate import gate_frames
 
     torch.set_num_threads(1)
     gate = load_raw_gate(path or default_raw_gate_path())[0]
     print("| clip | first: binned / gated | median frame: binned / gated | last: binned / gated "
-          "| offset ms first: binned / gated | last | middle |")
-    print("|---|---:|---:|---:|---:|---:|---:|")
+          "| offset ms first: binned / gated | last | middle | edge cost as first: binned / gated | as last |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for seq in load_video_heldout(False):
         frames = gate_frames(seq, default_model_path("binned"), gate.config)
         gated = apply_gate(gate, frames, float(sequence_convention(seq) != "physical"))[0]
@@ -398,6 +400,12 @@ def edges(path: str | None = None) -> None:
             plane = 2 * FRAME_STEP * i + FRAME_STEP
             cells.append(" / ".join(f"{best_time_offset_ms(image, scene, plane):+.2f}"
                                     for image in (frames[i].binned, gated[i])))
+        mid, truth = count // 2, frames[count // 2].truth
+        for clip, k in ((clip_frames(seq, mid, count), 0), (clip_frames(seq, 0, mid + 1), mid)):
+            cut = gate_frames(clip, default_model_path("binned"), gate.config)
+            cut_gated = apply_gate(gate, cut, float(sequence_convention(seq) != "physical"))[0]
+            cells.append(" / ".join(f"{whole - mu_law_psnr(image, truth):.2f}" for whole, image in
+                                    zip(scores[mid], (cut[k].binned, cut_gated[k]))))
         print(f"| {seq.name} | " + " | ".join(cells) + " |", flush=True)
 
 
