@@ -4,7 +4,7 @@
 (firing rate 0.3) to a temporary folder and reports planes/s of each path, single-threaded
 (numpy ufuncs use one core), and whether the fused path keeps up with a 20 kHz camera (``TARGET_PLANES_PER_S``) and
 reaches the speed issue's goal (``GOAL_PLANES_PER_S``). The fused path is what the reader runs: the compiled
-kernel where the install built one (``binning.COMPILED``); its numpy form (the fallback, and the code before the
+kernel where the install built one (``rmbvideo.sensor.compiled.COMPILED``); its numpy form (the fallback, and the code before the
 kernel) is timed beside it, the two alternated ``ROUNDS`` times, medians reported.
 """
 

@@ -17,13 +17,13 @@
 #error "bins are written as little-endian uint32 words; other hosts use the numpy path"
 #endif
 
-/* Bin one row pair of two planes: rows ``a``, ``b`` of the first plane, ``c``, ``d`` of the
- * second, ``kept`` the first plane's image-top row (``a`` or ``b``); 4 bins per byte into ``single``
- * and ``multi``. Separate restrict parameters let the compiler vectorise the loop. */
 #define ROW_BLOCK 256 /* bytes of a row counted before they are spread */
 
+/* Bin one row pair of two planes: rows ``a``, ``b`` of the first plane, ``c``, ``d`` of the
+ * second, ``kept`` the first plane's image-top row (``a`` or ``b``, read only); 4 bins per byte into
+ * ``single`` and ``multi``. Separate restrict parameters let the compiler vectorise the loops; on
+ * x86-64 Linux one build serves every CPU, with an AVX2 clone picked at load time where it has AVX2. */
 #if defined(__x86_64__) && defined(__GNUC__) && defined(__linux__)
-/* One build for every x86-64 CPU: the AVX2 clone where the CPU has it (picked at load time). */
 __attribute__((target_clones("avx2", "default")))
 #endif
 static void bin_row(const uint8_t *restrict a, const uint8_t *restrict b, const uint8_t *restrict c,
