@@ -14,7 +14,7 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "rmbvideo"
 #: lower layers first; a package may import only packages at its own position or before it.
-LAYERS = ["errors", "chunks", "image_pool", "mulaw", "threads", "sensor", "io", "scenes", "net", "recon", "simulate", "evaluate", "train",
+LAYERS = ["errors", "chunks", "image_pool", "mulaw", "threads", "allocator", "sensor", "io", "scenes", "net", "recon", "simulate", "evaluate", "train",
           "bench", "batch", "cli"]
 
 

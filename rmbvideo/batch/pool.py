@@ -17,6 +17,7 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
+from rmbvideo.allocator import keep_freed_memory
 from rmbvideo.batch.jobs import (
     LOCK_NAME,
     THREAD_ENV,
@@ -51,9 +52,11 @@ def die_with_parent() -> None:
 
 
 def start_worker(threads: int) -> None:
-    """Initialiser of a batch worker process: dies with the batch, uses ``threads`` threads."""
+    """Initialiser of a batch worker process: dies with the batch, uses ``threads`` threads and the allocator policy
+    of every command."""
     die_with_parent()
     limit_threads(threads)
+    keep_freed_memory()
 
 
 def limit_threads(threads: int) -> None:

@@ -17,6 +17,7 @@ from typing import Any
 
 import click
 
+from rmbvideo.allocator import keep_freed_memory
 from rmbvideo.errors import RmbvideoError
 from rmbvideo.io.atomic import raise_or_defer
 
@@ -139,6 +140,7 @@ def _spec_exists(spec: str) -> bool:
 def main(verbose: bool) -> None:
     """Turn spiking-camera captures (.dat) into HDR, high-frame-rate video."""
     configure_logging(verbose=verbose)
+    keep_freed_memory()
 
 
 class _TqdmHandler(logging.StreamHandler):
