@@ -27,6 +27,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from rmbvideo.mulaw import mu_law
+from rmbvideo.net.pooling import mean_2x2
 
 
 @dataclass(frozen=True)
@@ -75,7 +76,7 @@ class DetailConfig:
 
 def block_mean(x: torch.Tensor) -> torch.Tensor:
     """2x2 block means of (B,C,H,W) (even H, W), spread back to every pixel of the block."""
-    return F.interpolate(F.avg_pool2d(x, 2), scale_factor=2.0, mode="nearest")
+    return F.interpolate(mean_2x2(x), scale_factor=2.0, mode="nearest")
 
 
 def upsample(binned: torch.Tensor) -> torch.Tensor:
@@ -112,7 +113,7 @@ class DetailNet(nn.Module):
         """(B, 1 + 2K, H, W): the bilinear deviation from the block level, then per rate plane (each
         window, then TFI, read as if over 2 * ``interval_reach`` planes) the rate's relative deviation
         from its block mean and the block's spike count (mu-law compressed)."""
-        level = F.interpolate(F.avg_pool2d(up, 2), scale_factor=2.0, mode="nearest")
+        level = F.interpolate(mean_2x2(up), scale_factor=2.0, mode="nearest")
         parts = [(up / level.clamp(min=1e-12) - 1.0).clamp(-1.0, 1.0) * (level > 0)]
         windows = self.config.windows + ((2 * self.config.interval_reach,) if self.config.interval_reach else ())
         for k, window in enumerate(windows):

@@ -24,6 +24,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from rmbvideo.net.blend import box_intensity
+from rmbvideo.net.pooling import mean_3x3
 
 #: Per-pixel inputs of the gate, in this order (``gate_features``).
 FEATURES = ("binned level", "TFI level", "log ratio", "TFI roughness", "binned roughness", "binned change",
@@ -99,8 +100,8 @@ def tfi_light(rate: torch.Tensor, convention: float, tabulated: bool) -> torch.T
 def _roughness(image: torch.Tensor) -> torch.Tensor:
     """log of the 3x3 standard deviation over the 3x3 mean (edges replicated): texture or noise around a pixel."""
     padded = F.pad(image, (1, 1, 1, 1), mode="replicate")
-    mean = F.avg_pool2d(padded, 3, stride=1)
-    spread = (F.avg_pool2d(padded * padded, 3, stride=1) - mean * mean).clamp(min=0.0).sqrt()
+    mean = mean_3x3(padded)
+    spread = (mean_3x3(padded * padded) - mean * mean).clamp(min=0.0).sqrt()
     return torch.log((spread + 1e-4) / (mean + 1e-3))
 
 

@@ -332,8 +332,8 @@ class FullResolution:
         """Each binned frame mixed with its raw TFI candidates (read as RMB-Net reads light, 2x2-averaged) by the
         gate, in order; the previous binned frame is the one before the gate (the frame itself at a clip's start)."""
         import torch
-        import torch.nn.functional as F
 
+        from rmbvideo.net.pooling import mean_2x2
         from rmbvideo.net.raw_gate import tfi_light
 
         convention, tabulated = self._reading
@@ -342,8 +342,8 @@ class FullResolution:
             for image, candidates in zip(coarse, tfis):
                 binned = torch.from_numpy(np.ascontiguousarray(image, np.float32))[None, None]
                 previous = binned if self._previous is None else torch.from_numpy(self._previous)[None, None]
-                light = [F.avg_pool2d(tfi_light(torch.as_tensor(tfi).float().cpu()[None, None], convention,
-                                                tabulated), 2) for tfi in candidates]
+                light = [mean_2x2(tfi_light(torch.as_tensor(tfi).float().cpu()[None, None], convention, tabulated))
+                         for tfi in candidates]
                 out.append(self.raw_gate(binned, light[0], previous, convention, *light[1:])[0, 0].numpy())
                 self._previous = np.ascontiguousarray(image, np.float32)
         return out
