@@ -10,8 +10,10 @@ from pathlib import Path
 
 import click
 
+from rmbvideo.allocator import keep_freed_memory
 from rmbvideo.bench.configs import DEFAULT_WIDTH, precision_label
 from rmbvideo.cli import verbose_option
+from rmbvideo.sensor.compiled import COMPILED
 
 log = logging.getLogger(__name__)
 
@@ -105,6 +107,8 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
                 f"the aligned window means {'in a thread of their own beside the network' if beside else 'inline'} "
                 f"({'two or more threads' if beside and threads else 'a second idle core' if beside else 'no second thread or idle core'}). "
                 f"Each scene runs {TIMING_RUNS} times per row, the fastest timed. "
+                f"Freed memory {'kept for reuse (glibc thresholds raised, rmbvideo.allocator)' if keep_freed_memory() else 'handed back as the C allocator does by default (no glibc)'}; "
+                f"decode+bin by the {'compiled' if COMPILED else 'numpy'} kernel. "
                 "'*' = Pareto front of (time per frame, PSNR) among rows with "
                 "accuracy; 'n/a' = untrained (random-init) network, timed only.", "", markdown_table(records)]
     extras: dict = {}
