@@ -4,8 +4,8 @@ By default glibc serves each block above its mmap threshold (128 kB, raised only
 fresh mapping, and gives the heap's free top back to the system once 128 kB is free there. So the few-MB tensors and
 arrays a frame makes (a 16-channel 400x250 feature map is 6.4 MB) are faulted in again, page by page, every time.
 Measured on this project's AVX2 host, one thread (``models/experiments/avx2-profile/allocator.py``): the detail
-stage's four chained convolutions take 31-48 ms a pass as glibc does by default and 20 ms with both thresholds
-raised (about 35 with either alone). Blocks above ``MMAP_THRESHOLD_BYTES`` (a whole decoded chunk) are still mapped
+stage's four chained convolutions took 31-48 ms a pass as glibc does by default and 20-29 ms with both thresholds
+raised (about 35 with either alone), TFI 9-27 % less CPU time (``allocator_jobs.py``). Blocks above ``MMAP_THRESHOLD_BYTES`` (a whole decoded chunk) are still mapped
 and handed back when freed. Memory stays bounded: the process keeps its high-water mark, which later frames reuse.
 glibc only (Linux); elsewhere nothing changes.
 """

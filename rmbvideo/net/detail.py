@@ -131,9 +131,9 @@ class DetailNet(nn.Module):
         binned = torch.nan_to_num(binned.float(), nan=0.0, posinf=0.0, neginf=0.0).clamp(min=0.0)
         rates = torch.nan_to_num(rates.float(), nan=0.0, posinf=0.0, neginf=0.0).clamp(0.0, 1.0)
         up = upsample(binned)
-        # channels-last, as the engine holds the weights: oneDNN's kernels for these few channels are several times
-        # faster so than in the default layout, which the stage as loaded (training) would otherwise run in
+        # channels-last: oneDNN's kernels for so few channels are several times faster so; the engine holds the
+        # weights channels-last anyway, this makes the stage as loaded (training) run the same kernels
         features = self.features(up, rates).contiguous(memory_format=torch.channels_last)
-        d = self.body(features).float().contiguous()  # float32 whatever the body ran in: 1 + d keeps its digits
+        d = self.body(features).float()  # float32 whatever the body ran in: 1 + d keeps its digits
         d = d - block_mean(d)  # mean 1 + d over a block is 1, so no block of the factor is 0 throughout
         return to_block_levels(up * (1.0 + d).clamp(min=0.0), binned)

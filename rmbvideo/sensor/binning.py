@@ -88,7 +88,7 @@ def bin_packed(packed: np.ndarray, image_width: int, flip: bool,
         return single, multi
     if KERNELS is not None and compiled:
         KERNELS.bin_packed(np.ascontiguousarray(packed[: 2 * t2]), single, multi, 2 * t2, height, row_bytes,
-                                image_bytes, first_row, flip)
+                           image_bytes, first_row, flip)
         return single, multi
     # Each image byte becomes 4 output bytes: written through uint32 views.
     single32 = single.view(np.uint32)
