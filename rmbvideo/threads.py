@@ -18,6 +18,7 @@ core busy it would only take turns with the network, so then it does not).
 from __future__ import annotations
 
 import os
+import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -96,12 +97,20 @@ def work_beside(threads: int | None) -> bool:
 @contextmanager
 def compute_threads(count: int | None = None, cv_count: int | None = None) -> Iterator[None]:
     """torch's intra-op threads set to ``count`` (None: ``default_threads()``) and OpenCV's (optical flow,
-    warps) to ``cv_count`` (None: the same) inside the block, the previous counts restored after it."""
+    warps) to ``cv_count`` (None: the same) inside the block, the previous counts restored after it.
+
+    In a thread other than the main one (a stage running beside another) only torch's count is set, and kept: under
+    OpenMP it is that thread's own (a new thread starts at every core), and in builds where it is the process's,
+    restoring it would undo the main thread's; OpenCV's, process-wide, stays the main thread's to set and restore."""
     import cv2
     import torch
 
-    previous, previous_cv = torch.get_num_threads(), cv2.getNumThreads()
     wanted = default_threads() if count is None else count
+    if threading.current_thread() is not threading.main_thread():
+        torch.set_num_threads(wanted)
+        yield
+        return
+    previous, previous_cv = torch.get_num_threads(), cv2.getNumThreads()
     wanted_cv = wanted if cv_count is None else cv_count
     if wanted != previous:
         torch.set_num_threads(wanted)

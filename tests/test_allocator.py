@@ -29,3 +29,21 @@ def test_a_freed_block_is_reused_without_page_faults() -> None:
     for _ in range(10):
         cycle()
     assert resource.getrusage(resource.RUSAGE_THREAD).ru_minflt - before < 100
+
+
+@pytest.mark.skipif(not GLIBC, reason="the policy sets glibc's thresholds; elsewhere it changes nothing")
+def test_thresholds_set_in_the_environment_are_left_alone() -> None:
+    """Whoever set glibc's thresholds in the environment chose them (the memory tests fix the mmap threshold so that a
+    peak measures what the program holds): the policy then leaves them."""
+    import os
+    import subprocess
+    import sys
+
+    code = "from rmbvideo.allocator import keep_freed_memory; print(keep_freed_memory())"
+    for name in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_"):
+        env = {key: value for key, value in os.environ.items() if not key.startswith("MALLOC_")}
+        result = subprocess.run([sys.executable, "-c", code], env={**env, name: "65536"}, capture_output=True,
+                                text=True, check=True)
+        assert result.stdout.strip() == "False", name
+    result = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert result.stdout.strip() == "True"

@@ -123,6 +123,45 @@ def test_busy_cores_are_measured_on_this_process_cores_and_count_another_process
         threads._measured = None
 
 
+def _openmp_threads() -> int:
+    """OpenMP's thread count for parallel regions started by the calling thread (each thread has its own)."""
+    import re
+
+    import torch
+
+    return int(re.search(r"omp_get_max_threads\(\) : (\d+)", torch.__config__.parallel_info()).group(1))
+
+
+def test_compute_threads_sets_the_count_of_a_thread_beside_the_main_one() -> None:
+    """A stage running beside another (full resolution's finishing thread) sets its own torch count, OpenMP's for
+    that thread, and keeps it; the main thread's count and OpenCV's are left alone."""
+    import threading
+
+    import torch
+
+    from rmbvideo import threads
+
+    import cv2
+
+    main_before, cv_before = _openmp_threads(), cv2.getNumThreads()
+    seen = {}
+
+    def beside() -> None:
+        with threads.compute_threads(3, 3):
+            seen["inside"] = _openmp_threads()
+            seen["cv"] = cv2.getNumThreads()
+        seen["after"] = _openmp_threads()
+
+    worker = threading.Thread(target=beside)
+    worker.start()
+    worker.join()
+    assert seen == {"inside": 3, "cv": cv_before, "after": 3}  # that thread's, for good: it is the stage's own
+    assert _openmp_threads() == main_before and cv2.getNumThreads() == cv_before
+    with threads.compute_threads(2):
+        assert _openmp_threads() == 2 == torch.get_num_threads()
+    assert _openmp_threads() == main_before
+
+
 def test_compute_threads_applies_the_policy_to_torch_and_opencv_and_restores_the_counts(monkeypatch):
     import cv2
     import torch

@@ -133,6 +133,43 @@ def test_the_gpu_configuration_forced_onto_the_cpu_gives_the_default_frames(tmp_
     assert relative.mean() < 1e-3 and np.quantile(relative, 0.99) < 1e-2
 
 
+def test_the_finishing_thread_gives_the_inline_frames_bit_for_bit(tmp_path: Path, monkeypatch) -> None:
+    """The default on a CPU with a core to spare: each chunk's raw rates, raw-interval gate and detail stage made in a
+    thread of their own a chunk behind the network. Every frame is the inline one, bit for bit, whatever the chunks
+    (the gate's previous frame, the TFI scans and the stores are that thread's alone)."""
+    import rmbvideo.recon.full_resolution as full_module
+
+    dat = _capture(tmp_path / "c.dat", planes=700)
+    options = dict(width=64, height=48, resolution="full", threads=1, precision="fp32")
+    runs = {}
+    for beside in (False, True):
+        monkeypatch.setattr(full_module, "finish_beside_by_default", lambda device, threads, beside=beside: beside)
+        for chunk in (64, 300):
+            run = prepare_run(dat, method="rmbnet", capture=dict(width=64, height=48),
+                              extra_options=dict(threads=1, precision="fp32"))
+            assert (run.method._behind is not None) == beside and run.method.raw_gate is not None
+            runs[beside, chunk] = list(reconstruct_frames(dat, "rmbnet", chunk_planes=chunk, **options))
+    reference = runs[False, 64]
+    assert len(reference) >= 30
+    for frames in runs.values():
+        assert [f.index for f in frames] == [f.index for f in reference]
+    for chunk in (64, 300):  # the same chunks: the same frames bit for bit
+        for a, b in zip(runs[False, chunk], runs[True, chunk]):
+            assert a.time_s == b.time_s and np.array_equal(a.image, b.image)
+
+
+def test_the_finishing_thread_runs_where_a_core_is_free_beside_a_cpu_network(monkeypatch) -> None:
+    import torch
+
+    import rmbvideo.recon.full_resolution as full_module
+
+    monkeypatch.setattr(full_module, "work_beside", lambda threads: threads is None or threads >= 2)
+    assert full_module.finish_beside_by_default(torch.device("cpu"), None)
+    assert full_module.finish_beside_by_default(torch.device("cpu"), 2)
+    assert not full_module.finish_beside_by_default(torch.device("cpu"), 1)
+    assert not full_module.finish_beside_by_default(torch.device("cuda"), None)  # its rates have a thread already
+
+
 def test_the_readout_follows_the_model_and_native_captures_keep_their_size(tmp_path: Path) -> None:
     from rmbvideo.net.weights import MODELS_DIR
 

@@ -104,10 +104,11 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
                 f"{len(sequences)} held-out scenes at {sequences[0].shape[1]}x{sequences[0].shape[0]}, "
                 f"{resolved} thread(s) for the network per row unless the row names its own "
                 f"({'--threads' if threads else 'the thread policy of every command, rmbvideo.threads: one on a busy or 2-core machine'}); "
-                f"the aligned window means {'in a thread of their own beside the network' if beside else 'inline'} "
+                f"the aligned window means {'in a thread of their own beside the network' if beside else 'inline'}"
+                f"{' and at full resolution the raw rates, gate and detail stage in another, a chunk behind it' if beside else ''} "
                 f"({'two or more threads' if beside and threads else 'a second idle core' if beside else 'no second thread or idle core'}). "
                 f"Each scene runs {TIMING_RUNS} times per row, the fastest timed. "
-                f"Freed memory {'kept for reuse (glibc thresholds raised, rmbvideo.allocator)' if keep_freed_memory() else 'handed back as the C allocator does by default (no glibc)'}; "
+                f"Freed memory {'kept for reuse (glibc thresholds raised, rmbvideo.allocator)' if keep_freed_memory() else 'as the C allocator is set (no glibc, or its thresholds set in the environment)'}; "
                 f"decode+bin by the {'compiled' if COMPILED else 'numpy'} kernel. "
                 "'*' = Pareto front of (time per frame, PSNR) among rows with "
                 "accuracy; 'n/a' = untrained (random-init) network, timed only.", "", markdown_table(records)]
