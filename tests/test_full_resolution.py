@@ -133,19 +133,20 @@ def test_the_gpu_configuration_forced_onto_the_cpu_gives_the_default_frames(tmp_
     assert relative.mean() < 1e-3 and np.quantile(relative, 0.99) < 1e-2
 
 
-def test_the_finishing_thread_gives_the_inline_frames_bit_for_bit(tmp_path: Path, monkeypatch) -> None:
+@pytest.mark.parametrize("resolution", ["full", "binned"])
+def test_the_finishing_thread_gives_the_inline_frames_bit_for_bit(tmp_path: Path, monkeypatch, resolution: str) -> None:
     """The default on a CPU with a core to spare: each chunk's raw rates, raw-interval gate and detail stage made in a
     thread of their own a chunk behind the network. Every frame is the inline one, bit for bit, whatever the chunks
-    (the gate's previous frame, the TFI scans and the stores are that thread's alone)."""
+    (the gate's previous frame, the TFI scans and the stores are that thread's alone); at the binned size too."""
     import rmbvideo.recon.full_resolution as full_module
 
     dat = _capture(tmp_path / "c.dat", planes=700)
-    options = dict(width=64, height=48, resolution="full", threads=1, precision="fp32")
+    options = dict(width=64, height=48, resolution=resolution, threads=1, precision="fp32")
     runs = {}
     for beside in (False, True):
         monkeypatch.setattr(full_module, "finish_beside_by_default", lambda device, threads, beside=beside: beside)
         for chunk in (64, 300):
-            run = prepare_run(dat, method="rmbnet", capture=dict(width=64, height=48),
+            run = prepare_run(dat, method="rmbnet", capture=dict(width=64, height=48), resolution=resolution,
                               extra_options=dict(threads=1, precision="fp32"))
             assert (run.method._behind is not None) == beside and run.method.raw_gate is not None
             runs[beside, chunk] = list(reconstruct_frames(dat, "rmbnet", chunk_planes=chunk, **options))
@@ -156,6 +157,36 @@ def test_the_finishing_thread_gives_the_inline_frames_bit_for_bit(tmp_path: Path
     for chunk in (64, 300):  # the same chunks: the same frames bit for bit
         for a, b in zip(runs[False, chunk], runs[True, chunk]):
             assert a.time_s == b.time_s and np.array_equal(a.image, b.image)
+
+
+def test_binned_output_of_a_1bit_capture_is_the_gated_frame_the_full_frames_average_to(tmp_path: Path) -> None:
+    """``--resolution binned`` on a 1-bit capture: RMB-Net's frames mixed with the raw intervals by the gate, at half
+    the size; the full-resolution frames average back to them over 2x2 blocks. ``--raw-gate off``: the network's own."""
+    from rmbvideo.recon.full_resolution import FullResolution
+    from rmbvideo.recon.rmbnet import RmbNetReconstructor
+    from rmbvideo.sensor.readout import RmbReadout
+
+    dat = _capture(tmp_path / "c.dat", planes=500)
+    options = dict(width=64, height=48, threads=1, precision="fp32")
+    binned = list(reconstruct_frames(dat, "rmbnet", resolution="binned", **options))
+    full = list(reconstruct_frames(dat, "rmbnet", resolution="full", **options))
+    plain = list(reconstruct_frames(dat, "rmbnet", resolution="binned", raw_gate="off", **options))
+    assert [f.index for f in binned] == [f.index for f in full] == [f.index for f in plain] and len(binned) >= 20
+    for gated, shaped in zip(binned, full):
+        assert gated.image.shape == (24, 32) and gated.time_s == shaped.time_s
+        assert np.isfinite(gated.image).all() and (gated.image >= 0).all()
+        means = shaped.image.reshape(24, 2, 32, 2).mean(axis=(1, 3))
+        np.testing.assert_allclose(means, gated.image, rtol=1e-5, atol=1e-7)
+    assert not all(np.array_equal(a.image, b.image) for a, b in zip(binned, plain))  # the gate mixed something
+    assert isinstance(prepare_run(dat, resolution="binned", raw_gate="off", capture=dict(width=64, height=48),
+                                  extra_options=dict(threads=1)).method, RmbNetReconstructor)
+    from rmbvideo.net.weights import default_model_path
+
+    engine = RmbNetReconstructor.from_file(default_model_path(), device="cpu", threads=1)
+    with pytest.raises(ValueError, match="raw-interval gate"):
+        FullResolution(engine, RmbReadout("pure-m"), output="binned")
+    with pytest.raises(ValueError, match="output must be"):
+        FullResolution(engine, RmbReadout("pure-m"), output="half")
 
 
 def test_the_finishing_thread_runs_where_a_core_is_free_beside_a_cpu_network(monkeypatch) -> None:
@@ -179,11 +210,17 @@ def test_the_readout_follows_the_model_and_native_captures_keep_their_size(tmp_p
     run = prepare_run(dat, capture=geometry, extra_options={"model": pure_m, "threads": 1})
     assert run.readout is None and run.method.readout.mode.value == "pure-m"  # full resolution: inside the wrapper
     run = prepare_run(dat, capture=geometry, resolution="binned", extra_options={"model": pure_m, "threads": 1})
+    assert run.readout is None and run.method.readout.mode.value == "pure-m"  # binned and gated: inside it too
+    run = prepare_run(dat, capture=geometry, resolution="binned", raw_gate="off",
+                      extra_options={"model": pure_m, "threads": 1})
     assert run.readout is not None and run.readout.mode.value == "pure-m"
-    run = prepare_run(dat, capture=geometry, resolution="binned", extra_options={"threads": 1})
+    run = prepare_run(dat, capture=geometry, resolution="binned", raw_gate="off", extra_options={"threads": 1})
     assert run.readout.mode.value == "rmb" or run.readout.mode.value == run.method.network.config.readout
-    run = prepare_run(dat, capture=geometry, resolution="binned", readout="pure-s", extra_options={"threads": 1})
+    run = prepare_run(dat, capture=geometry, resolution="binned", readout="pure-s", raw_gate="off",
+                      extra_options={"threads": 1})
     assert run.readout.mode.value == "pure-s"
+    run = prepare_run(dat, method="tfw", capture=geometry, resolution="binned")
+    assert run.readout is not None and type(run.method).__name__ == "Tfw"  # no gate for the other methods
 
 
 @pytest.mark.parametrize("fmt", ["exr", "mp4", "png", "hdr10"])

@@ -187,7 +187,10 @@ def test_reconstruct_mixes_rmbnet_frames_of_a_1bit_capture_by_default_and_only_t
     assert prepare_run(dat, extra_options={"threads": 1}).method.raw_gate is not None
     assert prepare_run(dat, extra_options={"threads": 1}, raw_gate="off").method.raw_gate is None
     assert prepare_run(dat, method="tfw").method.raw_gate is None  # fitted to RMB-Net's frames, not another method's
-    assert not hasattr(prepare_run(dat, resolution="binned", extra_options={"threads": 1}).method, "raw_gate")
+    binned = prepare_run(dat, resolution="binned", extra_options={"threads": 1}).method  # the gated frames, half size
+    assert binned.raw_gate is not None and binned.output == "binned" and binned.detail is None
+    assert not hasattr(prepare_run(dat, resolution="binned", raw_gate="off", extra_options={"threads": 1}).method,
+                       "raw_gate")
     with pytest.raises(OptionError, match="--raw-gate"):
         prepare_run(dat, raw_gate="always")
 

@@ -58,7 +58,7 @@ def profile_engine(device: str = "cpu", width: int = 400, height: int = 250, fra
                    resolution: str = DEFAULT_RESOLUTION) -> EngineProfile:
     """Profile the default engine on ``device`` over ``frames`` output frames of a random ``width`` x ``height``
     capture (20 raw planes a frame), after a short warm-up run; ``resolution`` as ``reconstruct --resolution``
-    ("binned": the network alone makes the frames, as the speed targets count them)."""
+    ("binned": the network alone makes the frames, as the speed targets count them: without the raw gate)."""
     import torch
     from torch.profiler import ProfilerActivity, profile
 
@@ -70,7 +70,8 @@ def profile_engine(device: str = "cpu", width: int = 400, height: int = 250, fra
 
         def run(name: str, duration_s: float | None = None):
             return run_reconstruction(path, work / name, fmt="null", duration_s=duration_s, capture=capture,
-                                      extra_options=options, overwrite=True, resolution=resolution)
+                                      extra_options=options, overwrite=True, resolution=resolution,
+                                      raw_gate="auto" if resolution == "full" else "off")
 
         run("warm", duration_s=0.1)  # as ``bench sizes`` warms up: the model loaded, the kernels chosen
         began = time.perf_counter()

@@ -112,14 +112,15 @@ def rmbnet_options(func):
 @click.option("--resolution", type=click.Choice(RESOLUTIONS), default=DEFAULT_RESOLUTION, show_default=True,
               help="Output size of methods on the binned stream from a real 1-bit capture: full (the camera's: the "
                    "binned result's levels with the raw stream's detail inside each 2x2 block) or binned (half the "
-                   "camera's, about 1.8x faster).")
+                   "camera's: the binned result, with RMB-Net mixed with the raw intervals as at full size, which "
+                   "the full frames average to; about 1.2x faster on 2 cores).")
 @click.option("--detail", type=click.Choice(DETAIL_KINDS), default="auto", show_default=True,
               help="With --resolution full: how the detail inside each 2x2 block is found: learned (the shipped "
                    "detail stage), classical (noise-gated TFP ratio); auto: learned when installed.")
 @click.option("--raw-gate", type=click.Choice(RAW_GATE_KINDS), default="auto", show_default=True,
-              help="With --resolution full and RMB-Net: mix each binned frame per pixel with TFI of the raw planes "
-                   "where the shipped raw-interval gate trusts it (dim fine texture of slow scenes); off: RMB-Net's "
-                   "binned frame as it is.")
+              help="With RMB-Net on a 1-bit capture, at either --resolution: mix each binned frame per pixel with TFI "
+                   "of the raw planes where the shipped raw-interval gate trusts it (dim fine texture of slow scenes); "
+                   "off: RMB-Net's binned frame as it is.")
 @capture_options
 @click.option("--start", "start_s", type=click.FloatRange(min=0), default=0.0, show_default=True,
               help="Start time in seconds from the beginning of the capture.")

@@ -22,7 +22,9 @@ GPU those rates are made there too, in a thread beside it (``rmbvideo.recon.devi
 With RMB-Net as the binned method and a raw-interval gate (``rmbvideo.net.raw_gate``, ``raw_gate=``), each binned
 frame is first mixed per pixel with TFI of the raw planes (read as light and 2x2-averaged) where the gate trusts it:
 single intervals resolve dim fine texture of slow scenes that the binned counts blur. The detail then shapes that
-frame, so the full output still averages back to it over 2x2 blocks.
+frame, so the full output still averages back to it over 2x2 blocks. With ``output="binned"`` the gated frames
+themselves are the output, at the binned size (``--resolution binned`` on a 1-bit capture): the raw stream's evidence
+without the detail stage's cost.
 """
 
 from __future__ import annotations
@@ -50,6 +52,8 @@ DETAIL_KINDS = ("auto", "learned", "classical")
 #: Whether RMB-Net's binned frames of a 1-bit capture are mixed with raw TFI: "auto" (with the shipped raw-interval
 #: gate when installed) or "off".
 RAW_GATE_KINDS = ("auto", "off")
+#: What ``FullResolution`` emits: "full" (the camera's size) or "binned" (the gated binned frames, half each side).
+OUTPUTS = ("full", "binned")
 #: full-resolution pixels one call of the detail stage holds on a GPU (its activations: under 1 kB a pixel)
 DETAIL_BATCH_PIXELS = 1 << 22
 
@@ -184,25 +188,33 @@ class FullResolution:
                  settings: DetailSettings = DetailSettings(), detail: Any = None, threads: int | None = None,
                  precision: str = "auto", rates_beside: bool | None = None,
                  rates_on_device: bool | None = None, raw_gate: Any = None,
-                 finish_beside: bool | None = None) -> None:
+                 finish_beside: bool | None = None, output: str = "full") -> None:
         if binned.input_kind != "rmb":
             raise ValueError(f"full resolution wraps a method on the binned stream, not {type(binned).__name__}")
+        if output not in OUTPUTS:
+            raise ValueError(f"output must be one of {OUTPUTS}, not {output!r}")
         self.binned = binned
         self.readout = readout
         self.settings = settings
+        self.output = output
+        full = output == "full"
         # the binned method's device (a GPU for RMB-Net there), so frames do not wait for the CPU
         self.device = getattr(binned, "device", None)
+        detail = detail if full else None
         self.detail = None if detail is None else detail_inference_copy(detail, precision, self.device or "cpu")
         # the gate mixes RMB-Net's frames only (it was fitted to them): how RMB-Net reads light, or None
         reading = getattr(binned, "light_reading", None)
         self.raw_gate = None if raw_gate is None or reading is None else raw_gate.eval()
+        if not full and self.raw_gate is None:
+            raise ValueError("binned output is RMB-Net's frames mixed by a raw-interval gate: give RMB-Net and a gate")
         self._reading = reading
         self._previous: np.ndarray | None = None  # the last binned frame, before the gate (its change is a feature)
         # resolved once, as the RMB-Net engine does: the policy, not the load of each frame's moment
         self.threads = threads if threads is not None else default_threads()
         self._binner = StreamBinner()
         self._decoded = ImagePool(DECODED_POOL_BYTES)  # decoded chunks, reused once released
-        windows = detail.config.windows if detail is not None else (settings.window,)
+        # the rates the detail reads: none for binned output
+        windows = () if not full else detail.config.windows if detail is not None else (settings.window,)
         # TFI for the detail stage and for the gate: one search over the longer reach gives both (``Tfi``'s
         # ``shorter``), except a gate's TFI over central planes (``tfi_window``, ``long_window``): a search of its own,
         # which reads the others' scan of each block (``BlockScans``)
@@ -367,6 +379,8 @@ class FullResolution:
             gated = self._gated([c.image for c in coarse], [[r[k] for k in self._gate_planes] for r in rates])
             coarse = [Frame(index=c.index, time_s=c.time_s, image=image) for c, image in zip(coarse, gated)]
             self.stage_seconds["raw gate"] = self.stage_seconds.get("raw gate", 0.0) + time.perf_counter() - began
+        if self.output == "binned":
+            return coarse
         rates = [[r[k] for k in self._detail_planes] for r in rates]
         began = time.perf_counter()
         if self.detail is not None:
