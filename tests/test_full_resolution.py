@@ -195,10 +195,14 @@ def test_the_finishing_thread_runs_where_a_core_is_free_beside_a_cpu_network(mon
     import rmbvideo.recon.full_resolution as full_module
 
     monkeypatch.setattr(full_module, "work_beside", lambda threads: threads is None or threads >= 2)
+    monkeypatch.setattr(full_module, "default_threads", lambda: 1)  # the policy on 2 cores
     assert full_module.finish_beside_by_default(torch.device("cpu"), None)
     assert full_module.finish_beside_by_default(torch.device("cpu"), 2)
     assert not full_module.finish_beside_by_default(torch.device("cpu"), 1)
+    assert not full_module.finish_beside_by_default(torch.device("cpu"), 3)  # measured on two cores only
     assert not full_module.finish_beside_by_default(torch.device("cuda"), None)  # its rates have a thread already
+    monkeypatch.setattr(full_module, "default_threads", lambda: 8)  # the policy on an idle many-core machine
+    assert not full_module.finish_beside_by_default(torch.device("cpu"), None)
 
 
 def test_the_readout_follows_the_model_and_native_captures_keep_their_size(tmp_path: Path) -> None:

@@ -74,10 +74,12 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
     """
     if ctx.invoked_subcommand is not None:
         return
+    from rmbvideo.recon.full_resolution import finish_beside_by_default
     from rmbvideo.threads import default_threads, work_beside
 
     resolved = threads or default_threads()  # None (the policy) stays None for the rows
     beside = work_beside(threads)
+    finish = finish_beside_by_default("cpu", threads)  # the full-resolution stages beside the network
     from rmbvideo.bench.configs import ALIGNMENTS, default_configs
     from rmbvideo.bench.models import build_network
     from rmbvideo.bench.report import mark_pareto, markdown_table, write_csv, write_plot
@@ -105,7 +107,7 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
                 f"{resolved} thread(s) for the network per row unless the row names its own "
                 f"({'--threads' if threads else 'the thread policy of every command, rmbvideo.threads: one on a busy or 2-core machine'}); "
                 f"the aligned window means {'in a thread of their own beside the network' if beside else 'inline'}"
-                f"{' and at full resolution the raw rates, gate and detail stage in another, a chunk behind it' if beside else ''} "
+                f"{' and at full resolution the raw rates, gate and detail stage in another, a chunk behind it' if finish else ''} "
                 f"({'two or more threads' if beside and threads else 'a second idle core' if beside else 'no second thread or idle core'}). "
                 f"Each scene runs {TIMING_RUNS} times per row, the fastest timed. "
                 f"Freed memory {'kept for reuse (glibc thresholds raised, rmbvideo.allocator)' if keep_freed_memory() else 'as the C allocator is set (no glibc, or its thresholds set in the environment)'}; "

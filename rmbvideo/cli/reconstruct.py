@@ -43,10 +43,11 @@ def rmbnet_options(func):
         click.option("--threads", type=click.IntRange(min=1), default=None,
                      help="CPU threads [default: the thread policy: for the network 1 on a busy or 2-core machine, "
                   "else the idle cores, at most 8; RMB-Net's aligned window means in a thread of their own "
-                  "when a second core is idle, and at full resolution the raw rates, gate and detail stage in "
-                  "another, a chunk behind the network; with the network on a GPU, every core but one for the "
-                  "aligned means]. With 2 or more, the aligned means take one of them and the full-resolution "
-                  "stages run beside the network; on a GPU the aligned means take them all."),
+                  "when a second core is idle, and, with the network on 1 or 2 threads, the full-resolution raw "
+                  "rates, gate and detail stage in another, a chunk behind the network; with the network on a GPU, "
+                  "every core but one for the aligned means]. With 2 or more, the aligned means take one of them "
+                  "(with 2, the full-resolution stages run beside the network); on a GPU the aligned means take "
+                  "them all."),
         _auto_choice("--convention", CONVENTIONS,
                      "What made the spikes (rmbnet, gc20 and mg20 read it): physical (pixels reset to zero at a spike: "
                      "rmbvideo's emission model) or "

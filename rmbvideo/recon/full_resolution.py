@@ -127,11 +127,19 @@ def rates_beside_by_default(device: Any) -> bool:
     return getattr(device, "type", "cpu") == "cuda"
 
 
+#: the most threads the network may have for the full-resolution stages to run beside it by default: measured on two
+#: cores (1.35-1.52x the frames a second with 1 or 2); with more, each side's OpenMP team would want the cores the other
+#: holds, which was not measured, so they stay inline and use them all
+MOST_THREADS_BESIDE = 2
+
+
 def finish_beside_by_default(device: Any, threads: int | None) -> bool:
     """Whether each chunk's raw rates, gate and detail stage run in a thread of their own, a chunk behind the binned
-    method: on a CPU, when a core is free for them beside the network (``rmbvideo.threads.work_beside``; on a GPU the
-    network leaves the CPU to them anyway)."""
-    return getattr(device, "type", "cpu") != "cuda" and work_beside(threads)
+    method: on a CPU, when a core is free for them beside the network (``rmbvideo.threads.work_beside``) and the
+    network runs on at most ``MOST_THREADS_BESIDE`` threads (on a GPU the network leaves the CPU to them anyway)."""
+    if getattr(device, "type", "cpu") == "cuda":
+        return False
+    return (threads if threads is not None else default_threads()) <= MOST_THREADS_BESIDE and work_beside(threads)
 
 
 def rates_on_device_by_default(device: Any) -> bool:
