@@ -7,6 +7,7 @@ import pytest
 
 from rmbvideo.chunks import RmbChunk, SpikeChunk
 from rmbvideo.recon.classical import BlockScans, Tfi, Tfp, Tfw, push_by_block, tfw_l, tfw_s
+from rmbvideo.sensor.compiled import COMPILED
 from rmbvideo.sensor.readout import RmbReadout
 
 RATE = 20000.0
@@ -289,3 +290,41 @@ def test_tfi_window_reads_a_regular_pixel_exactly_where_one_interval_cannot():
     assert np.abs(wide - light).max() <= light / 24 + 1e-6 < np.abs(single - light).max() / 4
     with pytest.raises(ValueError, match="window"):
         Tfi(window=-1)
+
+
+@pytest.mark.skipif(not COMPILED, reason="no compiled kernel built")
+@pytest.mark.parametrize("count", [1, 2, 63, 64, 255])
+@pytest.mark.parametrize("dtype", [np.uint8, np.bool_])
+def test_tfi_block_scan_kernel_gives_the_numpy_forms_bytes(count: int, dtype) -> None:
+    """The compiled block scan (``_packed.c``'s ``scan_block``) against its numpy form: every offset, from blocks with
+    no spike to a spike on every plane, uint8 and bool planes, a strided view."""
+    from rmbvideo.recon.classical import block_scan
+
+    rng = np.random.default_rng(count)
+    planes = (rng.random((count, 9, 14)) < rng.choice([0.0, 0.05, 0.5, 1.0], size=(1, 9, 14))).astype(dtype)
+    for block in (planes, planes[:, ::2, 1::3]):
+        compiled, numpy_form = block_scan(block), block_scan(block, compiled=False)
+        for a, b in zip(compiled, numpy_form):
+            assert a.dtype == b.dtype == np.uint8 and a.shape == b.shape == block.shape and np.array_equal(a, b)
+
+
+@pytest.mark.skipif(not COMPILED, reason="no compiled kernel built")
+def test_tfi_frames_are_the_same_with_the_kernel_or_without(monkeypatch) -> None:
+    import rmbvideo.recon.classical as classical
+    from rmbvideo.sensor.compiled import KERNELS
+
+    rng = np.random.default_rng(5)
+    planes = (rng.random((300, 12, 16)) < rng.random((12, 16)) * 0.3).astype(np.uint8)
+    runs = []
+    for kernels in (KERNELS, None):
+        monkeypatch.setattr(classical, "KERNELS", kernels)
+        tfi = Tfi(step=20, max_reach=100, shorter=(30,), window=4)
+        frames = tfi.push(SpikeChunk(planes, 0, 20_000.0)) + tfi.flush()
+        runs.append(frames)
+    assert len(runs[0]) == len(runs[1]) >= 10
+    for a, b in zip(*runs):
+        assert a.index == b.index and np.array_equal(a.image, b.image)
+    with pytest.raises(ValueError, match="count must be"):
+        KERNELS.scan_block(np.zeros(256 * 4, np.uint8), np.zeros(256 * 4, np.uint8), np.zeros(256 * 4, np.uint8), 256, 4)
+    with pytest.raises(ValueError, match="buffer sizes"):
+        KERNELS.scan_block(np.zeros(8, np.uint8), np.zeros(8, np.uint8), np.zeros(7, np.uint8), 2, 4)

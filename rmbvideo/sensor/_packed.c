@@ -1,13 +1,16 @@
-/* Decode and bin packed .dat planes 2x2x2 in one pass: the compiled kernel of
- * rmbvideo.sensor.binning.bin_packed, built at install where a C compiler is available (bit for
- * bit the same as its numpy form, which stays the fallback where none was).
+/* The compiled kernels over spike planes, built at install where a C compiler is available (each bit for bit
+ * the same as its numpy form, which stays the fallback where none was):
  *
- * Each stored byte holds 8 pixels of a row, LSB first. The 4 bytes at one column of 2 planes x
- * 2 rows make 4 bins: their pair counts are added in 4-bit fields (SWAR), clamped to 7 and
- * spread to 4 output bytes (one uint32 word); the kept pixel is bit 2m of the first plane's
- * image-top-row byte.
- * The loop is plain C over bytes, written so the compiler vectorises it; it takes buffers (no
- * numpy headers at build time) and runs without the GIL.
+ * - bin_packed: decode and bin packed .dat planes 2x2x2 in one pass (rmbvideo.sensor.binning.bin_packed).
+ *   Each stored byte holds 8 pixels of a row, LSB first. The 4 bytes at one column of 2 planes x
+ *   2 rows make 4 bins: their pair counts are added in 4-bit fields (SWAR), clamped to 7 and
+ *   spread to 4 output bytes (one uint32 word); the kept pixel is bit 2m of the first plane's
+ *   image-top-row byte.
+ * - scan_block: a block of decoded planes' last spike at or before each plane and first spike at or
+ *   after it, per pixel (TFI's search, rmbvideo.recon.classical.Tfi._scan).
+ *
+ * The loops are plain C over bytes, written so the compiler vectorises them; they take buffers (no
+ * numpy headers at build time) and run without the GIL.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -118,19 +121,83 @@ static PyObject *py_bin_packed(PyObject *self, PyObject *args)
     return result;
 }
 
+/* One block's running spike offsets, plane by plane over ``n`` pixels: ``last_in`` the last spike at or before
+ * each plane as its offset + 1 (0: none), ``first_from`` the first at or after it as its offset (255: none). */
+#if defined(__x86_64__) && defined(__GNUC__) && defined(__linux__)
+__attribute__((target_clones("avx2", "default")))
+#endif
+static void scan_block(const uint8_t *restrict planes, Py_ssize_t count, Py_ssize_t n, uint8_t *restrict last_in,
+                       uint8_t *restrict first_from)
+{
+    /* Each output byte is chosen by a mask (0xff at a spike) from both candidates, both loaded: branch-free, so the
+     * loops vectorise. */
+    for (Py_ssize_t k = 0; k < count; k++) {
+        const uint8_t *restrict spikes = planes + k * n;
+        const uint8_t *restrict before = k ? last_in + (k - 1) * n : NULL;
+        uint8_t *restrict out = last_in + k * n;
+        const uint8_t here = (uint8_t)(k + 1);
+        for (Py_ssize_t p = 0; p < n; p++) {
+            const uint8_t spike = (uint8_t)-(spikes[p] != 0);
+            out[p] = (uint8_t)((here & spike) | ((before ? before[p] : 0) & ~spike));
+        }
+    }
+    for (Py_ssize_t k = count - 1; k >= 0; k--) {
+        const uint8_t *restrict spikes = planes + k * n;
+        const uint8_t *restrict after = k < count - 1 ? first_from + (k + 1) * n : NULL;
+        uint8_t *restrict out = first_from + k * n;
+        const uint8_t here = (uint8_t)k;
+        for (Py_ssize_t p = 0; p < n; p++) {
+            const uint8_t spike = (uint8_t)-(spikes[p] != 0);
+            out[p] = (uint8_t)((here & spike) | ((after ? after[p] : 255) & ~spike));
+        }
+    }
+}
+
+PyDoc_STRVAR(scan_block_doc,
+"scan_block(planes, last_in, first_from, count, pixels)\n"
+"\n"
+"From the contiguous (count, pixels) uint8 buffer ``planes`` (nonzero: a spike), fill the contiguous\n"
+"(count, pixels) uint8 buffers ``last_in`` (the last spike at or before each plane, offset + 1; 0: none)\n"
+"and ``first_from`` (the first at or after it, its offset; 255: none). count <= 255.");
+
+static PyObject *py_scan_block(PyObject *self, PyObject *args)
+{
+    Py_buffer planes, last_in, first_from;
+    Py_ssize_t count, n;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "y*w*w*nn", &planes, &last_in, &first_from, &count, &n))
+        return NULL;
+    PyObject *result = NULL;
+    if (count < 0 || count > 255 || n < 0) {
+        PyErr_SetString(PyExc_ValueError, "scan_block: count must be 0..255 and pixels >= 0");
+    } else if (planes.len != count * n || last_in.len != count * n || first_from.len != count * n) {
+        PyErr_SetString(PyExc_ValueError, "scan_block: buffer sizes do not match count x pixels");
+    } else {
+        Py_BEGIN_ALLOW_THREADS
+        scan_block(planes.buf, count, n, last_in.buf, first_from.buf);
+        Py_END_ALLOW_THREADS
+        result = Py_NewRef(Py_None);
+    }
+    PyBuffer_Release(&planes);
+    PyBuffer_Release(&last_in);
+    PyBuffer_Release(&first_from);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"bin_packed", py_bin_packed, METH_VARARGS, bin_packed_doc},
+    {"scan_block", py_scan_block, METH_VARARGS, scan_block_doc},
     {NULL, NULL, 0, NULL},
 };
 
 static struct PyModuleDef module = {
     PyModuleDef_HEAD_INIT, "_packed",
-    "Compiled decode+bin of packed .dat planes (see rmbvideo.sensor.binning).", -1, methods,
+    "Compiled kernels over spike planes: decode+bin of stored .dat planes, TFI's block scan.", -1, methods,
 };
 
 /* Raised with every change of a kernel's arguments or results: Python uses a build of another version (a
  * source tree updated without reinstalling) as if none were built (rmbvideo.sensor.compiled). */
-#define KERNELS_VERSION 1
+#define KERNELS_VERSION 2
 
 PyMODINIT_FUNC PyInit__packed(void)
 {

@@ -1,6 +1,6 @@
-"""The compiled kernels on stored ``.dat`` bytes (``_packed.c``: decode+bin), or ``None`` where the install built
-none (no C compiler) or a build of another version is found (a source tree updated without reinstalling): callers
-then run the numpy forms of the same kernels, bit for bit the same."""
+"""The compiled kernels over spike planes (``_packed.c``: decode+bin of stored ``.dat`` bytes, TFI's block scan), or
+``None`` where the install built none (no C compiler) or a build of another version is found (a source tree updated
+without reinstalling): callers then run the numpy forms of the same kernels, bit for bit the same."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from types import ModuleType
 logger = logging.getLogger(__name__)
 
 #: the kernels' version this code calls (``KERNELS_VERSION`` in ``_packed.c``)
-KERNELS_VERSION = 1
+KERNELS_VERSION = 2
 
 
 def _load() -> ModuleType | None:
