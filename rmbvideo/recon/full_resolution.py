@@ -186,7 +186,8 @@ def to_block_levels(image: np.ndarray, binned: np.ndarray) -> np.ndarray:
 
 
 class FullResolution:
-    """A method on the binned stream, made full resolution with the raw stream's detail (see module)."""
+    """A method on the binned stream, made full resolution with the raw stream's detail (see module); with
+    ``output="binned"``, RMB-Net's binned frames mixed with the raw intervals by the gate, at their own size."""
 
     input_kind: ClassVar[str] = "spikes"
     #: Stored bits come undecoded: TFP sums them bit-sliced; binning and TFI get them decoded once.
