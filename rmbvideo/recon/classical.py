@@ -336,7 +336,7 @@ class Tfp:
 def block_scan(planes: np.ndarray, compiled: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Per plane of a block of decoded planes (at most ``_TFI_BLOCK_PLANES``; nonzero: a spike), the last spike at or
     before it as its offset + 1 (0: none) and the first spike at or after it as its offset (``_NONE_IN_BLOCK``: none);
-    uint8 offsets. By the compiled kernel where the install built one (``rmbvideo.sensor.compiled``; 3-10x faster)
+    uint8 offsets. By the compiled kernel where the install built one (``rmbvideo.sensor.compiled``; about 3x faster)
     unless ``compiled=False``, else in numpy: the same bytes."""
     count = len(planes)
     if KERNELS is not None and compiled and planes.dtype in (np.uint8, np.bool_):
