@@ -167,16 +167,46 @@ def test_reference_plane_from_the_name_or_the_middle(tmp_path):
         find_streams(tmp_path)
 
 
-def _spikezoo_pair(folder: Path, name: str, seed: int) -> RealStream:
-    """A spikezoo-like stream (rate 0.6 x intensity, 400x250, 121 planes) and its reference PNG (``key_id61``: the
-    light at time 61)."""
-    scene = VideoScene(seed, 400, 250, 121, VideoSceneRanges(camera_speed=(0.1, 0.1), static_probability=0.0,
-                                                             object_speed=(0.05, 0.2)), convention="spikezoo")
+def _spikezoo_pair(folder: Path, name: str, seed: int, width: int = 400, height: int = 250) -> RealStream:
+    """A spikezoo-like stream (rate 0.6 x intensity, 121 planes) and its reference PNG (``key_id61``: the light at
+    time 61)."""
+    scene = VideoScene(seed, width, height, 121, VideoSceneRanges(camera_speed=(0.1, 0.1), static_probability=0.0,
+                                                                  object_speed=(0.05, 0.2)), convention="spikezoo")
     planes = np.concatenate([c.planes for c in capture_planes(scene, 121, 20000.0)])
-    write_dat(folder / f"{name}.dat", planes, DatGeometry(400, 250))
+    write_dat(folder / f"{name}.dat", planes, DatGeometry(width, height))
     intensity = np.clip(scene.render(61.0) / SPIKEZOO_RATE, 0, 1)
     cv2.imwrite(str(folder / f"{name}.png"), np.round(intensity * 255).astype(np.uint8))
-    return find_streams(folder)[0]
+    return next(s for s in find_streams(folder) if s.name == name)
+
+
+def test_each_real_stream_takes_its_size_from_its_reference(tmp_path):
+    """A folder of pairs of different sizes (a user's own camera beside spikezoo's 400x250) is scored pair by pair at
+    each one's binned size, and the comparison figure holds both; a reference that does not fit its capture, one
+    with an odd side and a file that is no PNG each fail naming the file."""
+    from rmbvideo.evaluate.real_video import comparison_image
+
+    small = _spikezoo_pair(tmp_path, "small_key_id61", seed=22, width=160, height=96)
+    large = _spikezoo_pair(tmp_path, "large_key_id61", seed=21)
+    assert [s.name for s in find_streams(tmp_path)] == ["large_key_id61", "small_key_id61"]
+    assert (small.geometry.width, small.geometry.height) == (160, 96) and large.geometry == DatGeometry(400, 250)
+    rows = [RealRow("TFW-S", "tfw", {"window": 10, "step": 10}), RealRow("TFP-80", "tfp", {"window": 80, "step": 20},
+                                                                          raw=True)]
+    results = {s.name: score_stream(s, rows) for s in (large, small)}
+    assert results[small.name]["TFP-80"].image.shape == (48, 80)
+    assert results[small.name]["TFP-80"].psnr > results[small.name]["TFW-S"].psnr + 3  # a slow scene: see above
+    references = {s.name: np.zeros((s.geometry.height // 2, s.geometry.width // 2), np.float32) for s in (large, small)}
+    figure = comparison_image(results, references, ["TFW-S", "TFP-80"])
+    assert figure.shape[:2] == ((2 * 125 + 4) + (2 * 48 + 4), 3 * (2 * 200 + 4))  # tiles shown 2x, 2 px borders
+
+    cv2.imwrite(str(tmp_path / "small_key_id61.png"), np.zeros((90, 160), np.uint8))  # 160x90 planes: 1,800 bytes
+    with pytest.raises(InputError, match=r"small_key_id61\.dat: not a whole number of 160x90 planes"):
+        find_streams(tmp_path)
+    cv2.imwrite(str(tmp_path / "small_key_id61.png"), np.zeros((96, 161), np.uint8))
+    with pytest.raises(InputError, match=r"small_key_id61\.png: .*even sides"):
+        find_streams(tmp_path)
+    (tmp_path / "small_key_id61.png").write_bytes(b"not an image")
+    with pytest.raises(InputError, match=r"small_key_id61\.png: not a PNG"):
+        find_streams(tmp_path)
 
 
 def test_the_scored_frame_is_made_at_the_references_moment(tmp_path):

@@ -151,7 +151,8 @@ FIGURE_COLUMNS = ("TFW-L", "GC20", "MG20", "RMB-Net", "TFP-41 (raw)", "TFI (raw)
               help="Also write real_comparison.png for this real capture (RMB-Net vs TFP vs TFI).")
 @click.option("--real-video", "real_video", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Also score every method on a folder of real-video spike streams with reference frames "
-                   "(NAME.dat + NAME.png, spikezoo's format): real_video.md and real_video.png.")
+                   "(NAME.dat + NAME.png, spikezoo's format; each capture as large as its PNG): real_video.md and "
+                   "real_video.png.")
 @click.option("--texture-pans", is_flag=True,
               help="Also score the development clips: textures panned at known speeds in spikezoo's convention, "
                    "written once into the cache (texture_pans.md/.png).")

@@ -1,7 +1,8 @@
 """Real-video evaluation: spike streams that come with an 8-bit reference image of one plane.
 
 This is the format of spikezoo's REDS streams (``NAME.dat`` + ``NAME.png``; ``key_id151`` in the name
-counts the reference plane from 1, otherwise the middle plane is the reference). The reference is in
+counts the reference plane from 1, otherwise the middle plane is the reference); a capture is as large as its
+reference (any size, each pair its own; rows stored upside down as spikezoo's and the camera's). The reference is in
 unknown units, so every reconstruction is scaled by least squares onto it (``scaled_psnr``) and scored
 by linear PSNR (peak 1) and SSIM.
 
@@ -23,6 +24,7 @@ from __future__ import annotations
 import logging
 import math
 import re
+import struct
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,6 +38,7 @@ from rmbvideo.errors import InputError
 from rmbvideo.evaluate.harness import RMB_ROW, TFI_WINDOWS, rate_as_light
 from rmbvideo.evaluate.metrics import ssim
 from rmbvideo.io.dat import DatGeometry, DatReader
+from rmbvideo.io.records import regular_file_size
 from rmbvideo.recon.methods import make_reconstructor
 from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
 from rmbvideo.sensor.binning import bin_2x2x2, binned_rmb_chunk
@@ -49,6 +52,7 @@ BEST_RAW = "best classical on the raw capture"
 #: The spikezoo format's streams are simulated in its rate convention (``rmbvideo.sensor.conventions``).
 CONVENTION = "spikezoo"
 _KEY = re.compile(r"key_id(\d+)")
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
 @dataclass(frozen=True)
@@ -107,8 +111,29 @@ def reference_plane(path: Path, planes: int) -> int:
     return plane
 
 
-def find_streams(folder: Path, geometry: DatGeometry = DatGeometry(400, 250)) -> list[RealStream]:
-    """Every ``NAME.dat`` in ``folder`` with a ``NAME.png`` beside it, sorted by name."""
+def png_geometry(path: Path) -> DatGeometry:
+    """The layout of a capture whose reference is the PNG ``path``: the image's width and height (read from its
+    header), no header columns, rows stored upside down as spikezoo's streams and the camera store them."""
+    try:
+        with open(path, "rb") as file:
+            head = file.read(24)
+    except OSError as error:
+        raise InputError(f"{path}: cannot read ({error.strerror})") from None
+    if len(head) < 24 or head[:8] != _PNG_SIGNATURE or head[12:16] != b"IHDR":
+        raise InputError(f"{path}: not a PNG image")
+    width, height = struct.unpack(">II", head[16:24])
+    if width % 2 or height % 2:
+        raise InputError(f"{path}: a reference must have even sides to be scored at the binned size, "
+                         f"found {width}x{height}")
+    try:
+        return DatGeometry(width, height)
+    except InputError as error:
+        raise InputError(f"{path}: {width}x{height} is not a capture's size ({error})") from None
+
+
+def find_streams(folder: Path, geometry: DatGeometry | None = None) -> list[RealStream]:
+    """Every ``NAME.dat`` in ``folder`` with a ``NAME.png`` beside it, sorted by name; each capture laid out as
+    ``geometry``, or when none is given, as its reference's size says (``png_geometry``: any size, one per pair)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError(f"{folder}: not a folder of .dat + .png pairs")
@@ -116,8 +141,12 @@ def find_streams(folder: Path, geometry: DatGeometry = DatGeometry(400, 250)) ->
     for capture in sorted(folder.glob("*.dat")):
         reference = capture.with_suffix(".png")
         if reference.is_file():
-            planes = DatReader(capture, geometry).n_planes
-            streams.append(RealStream(capture.stem, capture, reference, reference_plane(reference, planes), geometry))
+            layout = geometry if geometry is not None else png_geometry(reference)
+            if geometry is None and regular_file_size(capture) % layout.plane_bytes:
+                raise InputError(f"{capture}: not a whole number of {layout.width}x{layout.height} planes, the size of "
+                                 f"its reference {reference.name}")
+            planes = DatReader(capture, layout).n_planes
+            streams.append(RealStream(capture.stem, capture, reference, reference_plane(reference, planes), layout))
     if not streams:
         raise InputError(f"{folder}: no .dat file with a .png reference beside it")
     return streams
@@ -274,4 +303,5 @@ def comparison_image(results: dict[str, dict[str, RealScore]], references: dict[
             cv2.putText(tile, text, (4, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
             tiles.append(np.pad(tile, ((2, 2), (2, 2), (0, 0)), constant_values=255))
         rows.append(np.hstack(tiles))
-    return np.vstack(rows)
+    width = max(row.shape[1] for row in rows)  # streams of other sizes: narrower rows padded white on the right
+    return np.vstack([np.pad(row, ((0, 0), (0, width - row.shape[1]), (0, 0)), constant_values=255) for row in rows])
