@@ -17,6 +17,7 @@ from rmbvideo.evaluate.harness import (
     MethodSpec,
     BEST_RAW,
     CLOSED_FORM_ROW,
+    GATED_ROW,
     evaluate_rows,
     run_method,
     score_frames,
@@ -86,12 +87,13 @@ def test_table2_rows_scores_and_not_trained(rows):
     names = [r.name for r in rows]
     raw = ["TFP-20 (raw)", "TFP-41 (raw)", "TFP-80 (raw)", "TFP-140 (raw)", "TFI (raw)", "TFI-4 (raw)", "TFI-8 (raw)",
            "TFI-16 (raw)", BEST_RAW]
-    assert names == ["TFW-S", "TFW-L", "TFI", "GC20", "MG20", "RMB-Net", CLOSED_FORM_ROW, *raw,
+    assert names == ["TFW-S", "TFW-L", "TFI", "GC20", "MG20", "RMB-Net", GATED_ROW, CLOSED_FORM_ROW, *raw,
                      "RMB-Net (ablation budget)", "w = 0", "Pure-S", "Pure-M", "Full-M", "w/o XBA", "w/o XTA"]
     status = {r.name: r.status for r in rows}
     assert all(status[n] == "not trained" for n in ("RMB-Net (ablation budget)", "w = 0", "Pure-S", "Pure-M", "Full-M", "w/o XTA"))
     ok = [r for r in rows if r.status == "ok"]
-    assert [r.name for r in ok] == ["TFW-S", "TFW-L", "TFI", "GC20", "MG20", "RMB-Net", CLOSED_FORM_ROW, *raw, "w/o XBA"]
+    assert [r.name for r in ok] == ["TFW-S", "TFW-L", "TFI", "GC20", "MG20", "RMB-Net", GATED_ROW, CLOSED_FORM_ROW, *raw,
+                                    "w/o XBA"]
     for row in ok:
         assert row.per_sequence.keys() == row.middle_frames.keys() == {"random-1000000"}
         if row.name == BEST_RAW:  # per sequence the best raw row, with that row's frames
@@ -104,6 +106,13 @@ def test_table2_rows_scores_and_not_trained(rows):
         assert all(img.shape == (40, 48) and np.isfinite(img).all() for img in row.figure_frames.values())
     rmbnet = next(r for r in rows if r.name == "RMB-Net")
     assert math.isfinite(rmbnet.network_fps) and rmbnet.network_fps >= rmbnet.fps
+    # the default job on a 1-bit capture: the same network's frames, mixed with the raw intervals by the gate
+    gated = next(r for r in rows if r.name == GATED_ROW)
+    from rmbvideo.cli.evaluate import FIGURE_COLUMNS
+
+    assert GATED_ROW in FIGURE_COLUMNS  # and the evaluation's pictures show it
+    assert not np.array_equal(gated.figure_frames[2], rmbnet.figure_frames[2])
+    assert np.abs(gated.figure_frames[2] - rmbnet.figure_frames[2]).mean() < 0.2 * rmbnet.figure_frames[2].mean()
     # the longer window averages more evidence: TFW-L beats TFW-S on a noisy binned stream
     by_name = {r.name: r for r in ok}
     assert by_name["TFW-L"].psnr > by_name["TFW-S"].psnr

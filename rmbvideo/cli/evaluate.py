@@ -27,6 +27,7 @@ def _real_video(folder: Path, model: Path, device: str, out_dir: Path, stem: str
     name contains one of ``pictured``)."""
     from rmbvideo.evaluate.real_video import (
         BEST_RAW,
+        GATED_ROW,
         binned_reference,
         comparison_image,
         evaluate_streams,
@@ -44,8 +45,9 @@ def _real_video(folder: Path, model: Path, device: str, out_dir: Path, stem: str
                       + markdown_table(results) + "\nCells: linear PSNR (dB) / SSIM of the frame made at the "
                       "reference's moment; raw rows are 2x2 area-averaged; the best raw row is chosen per stream.\n")
     references = {s.name: binned_reference(s) for s in streams if any(p in s.name for p in pictured)}
+    gated = [GATED_ROW] if GATED_ROW in next(iter(results.values())) else []
     png = write_png(out_dir / f"{stem}.png",
-                    comparison_image({name: results[name] for name in references}, references, ["TFW-L", "GC20", "MG20", "RMB-Net", BEST_RAW]))
+                    comparison_image({name: results[name] for name in references}, references, ["TFW-L", "GC20", "MG20", "RMB-Net", *gated, BEST_RAW]))
     return [md, png]
 
 
@@ -131,8 +133,9 @@ def _notes(sequences: list, quick: bool, device: str, figure: tuple[str, int], r
     ])
 
 
-#: the rows the fast/dark figures show: the RMB-input baselines, RMB-Net and the raw-capture methods
-FIGURE_COLUMNS = ("TFW-L", "GC20", "MG20", "RMB-Net", "TFP-41 (raw)", "TFI (raw)")
+#: the rows the fast/dark figures show: the RMB-input baselines, RMB-Net (alone, and with the raw gate as the default
+#: job runs it on a 1-bit capture) and the raw-capture methods
+FIGURE_COLUMNS = ("TFW-L", "GC20", "MG20", "RMB-Net", "RMB-Net + raw gate (1-bit capture)", "TFP-41 (raw)", "TFI (raw)")
 
 
 @click.command()

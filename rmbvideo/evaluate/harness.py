@@ -24,7 +24,7 @@ import json
 import logging
 import math
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +34,8 @@ import numpy as np
 from rmbvideo.chunks import Frame, SpikeChunk
 from rmbvideo.evaluate.heldout import Sequence
 from rmbvideo.evaluate.metrics import mu_law_psnr, mu_law_ssim, pu21_psnr
-from rmbvideo.net.weights import model_readout
+from rmbvideo.net.weights import default_raw_gate_path, model_readout
+from rmbvideo.recon.full_resolution import FullResolution, raw_gate_stage
 from rmbvideo.recon.methods import get_method, make_reconstructor
 from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
 from rmbvideo.sensor.readout import RmbReadout
@@ -57,6 +58,7 @@ class MethodSpec:
     options: dict[str, Any] = field(default_factory=dict)
     readout: str = "rmb"
     raw: bool = False  # runs on the raw full-resolution capture; frames are 2x2-averaged to the GT size
+    gated: bool = False  # RMB-Net's frames mixed with the raw capture's intervals by the shipped gate (``GATED_ROW``)
 
     @property
     def model_path(self) -> Path | None:
@@ -164,9 +166,12 @@ def run_frames(spec: MethodSpec, seq: Sequence) -> tuple[list[Frame], float, flo
     recon = make_reconstructor(spec.method, **options)
     readout = RmbReadout(mode=spec.readout)
     sink = FrameCollector()
-    if spec.raw or recon.input_kind == "rmb":
+    if spec.gated:
+        recon = FullResolution(recon, readout, step=20, output="binned", raw_gate=raw_gate_stage("auto"),
+                               threads=options.get("threads"))
+    if spec.raw or spec.gated or recon.input_kind == "rmb":
         summary = reconstruct_stream(seq, recon, sink, chunk_planes=2 * CHUNK_READOUTS,
-                                     readout=None if spec.raw else readout)
+                                     readout=None if spec.raw or spec.gated else readout)
     else:
         summary = reconstruct_stream(SinglePlaneSource(seq, readout), recon, sink, chunk_planes=CHUNK_READOUTS)
     convention = sequence_convention(seq)
@@ -342,6 +347,9 @@ RAW_SPECS = (
 )
 BEST_RAW = "best classical on the raw capture"
 RMB_ROW = "RMB-Net, RMB readout"
+#: What the default job makes of a 1-bit capture at this size (``reconstruct --resolution binned``, and the default
+#: full-resolution frames 2x2-averaged): RMB-Net's frames mixed with the raw intervals by the shipped raw gate
+GATED_ROW = "RMB-Net + raw gate (1-bit capture)"
 #: The default model reading the cameras by the closed form, as it reads a real capture (``SIMULATED_RESPONSE``)
 CLOSED_FORM_ROW = "RMB-Net, closed-form response"
 
@@ -369,7 +377,8 @@ def table2_specs(models_dir: Path, device: str = "auto") -> list[MethodSpec]:
     (the binned stream through the readout it was trained on), RMB-Net (``rmbnet-binned`` in
     ``models_dir``), RMB-Net on the RMB readout (``rmbnet-binned-rmb``, when the default reads another),
     the classical methods on the raw capture, and the ablations (``ablation_model_path``). RMB-Net also reads the
-    cameras as it would a real one (``CLOSED_FORM_ROW``)."""
+    cameras as it would a real one (``CLOSED_FORM_ROW``), and is run as the default job runs it on a 1-bit capture,
+    with the raw gate (``GATED_ROW``), when the gate is installed."""
     models_dir = Path(models_dir)
 
     def rmbnet(name: str, path: Path, readout: str, **options: str) -> MethodSpec:
@@ -380,6 +389,8 @@ def table2_specs(models_dir: Path, device: str = "auto") -> list[MethodSpec]:
     readout = model_readout(default)
     specs = [*baseline_specs(readout), rmbnet("RMB-Net", default, readout),
              rmbnet(CLOSED_FORM_ROW, default, readout, response="closed-form")]
+    if default_raw_gate_path().is_file():
+        specs.insert(len(specs) - 1, replace(rmbnet(GATED_ROW, default, readout), gated=True))
     rmb_model = models_dir / "rmbnet-binned-rmb.safetensors"
     if readout != "rmb" and rmb_model.is_file():
         specs.append(rmbnet(RMB_ROW, rmb_model, "rmb"))

@@ -35,10 +35,11 @@ import numpy as np
 
 from rmbvideo.chunks import RmbChunk, SpikeChunk
 from rmbvideo.errors import InputError
-from rmbvideo.evaluate.harness import RMB_ROW, TFI_WINDOWS, rate_as_light
+from rmbvideo.evaluate.harness import GATED_ROW, RMB_ROW, TFI_WINDOWS, rate_as_light
 from rmbvideo.evaluate.metrics import ssim
 from rmbvideo.io.dat import DatGeometry, DatReader
 from rmbvideo.io.records import regular_file_size
+from rmbvideo.recon.full_resolution import FullResolution, raw_gate_stage
 from rmbvideo.recon.methods import make_reconstructor
 from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
 from rmbvideo.sensor.binning import bin_2x2x2, binned_rmb_chunk
@@ -91,6 +92,7 @@ class RealRow:
     options: dict[str, Any] = field(default_factory=dict)
     raw: bool = False
     readout: str = "rmb"
+    gated: bool = False  # RMB-Net on the raw capture as the default job runs it: its frames and the raw gate
 
 
 @dataclass
@@ -211,6 +213,10 @@ def reconstruct_frame(stream: RealStream, row: RealRow) -> np.ndarray:
     recon = make_reconstructor(row.method, **row.options)
     sink = FrameCollector(keep=[stream.frame])
     readout = None if row.raw else RmbReadout(mode=ReadoutMode(row.readout))
+    if row.gated:
+        recon = FullResolution(recon, readout, step=RAW_STEP, output="binned", raw_gate=raw_gate_stage("auto"),
+                               threads=row.options.get("threads"))
+        readout = None
     reconstruct_stream(reader, recon, sink, readout=readout)
     if stream.frame not in sink.frames:
         raise InputError(f"{stream.capture}: {row.name} produced no frame {stream.frame}")
@@ -243,9 +249,10 @@ def score_stream(stream: RealStream, rows: Iterable[RealRow]) -> dict[str, RealS
 
 def real_video_rows(model: Path | None = None, device: str = "cpu", threads: int | None = 1) -> list[RealRow]:
     """The real-video table: the baselines and RMB-Net on the model's input (the binned stream through
-    the readout it was trained on), RMB-Net on the RMB readout when the model reads another and
+    the readout it was trained on), RMB-Net as the default job runs it on these 1-bit captures (with the raw gate,
+    ``GATED_ROW``, when installed), RMB-Net on the RMB readout when the model reads another and
     ``rmbnet-binned-rmb`` sits beside it, and the raw-capture classical methods."""
-    from rmbvideo.net.weights import default_model_path, model_readout
+    from rmbvideo.net.weights import default_model_path, default_raw_gate_path, model_readout
 
     model = Path(model) if model is not None else default_model_path("binned")
     readout = model_readout(model)
@@ -257,6 +264,8 @@ def real_video_rows(model: Path | None = None, device: str = "cpu", threads: int
         RealRow("MG20", "mg20", {"convention": CONVENTION}, readout=readout),
         RealRow("RMB-Net", "rmbnet", {"model": model, **options}, readout=readout),
     ]
+    if default_raw_gate_path().is_file():
+        rows.append(RealRow(GATED_ROW, "rmbnet", {"model": model, **options}, readout=readout, gated=True))
     rmb_model = model.with_name("rmbnet-binned-rmb.safetensors")
     if readout != "rmb" and rmb_model.is_file():
         rows.append(RealRow(RMB_ROW, "rmbnet", {"model": rmb_model, **options}, readout="rmb"))
@@ -282,7 +291,7 @@ def markdown_table(results: dict[str, dict[str, RealScore]]) -> str:
     for name in names:
         cells = [f"{results[s][name].psnr:.2f} / {results[s][name].ssim:.3f}" for s in streams]
         mean = float(np.mean([results[s][name].psnr for s in streams]))
-        label = f"**{name}**" if name in ("RMB-Net", BEST_RAW) else name
+        label = f"**{name}**" if name in ("RMB-Net", GATED_ROW, BEST_RAW) else name
         lines.append(f"| {label} | " + " | ".join(cells) + f" | {mean:.2f} |")
     return "\n".join(lines) + "\n"
 
