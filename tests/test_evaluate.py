@@ -282,6 +282,31 @@ def test_candidate_needs_development(models_dir, tmp_path):
     assert not (tmp_path / "out" / "development.md").exists()
 
 
+def test_a_users_own_streams_alone(tmp_path):
+    """`evaluate --no-heldout --real-video DIR` scores only that folder's pairs (RMB-Net alone and with the raw gate
+    among the rows) and writes no held-out table; a wrong folder fails at once, and --no-heldout with nothing else to
+    score is a usage error."""
+    from click.testing import CliRunner
+
+    from rmbvideo.cli import main
+    from rmbvideo.evaluate.texture_pans import TEXTURE_PANS, write_texture_pan
+    from rmbvideo.io.dat import DatGeometry
+
+    (tmp_path / "mine").mkdir()
+    write_texture_pan(TEXTURE_PANS[-1], tmp_path / "mine", DatGeometry(64, 40))
+    out = tmp_path / "out"
+    result = CliRunner().invoke(main, ["evaluate", "--no-heldout", "--real-video", str(tmp_path / "mine"), "-o",
+                                       str(out), "--device", "cpu", "--quiet"])
+    assert result.exit_code == 0, result.output
+    table = (out / "real_video.md").read_text()
+    assert "| **RMB-Net** |" in table and f"| **{GATED_ROW}** |" in table and TEXTURE_PANS[-1].name in table
+    assert (out / "real_video.png").is_file() and not (out / "evaluation.md").exists()
+    result = CliRunner().invoke(main, ["evaluate", "--real-video", str(tmp_path / "nowhere"), "-o", str(out)])
+    assert result.exit_code != 0 and "nowhere" in result.output and "Traceback" not in result.output
+    result = CliRunner().invoke(main, ["evaluate", "--no-heldout", "-o", str(out)])
+    assert result.exit_code == 2 and "--real-video" in result.output
+
+
 def test_rate_methods_are_scored_as_light_on_a_camera_stream_only():
     """TFP/TFI/TFW frames are spike rates: on a physical-convention stream the harness reads them through the same
     response RMB-Net is given (a rate of 0.5 is about 0.7 of a threshold per plane); spikezoo's rates are the light

@@ -21,9 +21,9 @@ from rmbvideo.cli.options import AliasOption
 log = logging.getLogger(__name__)
 
 
-def _real_video(folder: Path, model: Path, device: str, out_dir: Path, stem: str = "real_video",
+def _real_video(streams: list, model: Path, device: str, out_dir: Path, stem: str = "real_video",
                 title: str = "Real-video streams", pictured: tuple[str, ...] = ("",)) -> list[Path]:
-    """Score the real-video streams in ``folder``; write ``STEM.md`` and ``STEM.png`` (of the streams whose
+    """Score the real-video ``streams`` (``find_streams``); write ``STEM.md`` and ``STEM.png`` (of the streams whose
     name contains one of ``pictured``)."""
     from rmbvideo.evaluate.real_video import (
         BEST_RAW,
@@ -31,14 +31,12 @@ def _real_video(folder: Path, model: Path, device: str, out_dir: Path, stem: str
         binned_reference,
         comparison_image,
         evaluate_streams,
-        find_streams,
         markdown_table,
         real_video_rows,
     )
     from rmbvideo.io.png import write_png
     from rmbvideo.io.atomic import atomic_write_text
 
-    streams = find_streams(folder)
     results = evaluate_streams(streams, real_video_rows(model, device))
     md = out_dir / f"{stem}.md"
     atomic_write_text(md, f"# {title} (reference frame, least-squares gain, binned resolution)\n\n"
@@ -138,6 +136,28 @@ def _notes(sequences: list, quick: bool, device: str, figure: tuple[str, int], r
 FIGURE_COLUMNS = ("TFW-L", "GC20", "MG20", "RMB-Net", "RMB-Net + raw gate (1-bit capture)", "TFP-41 (raw)", "TFI (raw)")
 
 
+def _heldout_outputs(rows: list, sequences: list, out_dir: Path, quick: bool, device: str, reset: str) -> list[Path]:
+    """The held-out tables (evaluation.md/.csv), the comparison figure and the fast/dark sequences' figures."""
+    import numpy as np
+
+    from rmbvideo.evaluate.harness import SATURATION, middle_frame
+    from rmbvideo.evaluate.table import write_comparison_png, write_sequence_png, write_tables
+
+    figure_seq = sequences[0]
+    figure_frame = figure_seq.scored_frames[len(figure_seq.scored_frames) // 2]
+    md, table = write_tables(rows, out_dir, _notes(sequences, quick, device, (figure_seq.name, figure_frame), reset))
+    # figures show the ground truth as it is scored: clipped at the sensor's saturation
+    png = write_comparison_png(rows, np.minimum(figure_seq.gt[figure_frame], SATURATION), figure_frame,
+                               out_dir / "evaluation.png")
+    written = [md, table, png]
+    for seq in sequences:
+        kind = json.loads(seq.description).get("kind")
+        if kind in ("fast", "dark"):
+            written.append(write_sequence_png(rows, seq.name, np.minimum(seq.gt[middle_frame(seq)], SATURATION),
+                                              out_dir / f"evaluation-{kind}.png", FIGURE_COLUMNS))
+    return written
+
+
 @click.command()
 @click.option("--models", "models_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Folder with rmbnet-binned.safetensors and ablations/*.safetensors [shipped models].")
@@ -156,6 +176,9 @@ FIGURE_COLUMNS = ("TFW-L", "GC20", "MG20", "RMB-Net", "RMB-Net + raw gate (1-bit
               help="Also score every method on a folder of real-video spike streams with reference frames "
                    "(NAME.dat + NAME.png, spikezoo's format; each capture as large as its PNG): real_video.md and "
                    "real_video.png.")
+@click.option("--heldout/--no-heldout", default=True, show_default=True,
+              help="Score the held-out synthetic set (evaluation.md/.csv/.png, the per-frame checks); --no-heldout "
+                   "scores only what --real-video, --texture-pans or --real name, e.g. a folder of your own streams.")
 @click.option("--texture-pans", is_flag=True,
               help="Also score the development clips: textures panned at known speeds in spikezoo's convention, "
                    "written once into the cache (texture_pans.md/.png).")
@@ -175,28 +198,16 @@ FIGURE_COLUMNS = ("TFW-L", "GC20", "MG20", "RMB-Net", "RMB-Net + raw gate (1-bit
 @quiet_option
 @verbose_option
 def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Path | None, device: str,
-             as_json: bool, real_path: Path | None, real_video: Path | None, texture_pans: bool,
+             as_json: bool, real_path: Path | None, real_video: Path | None, heldout: bool, texture_pans: bool,
              full_resolution: bool, development: bool, reset: str, candidates: tuple[Path, ...], quiet: bool) -> None:
     """Score TFW-S/L, TFI, GC20, MG20, RMB-Net, its ablations and the classical methods on the raw
-    capture (2x2-averaged) on the held-out synthetic set, and optionally on real-video streams;
-    with --development, candidate models on the development sets instead."""
+    capture (2x2-averaged) on the held-out synthetic set, and optionally on real-video streams (with
+    --no-heldout, those alone); with --development, candidate models on the development sets instead."""
     from rmbvideo.errors import OutputError
-    import numpy as np
 
-    from rmbvideo.evaluate.harness import (
-        SATURATION,
-        evaluate_rows,
-        middle_frame,
-        table2_specs,
-        with_best_raw,
-    )
+    from rmbvideo.evaluate.harness import evaluate_rows, table2_specs, with_best_raw
     from rmbvideo.evaluate.heldout import load_heldout, load_video_heldout
-    from rmbvideo.evaluate.table import (
-        real_capture_comparison,
-        write_comparison_png,
-        write_sequence_png,
-        write_tables,
-    )
+    from rmbvideo.evaluate.table import real_capture_comparison
     from rmbvideo.net.weights import MODELS_DIR
     from rmbvideo.recon.rmbnet import resolve_device
 
@@ -208,45 +219,41 @@ def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Pat
         raise OutputError(f"{out_dir}: cannot create the output folder ({exc.strerror or exc})") from None
     if candidates and not development:
         raise click.UsageError("--candidate needs --development")
+    if not heldout and (development or as_json or not (real_video or texture_pans or real_path)):
+        raise click.UsageError("--no-heldout scores only --real-video, --texture-pans or --real (not --development "
+                               "or --json, which are the held-out set's)")
+    from rmbvideo.evaluate.real_video import find_streams
+
+    streams = find_streams(real_video) if real_video is not None else []  # a wrong folder fails before the long run
     if development:
         paths = _development(out_dir, [models_dir / "rmbnet-binned.safetensors", *candidates], cache_dir, real_video,
                              resolved, progress_enabled(quiet))
         log.info("wrote %s", ", ".join(map(str, paths)))
         return
-    sequences = load_heldout(quick, cache_dir, reset) + load_video_heldout(quick, cache_dir, reset=reset)
-    rows = with_best_raw(evaluate_rows(table2_specs(models_dir, resolved), sequences,
-                                       progress=progress_enabled(quiet)))
-    figure_seq = sequences[0]
-    figure_frame = figure_seq.scored_frames[len(figure_seq.scored_frames) // 2]
-    md, table = write_tables(rows, out_dir, _notes(sequences, quick, resolved, (figure_seq.name, figure_frame), reset))
-    # figures show the ground truth as it is scored: clipped at the sensor's saturation
-    png = write_comparison_png(rows, np.minimum(figure_seq.gt[figure_frame], SATURATION), figure_frame,
-                               out_dir / "evaluation.png")
-    written = [md, table, png]
-    for seq in sequences:
-        kind = json.loads(seq.description).get("kind")
-        if kind in ("fast", "dark"):
-            written.append(write_sequence_png(rows, seq.name, np.minimum(seq.gt[middle_frame(seq)], SATURATION),
-                                              out_dir / f"evaluation-{kind}.png", FIGURE_COLUMNS))
-    from rmbvideo.evaluate.video_checks import write_checks
+    sequences, rows, written = [], [], []
+    if heldout:
+        sequences = load_heldout(quick, cache_dir, reset) + load_video_heldout(quick, cache_dir, reset=reset)
+        rows = with_best_raw(evaluate_rows(table2_specs(models_dir, resolved), sequences,
+                                           progress=progress_enabled(quiet)))
+        written = _heldout_outputs(rows, sequences, out_dir, quick, resolved, reset)
+        from rmbvideo.evaluate.video_checks import write_checks
 
-    video = [seq for seq in sequences if json.loads(seq.description).get("kind")]
-    written += write_checks(out_dir, "rmbnet", {"model": models_dir / "rmbnet-binned.safetensors",
-                                                "device": resolved, "threads": 1}, video, quick)
-    if real_video is not None:
-        written += _real_video(real_video, models_dir / "rmbnet-binned.safetensors", resolved, out_dir)
+        video = [seq for seq in sequences if json.loads(seq.description).get("kind")]
+        written += write_checks(out_dir, "rmbnet", {"model": models_dir / "rmbnet-binned.safetensors",
+                                                    "device": resolved, "threads": 1}, video, quick)
+    if streams:
+        written += _real_video(streams, models_dir / "rmbnet-binned.safetensors", resolved, out_dir)
     if texture_pans:
         from rmbvideo.evaluate.heldout import default_cache_dir
         from rmbvideo.evaluate.texture_pans import texture_pan_folder
 
         folder = texture_pan_folder(cache_dir if cache_dir is not None else default_cache_dir())
-        written += _real_video(folder, models_dir / "rmbnet-binned.safetensors", resolved, out_dir, "texture_pans",
-                               "Development clips: textures panned in spikezoo's convention", pictured=("c16-v14", "c16-v28"))
-    if full_resolution:
+        written += _real_video(find_streams(folder), models_dir / "rmbnet-binned.safetensors", resolved, out_dir,
+                               "texture_pans", "Development clips: textures panned in spikezoo's convention",
+                               pictured=("c16-v14", "c16-v28"))
+    if full_resolution and (sequences or streams):
         from rmbvideo.evaluate.full_resolution import write_full_resolution
-        from rmbvideo.evaluate.real_video import find_streams
 
-        streams = find_streams(real_video) if real_video is not None else []
         written += write_full_resolution(out_dir, sequences, streams, models_dir / "rmbnet-binned.safetensors")
     if real_path is not None:
         model = models_dir / "rmbnet-binned.safetensors"
