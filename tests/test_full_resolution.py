@@ -415,6 +415,55 @@ def test_train_detail_cli_refuses_to_resume_a_checkpoint_of_another_width(tmp_pa
     assert len(result.output.strip().splitlines()) == 1
 
 
+def test_a_weaker_threshold_mismatch_gives_a_weaker_fixed_pattern() -> None:
+    """``capture_planes(mismatch=...)`` scales the camera's threshold mismatch: over a flat field the pixels' rates
+    spread about their 2x2 block's mean less with none than with the paper's, the scene and every other noise the
+    same; the training samples draw it in ``DetailTrainConfig.mismatch``, and the default draws nothing (the shipped
+    recipe's samples unchanged)."""
+    from rmbvideo.scenes.video import VideoScene, VideoSceneRanges
+    from rmbvideo.simulate.capture import capture_planes
+    from rmbvideo.train.detail import simulate_detail_sample
+
+    flat = VideoSceneRanges(flat_probability=1.0, flat_rate=(0.3, 0.3), flat_gradient=0.0)  # a lit wall
+    scene = VideoScene(3, 32, 32, 400, flat)
+
+    def spread(mismatch: float) -> float:
+        rate = np.concatenate([c.planes for c in capture_planes(scene, 400, 20000.0, mismatch=mismatch)]).mean(0)
+        block = np.repeat(np.repeat(rate.reshape(16, 2, 16, 2).mean(axis=(1, 3)), 2, 0), 2, 1)
+        lit = block > 0.05
+        return float((rate[lit] / block[lit] - 1).std())
+
+    none, paper = spread(0.0), spread(1.0)
+    assert paper > 2 * none, (none, paper)
+    default = simulate_detail_sample(11, 16, (20, 80), 0.0)
+    assert np.array_equal(default.rates, simulate_detail_sample(11, 16, (20, 80), 0.0, mismatch=(1.0, 1.0)).rates)
+    assert not np.array_equal(default.rates, simulate_detail_sample(11, 16, (20, 80), 0.0, mismatch=(0.0, 0.0)).rates)
+
+
+def test_train_detail_fine_tunes_from_a_stage(tmp_path: Path) -> None:
+    """``train-detail --init W``: the stage starts from W's weights (its shape taken from W), and the card says so."""
+    import torch
+    from click.testing import CliRunner
+
+    from rmbvideo.cli import main
+    from rmbvideo.net.detail import DetailConfig, DetailNet
+    from rmbvideo.net.weights import ModelCard, load_detail_model, save_model
+    from rmbvideo.train.detail import DetailTrainConfig, train_detail
+
+    config = DetailConfig(windows=(20, 40), channels=4, layers=2, interval_reach=12)
+    torch.manual_seed(3)
+    start = save_model(tmp_path / "start", DetailNet(config), ModelCard(name="start"))
+    train = DetailTrainConfig(detail=config, crop=16, batch=2, pool=3, val_count=1, val_every=2, steps=1, lr=1e-9)
+    tuned, card = load_detail_model(train_detail(train, tmp_path / "tuned", init=start))
+    first, _ = load_detail_model(start)
+    assert card.training["init"] == str(start)
+    for a, b in zip(first.state_dict().values(), tuned.state_dict().values()):
+        assert torch.allclose(a, b, atol=1e-6)  # one step at a negligible rate: still the start's weights
+    result = CliRunner().invoke(main, ["train-detail", "-o", str(tmp_path / "bad"), "--init", str(start),
+                                       "--mismatch", "1", "0", "--quiet"])
+    assert result.exit_code == 2 and "--mismatch" in result.output
+
+
 def test_detail_sample_reads_tfi_at_the_frame_centre() -> None:
     """The TFI plane of a training sample is 1 / the interval between the spikes around the centre: a
     value in (0, 1] on every pixel, and on a bright static scene close to the 80-plane TFP rate."""

@@ -88,10 +88,18 @@ def train(recipe: str | None, list_recipes: bool, out_dir: Path | None, cache_di
               help="Width of the stage's 3x3 convolutions [default: DetailConfig's, 16]; the same when resuming.")
 @click.option("--layers", type=click.IntRange(min=2), default=None,
               help="Depth of the stage's 3x3 convolution stack [default: DetailConfig's, 4]; the same when resuming.")
+@click.option("--init", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
+              help="Start from these detail-stage weights (a fine-tune with a fresh optimizer; e.g. the shipped "
+                   "models/detail-binned.safetensors).")
+@click.option("--lr", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Initial learning rate, cosine to a tenth of it [default: 1e-3].")
+@click.option("--mismatch", type=(click.FloatRange(min=0), click.FloatRange(min=0)), default=None,
+              help="LOW HIGH: each physical capture's threshold mismatch (fixed pattern) drawn between these "
+                   "multiples of the paper's [default: 1 1].")
 @quiet_option
 @verbose_option
 def train_detail(out_dir: Path, minutes: float, resume: bool, channels: int | None, layers: int | None,
-                 quiet: bool) -> None:
+                 init: Path | None, lr: float | None, mismatch: tuple[float, float] | None, quiet: bool) -> None:
     """Train the learned detail stage of --resolution full on simulated video scenes (CPU, one thread)."""
     import torch
 
@@ -102,8 +110,16 @@ def train_detail(out_dir: Path, minutes: float, resume: bool, channels: int | No
     torch.set_num_threads(1)
     shape = {k: v for k, v in (("channels", channels), ("layers", layers)) if v is not None}
     detail = DetailConfig(interval_reach=INTERVAL_REACH, **shape)
-    weights = run(DetailTrainConfig(detail=detail, minutes=minutes), out_dir, resume=resume,
-                  progress=progress_enabled(quiet))
+    if init is not None:
+        from rmbvideo.net.weights import load_detail_model
+
+        detail = load_detail_model(init)[0].config  # the stage's own shape
+    if mismatch is not None and mismatch[0] > mismatch[1]:
+        raise click.BadParameter(f"LOW {mismatch[0]} is above HIGH {mismatch[1]}", param_hint="--mismatch")
+    options = {**({"lr": lr, "lr_final": lr / 10} if lr is not None else {}),
+               **({"mismatch": tuple(mismatch)} if mismatch is not None else {})}
+    weights = run(DetailTrainConfig(detail=detail, minutes=minutes, **options), out_dir, resume=resume,
+                  progress=progress_enabled(quiet), init=init)
     click.echo(f"{weights}: install it as models/detail-binned.safetensors (+ .json) to use it")
 
 

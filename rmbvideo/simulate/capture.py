@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 from contextlib import ExitStack
+from dataclasses import replace
 
 from collections.abc import Iterator
 from pathlib import Path
@@ -100,15 +101,16 @@ class CaptureSimulator:
 
 
 def capture_planes(scene: VideoScene, planes: int, rate_hz: float, chunk: int = 64,
-                   reset: str = "zero") -> Iterator[SpikeChunk]:
+                   reset: str = "zero", mismatch: float = 1.0) -> Iterator[SpikeChunk]:
     """The raw 1-bit capture of ``scene`` (``planes`` planes from time 0) in chunks: the physical
-    emission model with a real camera's noise (its pixel reset as ``reset`` says, ``SensorParams.reset``), or
-    spikezoo's accumulate-and-subtract rate convention (``scene.convention``). Plane k integrates the scene at its
-    midpoint k + 1/2. The capture starts mid-stream, as a running camera's does: every pixel at a random point of
-    its integration cycle."""
+    emission model with a real camera's noise (its pixel reset as ``reset`` says, ``SensorParams.reset``; its
+    threshold mismatch, the fixed pattern, ``mismatch`` times the paper's), or spikezoo's accumulate-and-subtract rate
+    convention (``scene.convention``). Plane k integrates the scene at its midpoint k + 1/2. The capture starts
+    mid-stream, as a running camera's does: every pixel at a random point of its integration cycle."""
     height, width = scene.height, scene.width
     if scene.convention == "physical":
         params = SensorParams(reset=reset)
+        params = replace(params, cap_std=params.cap_std * mismatch) if mismatch != 1.0 else params
         emitter = SpikeEmitter(height, width, params, REALISTIC_EFFECTS, scene.seed)
         emitter.settle(scene.seed)
         emit = lambda value: emitter.emit_one(value * params.q_r, 1)  # noqa: E731

@@ -26,7 +26,8 @@ from tqdm import tqdm
 from rmbvideo.evaluate.metrics import mu_law_psnr
 from rmbvideo.mulaw import mu_law
 from rmbvideo.net.detail import DetailConfig, DetailNet
-from rmbvideo.net.weights import ModelCard, save_model
+from rmbvideo.errors import InputError
+from rmbvideo.net.weights import ModelCard, load_detail_model, save_model
 from rmbvideo.recon.classical import Tfi
 from rmbvideo.recon.full_resolution import DEFAULT_DETAIL_WINDOW, relative_detail, to_block_levels, upsample
 from rmbvideo.scenes.random_scenes import EVAL_SEED_START
@@ -67,6 +68,9 @@ class DetailTrainConfig:
     steps: int | None = None
     seed: int = 5
     spikezoo_fraction: float = 0.3
+    #: the physical captures' threshold mismatch (their fixed pattern) per sample, drawn uniformly between these
+    #: multiples of the paper's (a real camera's may be weaker: ``models/experiments/camera-fixed-pattern``)
+    mismatch: tuple[float, float] = (1.0, 1.0)
     val_count: int = 12
     val_every: int = 200
     checkpoint_every: int = 50
@@ -83,16 +87,17 @@ class DetailSample:
 
 
 def simulate_detail_sample(seed: int, crop: int, windows: tuple[int, ...], spikezoo_fraction: float,
-                           interval_reach: int = 0) -> DetailSample:
+                           interval_reach: int = 0, mismatch: tuple[float, float] = (1.0, 1.0)) -> DetailSample:
     """The sample of ``seed``: a frame at raw plane time ``max(windows)/2 + 10`` (at least
     ``interval_reach`` + 1), every window centred on it; TFI there (``Tfi`` itself) when
-    ``interval_reach`` > 0."""
+    ``interval_reach`` > 0; a physical capture's threshold mismatch drawn in ``mismatch`` (times the paper's)."""
     rng = np.random.default_rng([seed, 0xDE7A])
     convention = "spikezoo" if rng.random() < spikezoo_fraction else "physical"
     centre = max(max(windows) // 2 + 10, interval_reach + 1)
     planes = 2 * centre
     scene = VideoScene(seed, 2 * crop, 2 * crop, planes, convention=convention)
-    chunks = list(capture_planes(scene, planes, RAW_RATE_HZ))
+    scale = float(rng.uniform(*mismatch)) if mismatch != (1.0, 1.0) else 1.0  # the default's samples as before
+    chunks = list(capture_planes(scene, planes, RAW_RATE_HZ, mismatch=scale))
     raw = np.concatenate([c.planes for c in chunks]).astype(np.float32)
     rates = [raw[centre - w // 2: centre - w // 2 + w].mean(axis=0) for w in windows]
     if interval_reach:
@@ -138,13 +143,19 @@ def validate(model: DetailNet, samples: list[DetailSample], windows: tuple[int, 
 
 
 def train_detail(config: DetailTrainConfig, out_dir: Path, name: str = "detail-binned",
-                 resume: bool = False, progress: bool = False) -> Path:
+                 resume: bool = False, progress: bool = False, init: Path | None = None) -> Path:
     """Train for ``config.minutes`` of wall time (a progress bar in seconds when ``progress``); write
-    ``out_dir/<name>.safetensors`` + card and return it."""
+    ``out_dir/<name>.safetensors`` + card and return it. ``init``: a detail stage's weights to start from (a fine-tune,
+    with a fresh optimizer; its architecture must be ``config.detail``)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(config.seed)
     model = DetailNet(config.detail)
+    if init is not None and not resume:
+        start, _ = load_detail_model(init)
+        if start.config != config.detail:
+            raise InputError(f"{init}: a detail stage of another architecture ({start.config}, not {config.detail})")
+        model.load_state_dict(start.state_dict())
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
     state = load_checkpoint(out_dir, model, optimizer) if resume else CheckpointState(0, 0.0)
     windows = config.detail.windows
@@ -154,7 +165,7 @@ def train_detail(config: DetailTrainConfig, out_dir: Path, name: str = "detail-b
 
     def simulate(seed: int) -> DetailSample:
         return simulate_detail_sample(seed, config.crop, windows, config.spikezoo_fraction,
-                                      config.detail.interval_reach)
+                                      config.detail.interval_reach, config.mismatch)
 
     val = [simulate(EVAL_SEED_START + 500_000 + k) for k in range(config.val_count)]
     pool = [simulate(base + k) for k in range(config.pool)]
@@ -206,6 +217,7 @@ def train_detail(config: DetailTrainConfig, out_dir: Path, name: str = "detail-b
         description="Detail stage for --resolution full: how each 2x2 block's level is shared among its pixels, "
                     "from the raw TFP rates over " + "/".join(map(str, windows)) + " planes",
         training={"config": {k: v for k, v in asdict(config).items() if k != "detail"}, "steps_done": step,
+                  **({"init": str(init)} if init is not None else {}),
                   "wall_time_s": round(time.monotonic() - start, 1), "machine": machine_description(torch.device("cpu")),
                   "optimizer": f"Adam, lr {config.lr} cosine to {config.lr_final} over the "
                                + (f"{config.steps}-step budget" if config.steps else "wall-time budget"),
@@ -213,7 +225,9 @@ def train_detail(config: DetailTrainConfig, out_dir: Path, name: str = "detail-b
                   "checkpoint": str(checkpoint_paths(out_dir)[0].name)},
         data={"description": "video scenes (rmbvideo.scenes.video), 1-bit captures at twice the binned size "
                              f"({100 * (1 - config.spikezoo_fraction):.0f} % physical emission with a camera's noise, "
-                             f"{100 * config.spikezoo_fraction:.0f} % spikezoo's rate convention), ground truth "
+                             + (f"threshold mismatch {config.mismatch[0]:g}-{config.mismatch[1]:g}x the paper's, "
+                                if config.mismatch != (1.0, 1.0) else "")
+                             + f"{100 * config.spikezoo_fraction:.0f} % spikezoo's rate convention), ground truth "
                              "at the frame's centre, binned input = its 2x2 block means",
               "val_seeds": f"{EVAL_SEED_START + 500_000}..{EVAL_SEED_START + 500_000 + config.val_count - 1}"},
         metrics={f"val_mu_psnr_{k}": round(v, 3) for k, v in metrics.items()},
