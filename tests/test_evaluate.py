@@ -296,11 +296,13 @@ def test_a_users_own_streams_alone(tmp_path):
     write_texture_pan(TEXTURE_PANS[-1], tmp_path / "mine", DatGeometry(64, 40))
     out = tmp_path / "out"
     result = CliRunner().invoke(main, ["evaluate", "--no-heldout", "--real-video", str(tmp_path / "mine"), "-o",
-                                       str(out), "--device", "cpu", "--quiet"])
+                                       str(out), "--device", "cpu", "--full-resolution", "--quiet"])
     assert result.exit_code == 0, result.output
     table = (out / "real_video.md").read_text()
     assert "| **RMB-Net** |" in table and f"| **{GATED_ROW}** |" in table and TEXTURE_PANS[-1].name in table
     assert (out / "real_video.png").is_file() and not (out / "evaluation.md").exists()
+    full = (out / "full_resolution.md").read_text()  # the stream alone: no synthetic mean
+    assert TEXTURE_PANS[-1].name in full and "| — |" in full and "nan" not in full
     result = CliRunner().invoke(main, ["evaluate", "--real-video", str(tmp_path / "nowhere"), "-o", str(out)])
     assert result.exit_code != 0 and "nowhere" in result.output and "Traceback" not in result.output
     result = CliRunner().invoke(main, ["evaluate", "--no-heldout", "-o", str(out)])

@@ -200,10 +200,10 @@ def markdown(scores: FullScores, synthetic: Seq[str], real: Seq[str]) -> str:
              "|---|" + "---:|" * (len(names) + 3)]
     for row in rows:
         cells = [f"{scores.psnr[n][row]:.2f}" for n in names]
-        syn = np.mean([scores.psnr[n][row] for n in synthetic]) if synthetic else math.nan
-        rea = np.mean([scores.psnr[n][row] for n in real]) if real else math.nan
+        syn = f"{np.mean([scores.psnr[n][row] for n in synthetic]):.2f}" if synthetic else "—"
+        rea = f"{np.mean([scores.psnr[n][row] for n in real]):.2f}" if real else "—"
         fps = f"{np.mean(scores.fps[row]):.1f}" if row in scores.fps else "—"
-        lines.append(f"| {row} | " + " | ".join(cells) + f" | {syn:.2f} | {rea:.2f} | {fps} |")
+        lines.append(f"| {row} | " + " | ".join(cells) + f" | {syn} | {rea} | {fps} |")
     lines += ["", "Synthetic: mu-law PSNR (dB) against the full-resolution ground truth; real video: linear PSNR "
               "with a least-squares gain against the full-resolution reference. 'best classical' picks the best "
               "raw row per sequence (an oracle window choice).", "",
