@@ -305,8 +305,9 @@ def test_a_users_own_streams_alone(tmp_path):
     assert TEXTURE_PANS[-1].name in full and "| — |" in full and "nan" not in full
     result = CliRunner().invoke(main, ["evaluate", "--real-video", str(tmp_path / "nowhere"), "-o", str(out)])
     assert result.exit_code != 0 and "nowhere" in result.output and "Traceback" not in result.output
-    result = CliRunner().invoke(main, ["evaluate", "--no-heldout", "-o", str(out)])
+    result = CliRunner().invoke(main, ["evaluate", "--no-heldout", "-o", str(tmp_path / "none")])
     assert result.exit_code == 2 and "--real-video" in result.output
+    assert not (tmp_path / "none").exists()  # a usage error leaves no output folder behind
 
 
 def test_rate_methods_are_scored_as_light_on_a_camera_stream_only():

@@ -215,11 +215,6 @@ def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Pat
     from rmbvideo.recon.rmbnet import resolve_device
 
     models_dir = models_dir if models_dir is not None else MODELS_DIR
-    resolved = str(resolve_device(device))
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputError(f"{out_dir}: cannot create the output folder ({exc.strerror or exc})") from None
     if candidates and not development:
         raise click.UsageError("--candidate needs --development")
     if not heldout and (development or as_json or not (real_video or texture_pans or real_path)):
@@ -228,6 +223,11 @@ def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Pat
     from rmbvideo.evaluate.real_video import find_streams
 
     streams = find_streams(real_video) if real_video is not None else []  # a wrong folder fails before the long run
+    resolved = str(resolve_device(device))
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"{out_dir}: cannot create the output folder ({exc.strerror or exc})") from None
     if development:
         paths = _development(out_dir, [models_dir / "rmbnet-binned.safetensors", *candidates], cache_dir, real_video,
                              resolved, progress_enabled(quiet))
