@@ -115,7 +115,7 @@ def main(paths: list[Path]) -> None:
                               interpolation=cv2.INTER_NEAREST)
             cv2.putText(tile, name, (6, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.6, 255, 2, cv2.LINE_AA)
             tiles.append(tile)
-        print("wrote", write_png(Path("detail-mismatch-car.png"), np.vstack(tiles)))
+        print("wrote", write_png(Path("models/figures/detail-mismatch-car.png"), np.vstack(tiles)))
 
 
 if __name__ == "__main__":
