@@ -12,16 +12,22 @@ import math
 import os
 import platform
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from rmbvideo.cli import progress_enabled, quiet_option, verbose_option
 from rmbvideo.cli.options import AliasOption
 
+if TYPE_CHECKING:  # the evaluation modules load torch: imported where a command runs, not when the CLI starts
+    from rmbvideo.evaluate.harness import RowResult
+    from rmbvideo.evaluate.heldout import Sequence
+    from rmbvideo.evaluate.real_video import RealStream
+
 log = logging.getLogger(__name__)
 
 
-def _real_video(streams: list, model: Path, device: str, out_dir: Path, stem: str = "real_video",
+def _real_video(streams: list[RealStream], model: Path, device: str, out_dir: Path, stem: str = "real_video",
                 title: str = "Real-video streams", pictured: tuple[str, ...] = ("",)) -> list[Path]:
     """Score the real-video ``streams`` (``find_streams``); write ``STEM.md`` and ``STEM.png`` (of the streams whose
     name contains one of ``pictured``)."""
@@ -45,7 +51,8 @@ def _real_video(streams: list, model: Path, device: str, out_dir: Path, stem: st
     references = {s.name: binned_reference(s) for s in streams if any(p in s.name for p in pictured)}
     gated = [GATED_ROW] if GATED_ROW in next(iter(results.values())) else []
     png = write_png(out_dir / f"{stem}.png",
-                    comparison_image({name: results[name] for name in references}, references, ["TFW-L", "GC20", "MG20", "RMB-Net", *gated, BEST_RAW]))
+                    comparison_image({name: results[name] for name in references}, references,
+                                     ["TFW-L", "GC20", "MG20", "RMB-Net", *gated, BEST_RAW]))
     return [md, png]
 
 
@@ -111,8 +118,8 @@ def _notes(sequences: list, quick: bool, device: str, figure: tuple[str, int], r
         "best of those raw rows. 'RMB-Net + raw gate (1-bit capture)' is what the default job makes of the raw "
         "capture at this size (`reconstruct --resolution binned`, the default full frames' 2x2 average): RMB-Net's "
         "frames mixed with the raw intervals by the shipped gate; set it against the raw rows, and RMB-Net against "
-        "the methods on its own input. RMB-Net is told each sequence's sensor convention (spikezoo-fast: spikezoo's) and, "
-        "rmbvideo's emission model having made them all, that camera's response (`reconstruct --response "
+        "the methods on its own input. RMB-Net is told each sequence's sensor convention (spikezoo-fast: "
+        "spikezoo's) and, rmbvideo's emission model having made them all, that camera's response (`reconstruct --response "
         "emission-model`; a real capture is read by the closed form). TFP, TFI and TFW give spike rates, not light: "
         "on those camera streams their frames are read through the same response, per pixel before any 2x2 "
         "average (`harness.rate_as_light`; a reset-to-zero pixel's rate is below its light, 20 % at half a "
@@ -139,7 +146,8 @@ def _notes(sequences: list, quick: bool, device: str, figure: tuple[str, int], r
 FIGURE_COLUMNS = ("TFW-L", "GC20", "MG20", "RMB-Net", "RMB-Net + raw gate (1-bit capture)", "TFP-41 (raw)", "TFI (raw)")
 
 
-def _heldout_outputs(rows: list, sequences: list, out_dir: Path, quick: bool, device: str, reset: str) -> list[Path]:
+def _heldout_outputs(rows: list[RowResult], sequences: list[Sequence], out_dir: Path, quick: bool, device: str,
+                     reset: str) -> list[Path]:
     """The held-out tables (evaluation.md/.csv), the comparison figure and the fast/dark sequences' figures."""
     import numpy as np
 

@@ -96,8 +96,8 @@ def simulate_detail_sample(seed: int, crop: int, windows: tuple[int, ...], spike
     centre = max(max(windows) // 2 + 10, interval_reach + 1)
     planes = 2 * centre
     scene = VideoScene(seed, 2 * crop, 2 * crop, planes, convention=convention)
-    scale = float(rng.uniform(*mismatch)) if mismatch != (1.0, 1.0) else 1.0  # the default's samples as before
-    chunks = list(capture_planes(scene, planes, RAW_RATE_HZ, mismatch=scale))
+    # drawn last from ``rng``, so the samples are as before the mismatch was drawn (uniform(1, 1) is exactly 1)
+    chunks = list(capture_planes(scene, planes, RAW_RATE_HZ, mismatch=float(rng.uniform(*mismatch))))
     raw = np.concatenate([c.planes for c in chunks]).astype(np.float32)
     rates = [raw[centre - w // 2: centre - w // 2 + w].mean(axis=0) for w in windows]
     if interval_reach:

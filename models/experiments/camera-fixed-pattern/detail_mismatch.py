@@ -25,7 +25,7 @@ from rmbvideo.evaluate.harness import SATURATION, SIMULATED_RESPONSE, rate_as_li
 from rmbvideo.evaluate.heldout import (DEVELOPMENT_VIDEO_FIRST, FULL, VIDEO_KINDS, VIDEO_SEED_START, load_development,
                                        simulate_video_sequence)
 from rmbvideo.evaluate.metrics import mu_law_psnr
-from rmbvideo.evaluate.real_video import CONVENTION, RAW_STEP, find_streams, scaled_psnr
+from rmbvideo.evaluate.real_video import CONVENTION, RAW_STEP, find_streams, open_stream, scaled_psnr
 from rmbvideo.io.dat import DatGeometry, DatReader
 from rmbvideo.io.png import write_png
 from rmbvideo.net.weights import load_detail_model
@@ -85,11 +85,8 @@ def main(paths: list[Path]) -> None:
         reference = cv2.imread(str(stream.reference), cv2.IMREAD_GRAYSCALE).astype(np.float32) / 255.0
         rows[stream.name] = {}
         for name, detail in details.items():
-            reader = DatReader(stream.capture, stream.geometry)
-            from rmbvideo.evaluate.real_video import open_stream
             image = default_job(detail, open_stream(stream), CONVENTION, keep=[stream.frame])[stream.frame]
             rows[stream.name][name] = scaled_psnr(image[: reference.shape[0], : reference.shape[1]], reference)
-            reader.close()
         print(stream.name, {k: round(v, 2) for k, v in rows[stream.name].items()}, flush=True)
     names = list(details)
     print("\n| set | " + " | ".join(names) + " |\n|---|" + "---:|" * len(names))
