@@ -234,7 +234,7 @@ def write_full_resolution(out_dir: Path, sequences: Seq[Sequence], streams: Seq[
     if streams:
         png = out_dir / "full_resolution.png"
         learned = [FULL_LEARNED] if any(r.name == FULL_LEARNED for r in rows) else []
-        # TFI-8: the single classical row most accurate on the real streams (README "Evaluation")
+        # TFI-8: the single classical row most accurate on the real streams (README "Evaluation", docs/evaluation.md)
         comparison_picture(scores, png, [*learned, FULL, BINNED_UP, "TFP-20", "TFI", "TFI-8"])
         written.append(png)
     return written

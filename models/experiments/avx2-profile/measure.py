@@ -1,4 +1,4 @@
-"""The one-core figures of README "Where the time goes on an AVX2-only host", measured again. Run from the repository
+"""The one-core figures of docs/speed.md "Where the time goes on an AVX2-only host", measured again. Run from the repository
 root (each well under a minute):
 
     python models/experiments/avx2-profile/measure.py convs   # the network's convolution shapes, one thread: fp32 GFLOP/s,
