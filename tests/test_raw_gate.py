@@ -345,3 +345,53 @@ def test_the_gates_tfi_window_is_kept_in_its_card_and_absent_at_zero() -> None:
     assert "frame_features" not in RawGateConfig(tfi_window=4, long_window=16).to_dict()
     with pytest.raises(ValueError, match="long_window"):
         RawGateConfig(tfi_window=8, long_window=8)
+
+
+def test_a_gate_of_3x3_convolutions_reads_its_neighbourhood_and_a_per_pixel_gate_does_not() -> None:
+    """TFI changed at one pixel moves a per-pixel gate's output within the reach of its features' 3x3 roughness (one
+    pixel); a gate of two 3x3 convolutions two pixels further and nothing beyond, and it still mixes between its
+    images."""
+    binned, tfi = torch.rand(1, 1, 16, 20) * 0.5 + 0.1, torch.rand(1, 1, 16, 20) * 0.5 + 0.1
+    changed = tfi.clone()
+    changed[0, 0, 8, 10] *= 3.0
+    for kernel, reach in ((1, 1), (3, 3)):
+        torch.manual_seed(3)
+        gate = RawGate(RawGateConfig(hidden=4, kernel=kernel))
+        with torch.no_grad():
+            gate.body[-1].bias.zero_()
+        moved = (gate(binned, changed, binned, 0.0) - gate(binned, tfi, binned, 0.0)).abs()[0, 0] > 0
+        rows, cols = torch.nonzero(moved, as_tuple=True)
+        assert moved[8, 10] and (rows - 8).abs().max() == reach and (cols - 10).abs().max() == reach
+        out = gate(binned, tfi, binned, 0.0)
+        assert (out >= torch.minimum(binned, tfi) - 1e-6).all() and (out <= torch.maximum(binned, tfi) + 1e-6).all()
+    with pytest.raises(ValueError, match="kernel"):
+        RawGateConfig(kernel=2)
+    config = RawGateConfig(long_window=8, kernel=3)
+    assert RawGateConfig.from_dict(config.to_dict()) == config and "kernel" not in RawGateConfig().to_dict()
+
+
+def test_a_gate_of_3x3_convolutions_is_fitted_on_crops_and_saved_and_loaded(tmp_path: Path) -> None:
+    """The recipe draws crops for a gate that reads neighbourhoods, fits it on batches of them (its loss on the
+    crops below the binned frame's where TFI is right), and the gate it writes loads with its kernel."""
+    from rmbvideo.net.weights import load_raw_gate
+    from rmbvideo.train.raw_gate import GateSamples, RawGateRecipe, fit_gate, fit_raw_gate
+
+    rng = np.random.default_rng(0)
+    config = RawGateConfig(hidden=4, kernel=3)
+    truth = rng.random((12, 10, 10)).astype(np.float32) * 0.5
+    samples = GateSamples(rng.standard_normal((12, config.feature_count, 10, 10)),
+                          truth + 0.2 * rng.standard_normal(truth.shape), truth[:, None] + 0.01, truth,
+                          np.zeros(12, bool), ("x",))
+    recipe = RawGateRecipe(gate=config, steps=60, restarts=2, batch=4, lr=3e-2)
+    gate, metrics = fit_gate(samples, recipe)
+    assert metrics["fit_mse"] < metrics["fit_mse_without_gate"] and metrics["restart"] in (0.0, 1.0)
+    with pytest.raises(ValueError, match="crops"):
+        fit_gate(GateSamples(samples.features[:, :, 0, 0], samples.binned[:, 0, 0], samples.tfi[:, :, 0, 0],
+                             truth[:, 0, 0], samples.display, ("x",)), recipe)
+    tiny = RawGateRecipe(gate=RawGateConfig(hidden=4, tfi_reach=30, long_window=8, frame_features=True, kernel=3),
+                         capture=TINY, pans=1, videos=0, resets=("zero",), display_videos=0, display_scenes=0,
+                         still_scenes=0, crop=16, crops=2, batch=2, steps=5, restarts=1)
+    loaded, card = load_raw_gate(fit_raw_gate(tiny, tmp_path / "gate.safetensors",
+                                              model=_tiny_model(tmp_path / "m.safetensors")))
+    assert loaded.config == tiny.gate and card.training["crops"] == 2
+    assert np.isfinite(card.metrics["fit_mse"])

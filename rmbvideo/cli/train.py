@@ -129,7 +129,7 @@ def train_detail(out_dir: Path, minutes: float, resume: bool, channels: int | No
               help="Weights to write (+ .json card beside them).")
 @click.option("--model", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="The binned RMB-Net the gate is fitted to (default: the shipped one).")
-@click.option("--steps", type=click.IntRange(min=1), default=None, help="Adam steps [default: the recipe's, 2000].")
+@click.option("--steps", type=click.IntRange(min=1), default=None, help="Adam steps [default: the recipe's, 32000].")
 @click.option("--seed", type=click.IntRange(min=0), default=None, help="Initial weights and drawn pixels [default 0].")
 @click.option("--loss", type=click.Choice(["mu-law", "mu-law+display-linear"]), default=None,
               help="What the gate is fitted to [default: the recipe's, mu-law].")
@@ -149,16 +149,23 @@ def train_detail(out_dir: Path, minutes: float, resume: bool, channels: int | No
               help="Whether the gate also reads how far its candidates disagree over the whole frame [default: the "
                    "recipe's, on].")
 @click.option("--pixels", type=click.IntRange(min=1), default=None,
-              help="Pixels drawn from every frame of the simulated captures [default: the recipe's, 500].")
+              help="Pixels drawn from every frame of the simulated captures, for a per-pixel gate (--kernel 1) [default: the recipe's, 500].")
 @click.option("--restarts", type=click.IntRange(min=1), default=None,
               help="Fits from different initial weights; the one of lowest loss on the drawn pixels is kept "
-                   "[default: the recipe's, 4].")
+                   "[default: the recipe's, 2].")
+@click.option("--kernel", type=click.IntRange(min=1), default=None,
+              help="Size of the gate's convolutions: 1 reads each pixel's features alone, an odd k > 1 the features "
+                   "around it too (fitted on crops, --batch of them a step) [default: the recipe's, 3].")
+@click.option("--lr", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Adam's learning rate [default: the recipe's, 3e-3].")
+@click.option("--batch", type=click.IntRange(min=1), default=None,
+              help="Crops a step for a gate with --kernel above 1 [default: the recipe's, 16].")
 @quiet_option
 @verbose_option
 def train_raw_gate(out: Path, model: Path | None, steps: int | None, seed: int | None, loss: str | None,
                    display_videos: int | None, display_scenes: int | None, still_scenes: int | None,
                    tfi_window: int | None, long_window: int | None, frame_features: bool | None, pixels: int | None,
-                   restarts: int | None, quiet: bool) -> None:
+                   restarts: int | None, kernel: int | None, lr: float | None, batch: int | None, quiet: bool) -> None:
     """Fit the raw-interval gate of 1-bit captures on simulated captures of training seeds (CPU, one thread)."""
     from dataclasses import replace
 
@@ -169,13 +176,14 @@ def train_raw_gate(out: Path, model: Path | None, steps: int | None, seed: int |
     torch.set_num_threads(1)
     chosen = (("steps", steps), ("seed", seed), ("loss", loss), ("display_videos", display_videos),
               ("display_scenes", display_scenes), ("still_scenes", still_scenes), ("pixels", pixels),
-              ("restarts", restarts))
+              ("restarts", restarts), ("lr", lr), ("batch", batch))
     recipe = RawGateRecipe(**{k: v for k, v in chosen if v is not None})
     windows = {k: v for k, v in (("tfi_window", tfi_window), ("long_window", long_window),
-                                 ("frame_features", frame_features)) if v is not None}
+                                 ("frame_features", frame_features), ("kernel", kernel)) if v is not None}
     try:
         recipe = replace(recipe, gate=replace(recipe.gate, **windows))
     except ValueError as error:
-        raise click.BadParameter(str(error), param_hint="--long-window") from None
+        hint = "--kernel" if "kernel" in str(error) else "--long-window"
+        raise click.BadParameter(str(error), param_hint=hint) from None
     weights = fit_raw_gate(recipe, out, model=model, progress=progress_enabled(quiet))
     click.echo(f"{weights}: install it as models/raw-gate.safetensors (+ .json) to use it")

@@ -2,16 +2,18 @@
 
 The binned counts blur dim fine texture of a slow, bright scene that single inter-spike intervals at full resolution
 still resolve (on the development pans TFI on the raw capture, 2x2-averaged, has 1.1-2.4x less error than RMB-Net
-between 0.003 and 0.03 of a threshold per plane), while TFI is far noisier everywhere else. A small per-pixel
-network reads a few features of the two images (their levels and ratio, their local roughness, how much the
+between 0.003 and 0.03 of a threshold per plane), while TFI is far noisier everywhere else. A small network
+reads a few features of the two images (their levels and ratio, their local roughness, how much the
 binned frame changed since the last one, the convention) and gives the share of TFI in the output: 0 keeps
 RMB-Net's frame. With a ``long_window`` the gate has a second TFI candidate over more central planes (steadier where
 nothing moves, smeared where things do) and three more features (its level, its ratio to the first TFI: motion, its
 roughness); the shares of the three images are a softmax. With ``frame_features`` it also reads how far the
 candidates disagree over the whole frame: far in a dark, noisy frame (TFI's shot noise) or one where much moves (the
 long TFI smears), little where TFI reads the whole frame well (the real-video streams: 0.03-0.05 against 0.03-0.6 on
-the simulated captures), which a pixel's own features, seeing only its neighbourhood, cannot tell. All images are light at the binned size; TFI is read as
-light per raw pixel (``tfi_light``) before its 2x2 average, as the evaluation reads it.
+the simulated captures), which a pixel's own features, seeing only its neighbourhood, cannot tell. With a ``kernel`` above 1 its
+convolutions read the features around each pixel too, so a lone pixel where TFI disagrees (noise) and a region where
+it does (motion, or detail the binned frame blurs) get different shares. All images are light at the binned size;
+TFI is read as light per raw pixel (``tfi_light``) before its 2x2 average, as the evaluation reads it.
 """
 
 from __future__ import annotations
@@ -40,22 +42,28 @@ INITIAL_LOGIT = -3.0
 
 @dataclass(frozen=True)
 class RawGateConfig:
-    """``hidden``: width of the per-pixel network; ``tfi_reach``: raw planes TFI searches on each side of a frame's
+    """``hidden``: width of the gate's network; ``tfi_reach``: raw planes TFI searches on each side of a frame's
     centre (``rmbvideo.recon.classical.Tfi``'s ``max_reach``; 200 reads down to about 1/400 of a spike a plane);
     ``tfi_window``: its central planes (``Tfi``'s ``window``: 0 one interval, M the whole intervals covering M);
     ``long_window``: the central planes of a second TFI candidate (0: none; else more than ``tfi_window``);
-    ``frame_features``: whether the gate also reads the ``FRAME_FEATURES``."""
+    ``frame_features``: whether the gate also reads the ``FRAME_FEATURES``; ``kernel``: the size of its convolutions:
+    1 reads each pixel's features alone (one hidden layer), an odd k > 1 the features around it through two k x k
+    layers, so it can tell a lone pixel where TFI disagrees (its noise) from a region (motion, or detail the binned
+    frame blurs)."""
 
     hidden: int = 16
     tfi_reach: int = 200
     tfi_window: int = 0
     long_window: int = 0
     frame_features: bool = False
+    kernel: int = 1
 
     def __post_init__(self) -> None:
         if self.hidden < 1 or self.tfi_reach < 1 or self.tfi_window < 0:
             raise ValueError(f"hidden and tfi_reach must be >= 1 and tfi_window >= 0, got {self.hidden}, "
                              f"{self.tfi_reach}, {self.tfi_window}")
+        if self.kernel < 1 or self.kernel % 2 == 0:
+            raise ValueError(f"kernel must be odd and >= 1, got {self.kernel}")
         if self.long_window and self.long_window <= self.tfi_window:
             raise ValueError(f"long_window must be 0 or more than tfi_window ({self.tfi_window}), got "
                              f"{self.long_window}")
@@ -72,12 +80,14 @@ class RawGateConfig:
         return len(FEATURES) + (len(LONG_FEATURES) if self.long_window else 0) + frame
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dictionary (no ``tfi_window``, ``long_window`` or ``frame_features`` key at 0 or False: cards
-        written before they existed stay as they are)."""
+        """JSON-ready dictionary (no ``tfi_window``, ``long_window`` or ``frame_features`` key at 0 or False, no
+        ``kernel`` at 1: cards written before they existed stay as they are)."""
         out = asdict(self)
         for key in ("tfi_window", "long_window", "frame_features"):
             if not out[key]:
                 del out[key]
+        if out["kernel"] == 1:
+            del out["kernel"]
         return out
 
     @classmethod
@@ -128,7 +138,8 @@ def gate_features(binned: torch.Tensor, tfi: torch.Tensor, previous: torch.Tenso
 
 
 class RawGate(nn.Module):
-    """The gate: a per-pixel network on standardised ``gate_features``; ``forward`` -> the mixed frame."""
+    """The gate: a small convolutional network on standardised ``gate_features`` (per pixel at ``kernel`` 1);
+    ``forward`` -> the mixed frame."""
 
     def __init__(self, config: RawGateConfig = RawGateConfig()) -> None:
         super().__init__()
@@ -136,8 +147,15 @@ class RawGate(nn.Module):
         count = config.feature_count
         self.register_buffer("feature_mean", torch.zeros(count))
         self.register_buffer("feature_std", torch.ones(count))
-        self.body = nn.Sequential(nn.Conv2d(count, config.hidden, 1), nn.ReLU(),
-                                  nn.Conv2d(config.hidden, config.candidates, 1))
+        if config.kernel == 1:
+            self.body = nn.Sequential(nn.Conv2d(count, config.hidden, 1), nn.ReLU(),
+                                      nn.Conv2d(config.hidden, config.candidates, 1))
+        else:  # edges replicated, as the features' own 3x3 statistics read them
+            def conv(inputs: int) -> nn.Conv2d:
+                return nn.Conv2d(inputs, config.hidden, config.kernel, padding=config.kernel // 2,
+                                 padding_mode="replicate")
+            self.body = nn.Sequential(conv(count), nn.ReLU(), conv(config.hidden), nn.ReLU(),
+                                      nn.Conv2d(config.hidden, config.candidates, 1))
         with torch.no_grad():
             self.body[-1].bias.fill_(INITIAL_LOGIT)
 

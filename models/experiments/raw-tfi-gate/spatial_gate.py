@@ -11,7 +11,8 @@ the texture pans and the real streams' reference frames, beside the shipped gate
 thread:
 
     python models/experiments/raw-tfi-gate/spatial_gate.py train DIR OUT.pt [kernel] [minutes] [seed]
-    python models/experiments/raw-tfi-gate/spatial_gate.py score DIR OUT.pt [development|heldout]
+    python models/experiments/raw-tfi-gate/spatial_gate.py score DIR OUT.pt|GATE.safetensors [development|heldout]
+        [BEFORE.safetensors]
 """
 
 from __future__ import annotations
@@ -147,8 +148,12 @@ def mixed_frame(gate: ConvGate | RawGate, binned, tfi, long, previous, conventio
     return gate.mix(feats, _t(binned)[None, None], _t(np.stack([tfi, long]))[None])[0, 0].numpy()
 
 
-def score(folder: str, path: str, which: str = "development") -> None:
-    gates = {"shipped": load_raw_gate(default_raw_gate_path())[0].eval(), Path(path).stem: load_gate(path)}
+def score(folder: str, path: str, which: str = "development", before: str | None = None) -> None:
+    """The gate at ``path`` (this script's ``.pt`` or a gate weight file) beside ``before`` (default: the shipped
+    gate) on the cached ``which`` set, the texture pans and the real streams."""
+    other = load_raw_gate(before or default_raw_gate_path())[0].eval()
+    gates = {"before": other, Path(path).stem: load_gate(path) if path.endswith(".pt") else
+             load_raw_gate(path)[0].eval()}
     names = list(gates)
     print(f"| sequence | binned | {' | '.join(names)} |\n|---|---:|" + "---:|" * len(names))
     for reset, sequences in ff._evaluation_sets(which).items():
