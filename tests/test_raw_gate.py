@@ -395,3 +395,28 @@ def test_a_gate_of_3x3_convolutions_is_fitted_on_crops_and_saved_and_loaded(tmp_
                                               model=_tiny_model(tmp_path / "m.safetensors")))
     assert loaded.config == tiny.gate and card.training["crops"] == 2
     assert np.isfinite(card.metrics["fit_mse"])
+
+
+def test_a_model_the_gate_was_not_fitted_to_is_gated_with_one_warning(tmp_path: Path,
+                                                                     caplog: pytest.LogCaptureFixture) -> None:
+    """The shipped gate was fitted to the shipped network's frames: with another model ``reconstruct`` still gates its
+    frames, and says once that the gate was fitted to another network; the shipped model gets no warning."""
+    import logging
+
+    from rmbvideo.io.dat import DatGeometry, write_dat
+    from rmbvideo.net.weights import default_model_path
+    from rmbvideo.recon.run import prepare_run
+
+    dat = tmp_path / "c.dat"
+    write_dat(dat, (np.random.default_rng(0).random((80, 48, 64)) < 0.3).astype(np.uint8), DatGeometry(64, 48))
+    model = _tiny_model(tmp_path / "mine.safetensors")
+    with caplog.at_level(logging.WARNING, logger="rmbvideo.recon.full_resolution"):
+        assert prepare_run(dat, extra_options={"threads": 1, "model": str(default_model_path("binned"))}
+                           ).method.raw_gate is not None
+        gate_warnings = lambda: [r.getMessage() for r in caplog.records  # noqa: E731
+                                 if r.name == "rmbvideo.recon.full_resolution"]
+        assert not gate_warnings()
+        for _ in range(2):
+            assert prepare_run(dat, extra_options={"threads": 1, "model": str(model)}).method.raw_gate is not None
+    warned = gate_warnings()
+    assert len(warned) == 1 and "mine.safetensors" in warned[0] and "rmbnet-binned.safetensors" in warned[0]

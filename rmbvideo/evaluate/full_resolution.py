@@ -93,7 +93,7 @@ def run_row(row: FullRow, source: Any, keep: list[int] | None = None,
     if row.kind in ("full", "full-learned"):
         stage = detail_stage("learned" if row.kind == "full-learned" else "classical")
         recon = FullResolution(recon, readout, step=RAW_STEP, detail=stage, threads=options.get("threads"),
-                               raw_gate=raw_gate_stage("auto" if row.raw_gate else "off"))
+                               raw_gate=raw_gate_stage("auto" if row.raw_gate else "off", options.get("model")))
         readout = None
     elif row.kind == "raw":
         readout = None

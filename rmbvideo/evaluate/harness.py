@@ -167,8 +167,8 @@ def run_frames(spec: MethodSpec, seq: Sequence) -> tuple[list[Frame], float, flo
     readout = RmbReadout(mode=spec.readout)
     sink = FrameCollector()
     if spec.gated:
-        recon = FullResolution(recon, readout, step=20, output="binned", raw_gate=raw_gate_stage("auto"),
-                               threads=options.get("threads"))
+        gate = raw_gate_stage("auto", options.get("model"))
+        recon = FullResolution(recon, readout, step=20, output="binned", raw_gate=gate, threads=options.get("threads"))
     if spec.raw or spec.gated or recon.input_kind == "rmb":
         summary = reconstruct_stream(seq, recon, sink, chunk_planes=2 * CHUNK_READOUTS,
                                      readout=None if spec.raw or spec.gated else readout)

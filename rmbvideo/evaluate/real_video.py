@@ -214,7 +214,8 @@ def reconstruct_frame(stream: RealStream, row: RealRow) -> np.ndarray:
     sink = FrameCollector(keep=[stream.frame])
     readout = None if row.raw else RmbReadout(mode=ReadoutMode(row.readout))
     if row.gated:
-        recon = FullResolution(recon, readout, step=RAW_STEP, output="binned", raw_gate=raw_gate_stage("auto"),
+        gate = raw_gate_stage("auto", row.options.get("model"))
+        recon = FullResolution(recon, readout, step=RAW_STEP, output="binned", raw_gate=gate,
                                threads=row.options.get("threads"))
         readout = None
     reconstruct_stream(reader, recon, sink, readout=readout)

@@ -29,6 +29,7 @@ without the detail stage's cost.
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass
 from collections.abc import Callable
@@ -44,6 +45,8 @@ from rmbvideo.recon.classical import BlockScans, Tfi, Tfp, push_by_block
 from rmbvideo.sensor.binning import StreamBinner
 from rmbvideo.sensor.readout import RmbReadout
 from rmbvideo.threads import compute_threads, default_threads, work_beside
+
+log = logging.getLogger(__name__)
 
 DEFAULT_DETAIL_WINDOW = 20  # raw planes: the frame interval, so moving detail is not smeared
 #: How the detail inside each 2x2 block is found: "learned" (the shipped detail stage), "classical"
@@ -82,8 +85,15 @@ def detail_stage(kind: str = "auto") -> Any:
     return load_detail_model(path)[0]
 
 
-def raw_gate_stage(kind: str = "auto") -> Any:
-    """The shipped raw-interval gate for ``kind`` (see ``RAW_GATE_KINDS``), or None ("off", or none installed)."""
+#: Models already warned about by ``raw_gate_stage`` in this process.
+_WARNED_MODELS: set[str] = set()
+
+
+def raw_gate_stage(kind: str = "auto", model: Any = None) -> Any:
+    """The shipped raw-interval gate for ``kind`` (see ``RAW_GATE_KINDS``), or None ("off", or none installed). With
+    ``model`` (an RMB-Net weight file) a warning says so when the gate was fitted to another network's frames."""
+    from pathlib import Path
+
     from rmbvideo.errors import OptionError
     from rmbvideo.net.weights import default_raw_gate_path, load_raw_gate
 
@@ -92,7 +102,14 @@ def raw_gate_stage(kind: str = "auto") -> Any:
     path = default_raw_gate_path()
     if kind == "off" or not path.is_file():
         return None
-    return load_raw_gate(path)[0]
+    gate, card = load_raw_gate(path)
+    fitted_to = card.data.get("model")
+    if model is not None and fitted_to and Path(model).name != fitted_to and str(model) not in _WARNED_MODELS:
+        _WARNED_MODELS.add(str(model))  # once a process: an evaluation builds the stage for every sequence
+        log.warning("%s: the raw gate was fitted to %s's frames, not this model's; its mix may not suit them "
+                    "(--raw-gate off keeps the model's frames; rmbvideo train-raw-gate --model fits one)", model,
+                    fitted_to)
+    return gate
 
 
 def detail_inference_copy(detail: Any, precision: str = "auto", device: Any = "cpu") -> Any:
