@@ -149,7 +149,8 @@ def train_detail(out_dir: Path, minutes: float, resume: bool, channels: int | No
               help="Whether the gate also reads how far its candidates disagree over the whole frame [default: the "
                    "recipe's, on].")
 @click.option("--pixels", type=click.IntRange(min=1), default=None,
-              help="Pixels drawn from every frame of the simulated captures, for a per-pixel gate (--kernel 1) [default: the recipe's, 500].")
+              help="Pixels drawn from every frame of the simulated captures, for a per-pixel gate (--kernel 1) "
+                   "[default: the recipe's, 500].")
 @click.option("--restarts", type=click.IntRange(min=1), default=None,
               help="Fits from different initial weights; the one of lowest loss on the drawn pixels is kept "
                    "[default: the recipe's, 2].")

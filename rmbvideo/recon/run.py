@@ -98,7 +98,8 @@ def prepare_run(input_path: Path, *, method: str = DEFAULT_METHOD, window: int |
     rmb_readout = RmbReadout(mode=ReadoutMode(readout)) if recon.input_kind == "rmb" and not native else None
     if rmb_readout is not None:
         # RMB-Net's frames of a 1-bit capture are mixed with the raw stream's intervals at either size (the raw gate)
-        gate = raw_gate_stage(raw_gate, options.get("model")) if getattr(recon, "light_reading", None) is not None else None
+        reads_light = getattr(recon, "light_reading", None) is not None
+        gate = raw_gate_stage(raw_gate, options.get("model")) if reads_light else None
         wrap = dict(step=step, raw_gate=gate, threads=options.get("threads"), precision=options.get("precision", "auto"))
         if resolution == "full":
             recon, rmb_readout = FullResolution(recon, rmb_readout, detail=detail_stage(detail), **wrap), None

@@ -4,17 +4,18 @@ low-contrast), each with both pixels (reset to zero, reset by subtraction). Ever
 runs it: RMB-Net on the binned stream, TFI on the raw planes (TFI-M over the gate's ``tfi_window``, and over its
 ``long_window``) read as light and 2x2-averaged; display-referred captures (spikezoo's 8-bit video values) of every
 kind of motion join them. The gate is fitted on crops (pixels, for a per-pixel gate) drawn from every frame to the
-mixed frame's mu-law error against the exact ground truth (the recipe can add the linear error of display-referred captures, as real video is
-scored: tried, not shipped, ``models/experiments/raw-tfi-gate/results.md``), from several initial weights: fits end
-either never mixing the long TFI or mixing it where nothing moves within its span, and the one of lowest loss is kept.
+mixed frame's mu-law error against the exact ground truth (the recipe can add the linear error of display-referred
+captures, as real video is scored: tried, not shipped, ``models/experiments/raw-tfi-gate/results.md``), from several
+initial weights: fits end either never mixing the long TFI or mixing it where nothing moves within its span, and the
+one of lowest loss is kept.
 About 25 minutes of simulation and 40 of fitting on one core; the same seeds give the same gate.
 """
 
 from __future__ import annotations
 
 import json
-import math
 import logging
+import math
 import time
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, replace
@@ -185,7 +186,8 @@ def _samples(seq: Sequence, frames: list[GateFrame], recipe: RawGateRecipe,
     previous = frames[0].binned
     for frame in frames:
         features = gate_features(tensor(frame.binned), tensor(frame.tfi), tensor(previous), convention,
-                                 *(tensor(x) for x in frame.candidates[1:]), frame=recipe.gate.frame_features)[0].numpy()
+                                 *(tensor(x) for x in frame.candidates[1:]), frame=recipe.gate.frame_features)[0]
+        features = features.numpy()
         scale = robust_scale(frame.truth)
         images = [frame.binned / scale, np.stack(frame.candidates) / scale, frame.truth / scale]
         if recipe.gate.kernel == 1:
@@ -289,7 +291,8 @@ def fit_gate(samples: GateSamples, recipe: RawGateRecipe, progress: bool = False
             loss.backward()
             optimiser.step()
         with torch.no_grad():
-            fits.append((float(gate_loss(whole(gate).flatten(), truth.flatten(), display.flatten(), recipe.loss)), gate))
+            final = gate_loss(whole(gate).flatten(), truth.flatten(), display.flatten(), recipe.loss)
+            fits.append((float(final), gate))
         log.info("raw gate: restart %d of %d, loss %.6g", restart + 1, recipe.restarts, fits[-1][0])
     best = min(range(len(fits)), key=lambda k: fits[k][0])
     gate = fits[best][1]

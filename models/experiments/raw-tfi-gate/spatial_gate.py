@@ -116,7 +116,8 @@ def train(folder: str, out: str, kernel: str = "3", minutes: str = "20", seed: s
         k = rng.integers(0, n, BATCH)
         y = rng.integers(0, height - CROP + 1, BATCH)
         x = rng.integers(0, width - CROP + 1, BATCH)
-        crop = lambda a: torch.stack([a[k[j], :, y[j]:y[j] + CROP, x[j]:x[j] + CROP] for j in range(BATCH)])  # noqa: E731
+        def crop(a: torch.Tensor) -> torch.Tensor:
+            return torch.stack([a[k[j], :, y[j]:y[j] + CROP, x[j]:x[j] + CROP] for j in range(BATCH)])
         loss = loss_of(gate.mix(crop(feats), crop(binned), crop(cands)), crop(truth))
         optimiser.zero_grad()
         loss.backward()
