@@ -309,8 +309,9 @@ def comparison_image(results: dict[str, dict[str, RealScore]], references: dict[
             tile = cv2.resize(tile, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)
             tile = cv2.cvtColor(tile, cv2.COLOR_GRAY2BGR)
             text = label if label == "reference" else f"{label} {scores[label].psnr:.1f} dB"
-            cv2.putText(tile, text, (4, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 3, cv2.LINE_AA)
-            cv2.putText(tile, text, (4, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
+            (w, h), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.45, 1)
+            tile[: h + 10, : w + 8] = 0  # a dark box behind the label: an outline at this size smudged the glyphs
+            cv2.putText(tile, text, (4, h + 5), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
             tiles.append(np.pad(tile, ((2, 2), (2, 2), (0, 0)), constant_values=255))
         rows.append(np.hstack(tiles))
     width = max(row.shape[1] for row in rows)  # streams of other sizes: narrower rows padded white on the right

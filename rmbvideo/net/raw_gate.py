@@ -12,8 +12,9 @@ candidates disagree over the whole frame: far in a dark, noisy frame (TFI's shot
 long TFI smears), little where TFI reads the whole frame well (the real-video streams: 0.03-0.05 against 0.03-0.6 on
 the simulated captures), which a pixel's own features, seeing only its neighbourhood, cannot tell. With a
 ``kernel`` above 1 its convolutions read the features around each pixel too, so a lone pixel where TFI disagrees
-(noise) and a region where it does (motion, or detail the binned frame blurs) get different shares. All images are light at the binned size;
-TFI is read as light per raw pixel (``tfi_light``) before its 2x2 average, as the evaluation reads it.
+(noise) and a region where it does (motion, or detail the binned frame blurs) get different shares. All images are
+light at the binned size; TFI is read as light per raw pixel (``tfi_light``) before its 2x2 average, as the
+evaluation reads it.
 """
 
 from __future__ import annotations

@@ -10,9 +10,14 @@ frame's robust truth scale), and scored on the cached development set (mean gain
 the texture pans and the real streams' reference frames, beside the shipped gate. Run from the repository root, one
 thread:
 
-    python models/experiments/raw-tfi-gate/spatial_gate.py train DIR OUT.pt [kernel] [minutes] [seed]
-    python models/experiments/raw-tfi-gate/spatial_gate.py score DIR OUT.pt|GATE.safetensors [development|heldout]
+    python models/experiments/raw-tfi-gate/spatial_gate.py train DIR OUT.safetensors [kernel] [minutes] [seed]
+    python models/experiments/raw-tfi-gate/spatial_gate.py score DIR OUT.safetensors|GATE.safetensors [development|heldout]
         [BEFORE.safetensors]
+
+DIR is made by ``frame_features.py cache DIR ../shared/data/spikezoo-base`` (the recipe's captures, the development
+and held-out sets, the real streams; about 25 minutes) and ``still_scenes.py cache DIR PANS`` (the texture pans'
+reference frames, ``pan-*``; PANS is ``texture_pans.texture_pan_folder``'s folder, written by ``rmbvideo evaluate
+--texture-pans``).
 """
 
 from __future__ import annotations
@@ -23,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from safetensors import safe_open
+from safetensors.torch import save_file
 from torch import nn
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -72,7 +79,12 @@ def frame_inputs(binned, tfi, long, previous, convention: float) -> torch.Tensor
 
 
 def training_paths(folder: Path) -> list[Path]:
-    return sorted(folder.glob("train-*.npz")) + sorted(folder.glob("candidate-still-still-display-zero-*.npz"))
+    """The recipe's 47 cached captures: ``train-*`` (the three still display-referred ones among them in a cache made
+    since the recipe had them, else ``still_scenes.py``'s ``candidate-still-still-display-zero-*``)."""
+    paths = sorted(folder.glob("train-*.npz"))
+    if not any("still-display" in p.name for p in paths):
+        paths += sorted(folder.glob("candidate-still-still-display-zero-*.npz"))
+    return paths
 
 
 def load_training(folder: Path) -> tuple[torch.Tensor, ...]:
@@ -130,13 +142,16 @@ def train(folder: str, out: str, kernel: str = "3", minutes: str = "20", seed: s
         full = np.mean([float(loss_of(gate.mix(feats[i:i + 1], binned[i:i + 1], cands[i:i + 1]), truth[i:i + 1]))
                         for i in range(n)])
     print(f"done: {step} steps, training loss {full:.6f}", flush=True)
-    torch.save({"kernel": int(kernel), "count": count, "state": gate.state_dict()}, out)
+    save_file(gate.state_dict(), out, metadata={"kernel": kernel, "count": str(count)})
 
 
 def load_gate(path: str) -> ConvGate:
-    saved = torch.load(path, weights_only=True)
-    gate = ConvGate(saved["count"], saved["kernel"])
-    gate.load_state_dict(saved["state"])
+    """A gate this script wrote (safetensors: tensors only, its shape in the metadata)."""
+    with safe_open(path, framework="pt") as handle:
+        meta = handle.metadata()
+        state = {key: handle.get_tensor(key) for key in handle.keys()}
+    gate = ConvGate(int(meta["count"]), int(meta["kernel"]))
+    gate.load_state_dict(state)
     return gate.eval()
 
 
@@ -150,10 +165,10 @@ def mixed_frame(gate: ConvGate | RawGate, binned, tfi, long, previous, conventio
 
 
 def score(folder: str, path: str, which: str = "development", before: str | None = None) -> None:
-    """The gate at ``path`` (this script's ``.pt`` or a gate weight file) beside ``before`` (default: the shipped
+    """The gate at ``path`` (this script's, or a gate weight file with its card) beside ``before`` (default: the shipped
     gate) on the cached ``which`` set, the texture pans and the real streams."""
     other = load_raw_gate(before or default_raw_gate_path())[0].eval()
-    gates = {"before": other, Path(path).stem: load_gate(path) if path.endswith(".pt") else
+    gates = {"before": other, Path(path).stem: load_gate(path) if not Path(path).with_suffix(".json").is_file() else
              load_raw_gate(path)[0].eval()}
     names = list(gates)
     print(f"| sequence | binned | {' | '.join(names)} |\n|---|---:|" + "---:|" * len(names))
