@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from rmbvideo.io.dat import DatGeometry, write_dat
-from rmbvideo.recon.full_resolution import block_mean, relative_detail, to_block_levels, upsample
+from rmbvideo.recon.full_resolution import (block_mean, relative_detail, to_block_levels, upsample,
+                                           with_candidate_detail)
 from rmbvideo.recon.run import prepare_run, reconstruct_frames
 
 
@@ -30,6 +31,35 @@ def test_detail_keeps_every_block_mean_and_ignores_pure_noise() -> None:
     assert np.median(np.abs(noise_detail - 1)) < 0.02
     # No spikes at all: factor 1, finite.
     assert np.array_equal(relative_detail(np.zeros((8, 8)), window), np.ones((8, 8), np.float32))
+
+
+def test_candidate_detail_keeps_the_gated_levels_and_takes_a_trusted_candidates_own_pixels() -> None:
+    """Where the gate took a TFI candidate's level, ``with_candidate_detail`` puts that share of the candidate's own
+    pixels inside the block in place of the detail stage's shape: every block keeps the gated level, a block taken
+    wholly from a candidate at full strength is the candidate's pixels, no share or no strength changes nothing, and
+    dark blocks and candidates stay finite and >= 0."""
+    rng = np.random.default_rng(3)
+    h, w = 6, 8
+    candidates = rng.uniform(0.0, 1.0, (2, 2 * h, 2 * w)).astype(np.float32)
+    candidates[0, :4, :4] = 0.0  # a candidate that never fired there
+    levels = candidates.reshape(2, h, 2, w, 2).mean(axis=(2, 4))
+    network = rng.uniform(0.0, 1.0, (h, w)).astype(np.float32)
+    network[0, 0] = 0.0
+    shares = rng.uniform(0.0, 0.5, (2, h, w)).astype(np.float32)
+    shares[:, 1, 1] = (1.0, 0.0)  # block (1, 1) wholly from the first candidate
+    shares[:, 0, 0] = (0.0, 0.0)  # block (0, 0) black in the network's frame and kept
+    gated = (1 - shares.sum(0)) * network + (shares * levels).sum(0)
+    full = to_block_levels(upsample(gated) * rng.uniform(0.5, 1.5, (2 * h, 2 * w)).astype(np.float32), gated)
+    for strength in (0.25, 0.5, 1.0):
+        out = with_candidate_detail(full, gated, shares, candidates, strength)
+        assert np.isfinite(out).all() and (out >= 0).all()
+        np.testing.assert_allclose(out.reshape(h, 2, w, 2).mean(axis=(1, 3)), gated, rtol=1e-5, atol=1e-6)
+        assert not np.allclose(out, full)
+    np.testing.assert_allclose(with_candidate_detail(full, gated, shares, candidates, 1.0)[2:4, 2:4],
+                               candidates[0, 2:4, 2:4], rtol=1e-5)
+    np.testing.assert_array_equal(with_candidate_detail(full, gated, shares, candidates, 0.0), full)
+    np.testing.assert_allclose(with_candidate_detail(full, gated, 0 * shares, candidates, 1.0), full)
+    assert (with_candidate_detail(full, gated, shares, candidates, 1.0)[:2, :2] == 0).all()
 
 
 def test_block_levels_keep_each_binned_level_where_bilinear_upsampling_blurs_it() -> None:

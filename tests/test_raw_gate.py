@@ -81,6 +81,19 @@ def test_a_gate_with_a_long_window_mixes_three_images_by_shares_that_sum_to_at_m
         _mixing_gate()(binned, tfi, binned, 1.0, long_tfi)
 
 
+def test_mix_gives_the_gates_frame_and_the_shares_it_was_made_of() -> None:
+    """``mix`` (the engine's call: candidates stacked) gives ``forward``'s frame and the candidates' shares in it."""
+    gate = _mixing_gate(4, 16)
+    binned, tfi, long_tfi = (torch.rand(1, 1, 16, 20) * 0.5 for _ in range(3))
+    mixed, share = gate.mix(binned, torch.cat([tfi, long_tfi], 1), binned, 1.0)
+    torch.testing.assert_close(mixed, gate(binned, tfi, binned, 1.0, long_tfi), rtol=0, atol=0)
+    torch.testing.assert_close(share, gate.share(gate_features(binned, tfi, binned, 1.0, long_tfi)))
+    torch.testing.assert_close(mixed, (1 - share.sum(1, keepdim=True)) * binned
+                               + share[:, :1] * tfi + share[:, 1:] * long_tfi)
+    with pytest.raises(ValueError, match="2 TFI candidates, got 1"):
+        gate.mix(binned, tfi, binned, 1.0)
+
+
 @pytest.mark.parametrize("tfi_window, long_window, frame_features", [(0, 0, False), (8, 0, False), (0, 8, False),
                                                                      (4, 8, True)])
 def test_full_resolution_mixes_each_binned_frame_as_the_fitting_reads_it(tmp_path: Path, tfi_window: int,

@@ -176,8 +176,19 @@ class RawGate(nn.Module):
         ``previous`` is the binned frame before (the frame itself at a clip's start)."""
         if (long_tfi is None) != (not self.config.long_window):
             raise ValueError("long_tfi must be given exactly when the gate has a long_window")
-        images = (binned, tfi, previous) + ((long_tfi,) if long_tfi is not None else ())
-        clean = [torch.nan_to_num(x.float(), nan=0.0, posinf=0.0, neginf=0.0).clamp(min=0.0) for x in images]
-        share = self.share(gate_features(*clean[:3], convention, *clean[3:], frame=self.config.frame_features))
-        candidates = torch.cat([clean[1], *clean[3:]], dim=1)
-        return (1.0 - share.sum(1, keepdim=True)) * clean[0] + (share * candidates).sum(1, keepdim=True)
+        return self.mix(binned, torch.cat([tfi, *(() if long_tfi is None else (long_tfi,))], dim=1), previous,
+                        convention)[0]
+
+    def mix(self, binned: torch.Tensor, candidates: torch.Tensor, previous: torch.Tensor,
+            convention: float) -> tuple[torch.Tensor, torch.Tensor]:
+        """``forward`` with the TFI candidates stacked (B, ``config.candidates``, H, W), returning the frame and the
+        candidates' shares (B, candidates, H, W) in it."""
+        if candidates.shape[1] != self.config.candidates:
+            raise ValueError(f"the gate mixes {self.config.candidates} TFI candidates, got {candidates.shape[1]}")
+        clean = [torch.nan_to_num(x.float(), nan=0.0, posinf=0.0, neginf=0.0).clamp(min=0.0)
+                 for x in (binned, candidates, previous)]
+        long_tfi = clean[1][:, 1:] if self.config.long_window else None
+        share = self.share(gate_features(clean[0], clean[1][:, :1], clean[2], convention, long_tfi,
+                                         frame=self.config.frame_features))
+        mixed = (1.0 - share.sum(1, keepdim=True)) * clean[0] + (share * clean[1]).sum(1, keepdim=True)
+        return mixed, share

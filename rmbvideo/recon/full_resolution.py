@@ -22,7 +22,9 @@ GPU those rates are made there too, in a thread beside it (``rmbvideo.recon.devi
 With RMB-Net as the binned method and a raw-interval gate (``rmbvideo.net.raw_gate``, ``raw_gate=``), each binned
 frame is first mixed per pixel with TFI of the raw planes (read as light and 2x2-averaged) where the gate trusts it:
 single intervals resolve dim fine texture of slow scenes that the binned counts blur. The detail then shapes that
-frame, so the full output still averages back to it over 2x2 blocks. With ``output="binned"`` the gated frames
+frame, so the full output still averages back to it over 2x2 blocks; where the gate took a TFI candidate's level, a
+share (``CANDIDATE_DETAIL``) of the detail inside each block is that candidate's own pixels instead
+(``with_candidate_detail``). With ``output="binned"`` the gated frames
 themselves are the output, at the binned size (``--resolution binned`` on a 1-bit capture): the raw stream's evidence
 without the detail stage's cost.
 """
@@ -60,6 +62,11 @@ RAW_GATE_KINDS = ("auto", "off")
 CPU_PUSH_PLANES = 256
 #: What ``FullResolution`` emits: "full" (the camera's size) or "binned" (the gated binned frames, half each side).
 OUTPUTS = ("full", "binned")
+#: Where the gate takes a TFI candidate's level for a block, the share of the detail inside it that comes from the
+#: candidate's own raw pixels rather than the detail stage's shape (``with_candidate_detail``). Chosen on the development
+#: sets at full resolution among 0, 1/4, 1/2, 3/4, 1 (``models/experiments/raw-tfi-gate/full_shares.py``): the
+#: synthetic sequences 29.75 -> 29.80 dB, the real-video streams 30.53 -> 31.03.
+CANDIDATE_DETAIL = 0.5
 #: full-resolution pixels one call of the detail stage holds on a GPU (its activations: under 1 kB a pixel)
 DETAIL_BATCH_PIXELS = 1 << 22
 
@@ -190,6 +197,23 @@ def relative_detail(rates: np.ndarray, window: int, settings: DetailSettings = D
     return (1.0 + gain * (ratio - 1.0)).astype(np.float32)
 
 
+def with_candidate_detail(full: np.ndarray, gated: np.ndarray, shares: np.ndarray, candidates: np.ndarray,
+                          strength: float = CANDIDATE_DETAIL) -> np.ndarray:
+    """``full`` (2h, 2w), whose 2x2 blocks average to the ``gated`` frame (h, w), with ``strength`` of each TFI
+    candidate's detail inside a block in place of ``full``'s own shape there, by the gate's ``shares`` (K, h, w) of the
+    candidates (K, 2h, 2w; light per raw pixel): full + strength * sum_k s_k * (c_k - block_mean(c_k) * full / gated).
+    The block means stay the gated frame's, and the result is >= 0 (each candidate's part of the block level is
+    reshaped, never more)."""
+    if strength == 0 or not len(shares):
+        return full
+    level = np.repeat(np.repeat(gated.astype(np.float32), 2, axis=0), 2, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        shape = np.where(level > 0, full / np.maximum(level, 1e-30), 1.0).astype(np.float32)
+    own = sum(np.repeat(np.repeat(share, 2, axis=0), 2, axis=1) * (candidate - block_mean(candidate) * shape)
+              for share, candidate in zip(shares, candidates))
+    return np.maximum(full + np.float32(strength) * own, 0.0).astype(np.float32)
+
+
 def upsample(image: np.ndarray) -> np.ndarray:
     """Bilinear 2x upsampling with pixel centres aligned (each binned pixel covers a 2x2 block)."""
     import cv2  # on first use: listing the commands does not load OpenCV
@@ -217,7 +241,8 @@ class FullResolution:
                  settings: DetailSettings = DetailSettings(), detail: Any = None, threads: int | None = None,
                  precision: str = "auto", rates_beside: bool | None = None,
                  rates_on_device: bool | None = None, raw_gate: Any = None,
-                 finish_beside: bool | None = None, output: str = "full") -> None:
+                 finish_beside: bool | None = None, output: str = "full",
+                 candidate_detail: float = CANDIDATE_DETAIL) -> None:
         if binned.input_kind != "rmb":
             raise ValueError(f"full resolution wraps a method on the binned stream, not {type(binned).__name__}")
         if output not in OUTPUTS:
@@ -237,6 +262,7 @@ class FullResolution:
         if not full and self.raw_gate is None:
             raise ValueError("binned output is RMB-Net's frames mixed by a raw-interval gate: give RMB-Net and a gate")
         self._reading = reading
+        self.candidate_detail = candidate_detail
         self._previous: np.ndarray | None = None  # the last binned frame, before the gate (its change is a feature)
         # resolved once, as the RMB-Net engine does: the policy, not the load of each frame's moment
         self.threads = threads if threads is not None else default_threads()
@@ -405,9 +431,10 @@ class FullResolution:
         # per frame: the TFP windows, then TFI at each reach, shortest first
         rates = [_planes([store.pop(index).image[..., : 2 * c.image.shape[0], : 2 * c.image.shape[1]]
                           for store in self._fine]) for index, c in zip(ready, coarse)]
+        mixes: list[tuple[np.ndarray, np.ndarray]] = []  # per gated frame: the candidates' shares and own pixels
         if self.raw_gate is not None:
             began = time.perf_counter()
-            gated = self._gated([c.image for c in coarse], [[r[k] for k in self._gate_planes] for r in rates])
+            gated, mixes = self._gated([c.image for c in coarse], [[r[k] for k in self._gate_planes] for r in rates])
             coarse = [Frame(index=c.index, time_s=c.time_s, image=image) for c, image in zip(coarse, gated)]
             self.stage_seconds["raw gate"] = self.stage_seconds.get("raw gate", 0.0) + time.perf_counter() - began
         if self.output == "binned":
@@ -419,29 +446,35 @@ class FullResolution:
         else:
             images = [to_block_levels(upsample(c.image) * relative_detail(r[0], self.settings.window, self.settings),
                                       c.image) for c, r in zip(coarse, rates)]
+        images = [with_candidate_detail(image, c.image, *mix, self.candidate_detail)
+                  for image, c, mix in zip(images, coarse, mixes)] if mixes else images
         self.stage_seconds["detail"] = self.stage_seconds.get("detail", 0.0) + time.perf_counter() - began
         # Frames one side made and the other never will (edges of the clip) are dropped at flush.
         return [Frame(index=index, time_s=c.time_s, image=image) for index, c, image in zip(ready, coarse, images)]
 
-    def _gated(self, coarse: list[np.ndarray], tfis: list[list[Any]]) -> list[np.ndarray]:
+    def _gated(self, coarse: list[np.ndarray], tfis: list[list[Any]]
+               ) -> tuple[list[np.ndarray], list[tuple[np.ndarray, np.ndarray]]]:
         """Each binned frame mixed with its raw TFI candidates (read as RMB-Net reads light, 2x2-averaged) by the
-        gate, in order; the previous binned frame is the one before the gate (the frame itself at a clip's start)."""
+        gate, in order, and per frame the gate's shares of the candidates (K, h, w) and their light per raw pixel
+        (K, 2h, 2w); the previous binned frame is the one before the gate (the frame itself at a clip's start)."""
         import torch
 
         from rmbvideo.net.pooling import mean_2x2
         from rmbvideo.net.raw_gate import tfi_light
 
         convention, tabulated = self._reading
-        out = []
+        out, mixes = [], []
         with compute_threads(self.threads), torch.inference_mode():
             for image, candidates in zip(coarse, tfis):
                 binned = torch.from_numpy(np.ascontiguousarray(image, np.float32))[None, None]
                 previous = binned if self._previous is None else torch.from_numpy(self._previous)[None, None]
-                light = [mean_2x2(tfi_light(torch.as_tensor(tfi).float().cpu()[None, None], convention, tabulated))
-                         for tfi in candidates]
-                out.append(self.raw_gate(binned, light[0], previous, convention, *light[1:])[0, 0].numpy())
+                full = torch.cat([tfi_light(torch.as_tensor(tfi).float().cpu()[None, None], convention, tabulated)
+                                  for tfi in candidates], dim=1)
+                mixed, shares = self.raw_gate.mix(binned, mean_2x2(full), previous, convention)
+                out.append(mixed[0, 0].numpy())
+                mixes.append((shares[0].numpy(), full[0].numpy()))
                 self._previous = np.ascontiguousarray(image, np.float32)
-        return out
+        return out, mixes
 
     def _learned(self, coarse: list[np.ndarray], rates: list[list[Any]]) -> list[np.ndarray]:
         """The detail stage on the frames, ``detail_batch`` of them per call."""
