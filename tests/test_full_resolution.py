@@ -471,7 +471,10 @@ def test_a_weaker_threshold_mismatch_gives_a_weaker_fixed_pattern() -> None:
 
 
 def test_train_detail_fine_tunes_from_a_stage(tmp_path: Path) -> None:
-    """``train-detail --init W``: the stage starts from W's weights (its shape taken from W), and the card says so."""
+    """``train-detail --init W``: the stage starts from W's weights (its shape taken from W, widened by
+    ``--interval-window``), and the card says so."""
+    from dataclasses import replace
+
     import torch
     from click.testing import CliRunner
 
@@ -489,6 +492,13 @@ def test_train_detail_fine_tunes_from_a_stage(tmp_path: Path) -> None:
     assert card.training["init"] == str(start)
     for a, b in zip(first.state_dict().values(), tuned.state_dict().values()):
         assert torch.allclose(a, b, atol=1e-6)  # one step at a negligible rate: still the start's weights
+    # a start without interval windows is widened to read them: its weights kept, the new inputs' at zero
+    wide = replace(config, interval_windows=(4,))
+    widened, _ = load_detail_model(train_detail(replace(train, detail=wide), tmp_path / "wide", init=start))
+    assert widened.config == wide
+    first_layer = widened.state_dict()["body.0.weight"]
+    assert torch.allclose(first_layer[:, :-2], first.state_dict()["body.0.weight"], atol=1e-6)
+    assert first_layer[:, -2:].abs().max() < 1e-6
     result = CliRunner().invoke(main, ["train-detail", "-o", str(tmp_path / "bad"), "--init", str(start),
                                        "--mismatch", "1", "0", "--quiet"])
     assert result.exit_code == 2 and "--mismatch" in result.output
@@ -520,3 +530,58 @@ def test_the_detail_stage_batches_frames_on_a_gpu_only() -> None:
     assert detail_batch(torch.device("cuda"), (8000, 8000)) == 1
     # the raw rates go beside the binned method only when it leaves the CPU idle (on a GPU)
     assert FullResolution(Tfw(window=10, step=10), RmbReadout("pure-m"), step=20)._beside is None
+
+
+def test_a_stage_widened_with_interval_windows_starts_as_itself_and_reads_them_in_the_engine(tmp_path: Path) -> None:
+    """``DetailConfig.interval_windows``: TFI over whole intervals covering 4 or 8 central planes as more inputs. A
+    stage widened with them (zero weights on the new inputs) makes its frames exactly; the engine feeds it the
+    planes (weights on them change the frames); a training sample reads them; the card keeps them."""
+    from dataclasses import replace
+
+    import torch
+
+    from rmbvideo.net.detail import DetailConfig, DetailNet
+    from rmbvideo.recon.classical import Tfw
+    from rmbvideo.recon.full_resolution import FullResolution
+    from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
+    from rmbvideo.io.dat import DatReader
+    from rmbvideo.sensor.readout import RmbReadout
+    from rmbvideo.train.detail import simulate_detail_sample
+
+    config = DetailConfig(windows=(20, 40), channels=4, layers=2, interval_reach=12)
+    wide_config = replace(config, interval_windows=(4, 8))
+    assert wide_config.rate_channels == 5 and DetailConfig.from_dict(wide_config.to_dict()) == wide_config
+    assert "interval_windows" not in config.to_dict() and wide_config.to_dict()["interval_windows"] == [4, 8]
+    with pytest.raises(ValueError, match="interval_reach"):
+        DetailConfig(interval_windows=(4,))
+    torch.manual_seed(2)
+    stage = DetailNet(config)
+    torch.nn.init.normal_(stage.body[-1].weight, std=0.3)
+    wide = stage.widened(wide_config)
+    with pytest.raises(ValueError, match="widens only"):
+        stage.widened(replace(wide_config, channels=8))
+    binned, rates = torch.rand(1, 1, 12, 16), torch.rand(1, 5, 24, 32)
+    with torch.inference_mode():
+        torch.testing.assert_close(wide(binned, rates), stage(binned, rates[:, :3]))
+
+    dat = _capture(tmp_path / "c.dat", planes=300)
+
+    def frames(detail: DetailNet) -> list[np.ndarray]:
+        recon = FullResolution(Tfw(window=10, step=10), RmbReadout("pure-m"), step=20, detail=detail, threads=1,
+                               precision="fp32")  # on a host with bf16 the widths would round differently
+        sink = FrameCollector()
+        reconstruct_stream(DatReader(dat, DatGeometry(64, 48)), recon, sink, chunk_planes=64)
+        return [sink.frames[i].image for i in sorted(sink.frames)]
+
+    for a, b in zip(frames(stage), frames(wide)):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
+    with torch.no_grad():
+        wide.body[0].weight[:, -4:] = 0.5
+    assert not all(np.allclose(a, b, rtol=1e-3) for a, b in zip(frames(stage), frames(wide)))
+
+    sample = simulate_detail_sample(11, 16, (20, 80), 0.0, interval_reach=30, interval_windows=(4, 16))
+    assert sample.rates.shape == (5, 32, 32) and sample.rates[2:].min() > 0 and sample.rates[2:].max() <= 1
+    bright = sample.rates[1] > 0.2
+    assert abs(float(np.median(sample.rates[4][bright] / sample.rates[1][bright])) - 1.0) < 0.1
+    # TFI-16 spans more planes than one interval: finer than whole-plane intervals, and as close to the TFP-80 rate
+    assert np.abs(sample.rates[4] - sample.rates[1])[bright].mean() < np.abs(sample.rates[2] - sample.rates[1])[bright].mean()

@@ -8,6 +8,7 @@ RECIPE is a path or the name of a bundled recipe (``cpu``, ``gpu``, ``native-cpu
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -96,10 +97,15 @@ def train(recipe: str | None, list_recipes: bool, out_dir: Path | None, cache_di
 @click.option("--mismatch", type=(click.FloatRange(min=0), click.FloatRange(min=0)), default=None,
               help="LOW HIGH: each physical capture's threshold mismatch (fixed pattern) drawn between these "
                    "multiples of the paper's [default: 1 1].")
+@click.option("--interval-window", "interval_windows", type=click.IntRange(min=1), multiple=True,
+              help="Also read TFI over the whole intervals covering this many central planes (repeatable; e.g. 4 "
+                   "and 16, the raw gate's candidates); with --init the stage's first layer is widened with zero "
+                   "weights for them.")
 @quiet_option
 @verbose_option
 def train_detail(out_dir: Path, minutes: float, resume: bool, channels: int | None, layers: int | None,
-                 init: Path | None, lr: float | None, mismatch: tuple[float, float] | None, quiet: bool) -> None:
+                 init: Path | None, lr: float | None, mismatch: tuple[float, float] | None,
+                 interval_windows: tuple[int, ...], quiet: bool) -> None:
     """Train the learned detail stage of --resolution full on simulated video scenes (CPU, one thread)."""
     import torch
 
@@ -114,6 +120,9 @@ def train_detail(out_dir: Path, minutes: float, resume: bool, channels: int | No
         from rmbvideo.net.weights import load_detail_model
 
         detail = load_detail_model(init)[0].config  # the stage's own shape
+    if interval_windows:
+        detail = replace(detail, interval_windows=detail.interval_windows + tuple(
+            w for w in interval_windows if w not in detail.interval_windows))
     if mismatch is not None and mismatch[0] > mismatch[1]:
         raise click.BadParameter(f"LOW {mismatch[0]} is above HIGH {mismatch[1]}", param_hint="--mismatch")
     options = {**({"lr": lr, "lr_final": lr / 10} if lr is not None else {}),

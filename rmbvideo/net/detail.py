@@ -19,7 +19,7 @@ exactly: the stage adds detail, never a tone change.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
 import torch
@@ -35,16 +35,23 @@ class DetailConfig:
     """``windows``: raw planes of the TFP rates the stage reads (centred on the frame; the 6-plane one
     follows fast motion, which blurs over 20 planes at a raw pixel per plane); ``interval_reach``: raw
     planes TFI searches on each side of the frame's centre (``rmbvideo.recon.classical.Tfi``'s
-    ``max_reach``), 0 for no TFI input; ``channels`` and ``layers``: the width and depth of its 3x3
+    ``max_reach``), 0 for no TFI input; ``interval_windows``: more TFI inputs over that reach, each the whole
+    intervals covering that many central planes (``Tfi``'s ``window``: TFI-4, TFI-16, the raw gate's candidates),
+    steadier than one interval where nothing moves; ``channels`` and ``layers``: the width and depth of its 3x3
     convolution stack."""
 
     windows: tuple[int, ...] = (6, 20, 40, 80)
     channels: int = 16
     layers: int = 4
     interval_reach: int = 0
+    interval_windows: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "windows", tuple(int(w) for w in self.windows))
+        object.__setattr__(self, "interval_windows", tuple(int(w) for w in self.interval_windows))
+        if self.interval_windows and (not self.interval_reach or min(self.interval_windows) < 1):
+            raise ValueError(f"interval_windows need an interval_reach and positive plane counts, got "
+                             f"{self.interval_windows} at reach {self.interval_reach}")
         if not self.windows or min(self.windows) < 1:
             raise ValueError(f"windows must be positive plane counts, got {self.windows}")
         if self.channels < 1 or self.layers < 2:
@@ -54,15 +61,19 @@ class DetailConfig:
 
     @property
     def rate_channels(self) -> int:
-        """Rate planes the stage reads: one per window, then TFI when ``interval_reach`` > 0."""
-        return len(self.windows) + int(self.interval_reach > 0)
+        """Rate planes the stage reads: one per window, then TFI when ``interval_reach`` > 0, then one per
+        ``interval_windows``."""
+        return len(self.windows) + int(self.interval_reach > 0) + len(self.interval_windows)
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dictionary (no ``interval_reach`` key without TFI input: older cards stay valid)."""
+        """JSON-ready dictionary (no ``interval_reach`` key without TFI input, no ``interval_windows`` without them:
+        older cards stay valid)."""
         out = asdict(self)
         out["windows"] = list(self.windows)
-        if not self.interval_reach:
-            del out["interval_reach"]
+        out["interval_windows"] = list(self.interval_windows)
+        for key in ("interval_reach", "interval_windows"):
+            if not out[key]:
+                del out[key]
         return out
 
     @classmethod
@@ -71,7 +82,8 @@ class DetailConfig:
         unknown = sorted(set(data) - {f.name for f in fields(cls)})
         if unknown:
             raise KeyError(f"unknown detail config keys {unknown}")
-        return cls(**{**data, "windows": tuple(data.get("windows", cls.windows))})
+        return cls(**{**data, "windows": tuple(data.get("windows", cls.windows)),
+                      "interval_windows": tuple(data.get("interval_windows", ()))})
 
 
 def block_mean(x: torch.Tensor) -> torch.Tensor:
@@ -111,11 +123,12 @@ class DetailNet(nn.Module):
 
     def features(self, up: torch.Tensor, rates: torch.Tensor) -> torch.Tensor:
         """(B, 1 + 2K, H, W): the bilinear deviation from the block level, then per rate plane (each
-        window, then TFI, read as if over 2 * ``interval_reach`` planes) the rate's relative deviation
+        window, then each TFI, read as if over 2 * ``interval_reach`` planes) the rate's relative deviation
         from its block mean and the block's spike count (mu-law compressed)."""
         level = F.interpolate(mean_2x2(up), scale_factor=2.0, mode="nearest")
         parts = [(up / level.clamp(min=1e-12) - 1.0).clamp(-1.0, 1.0) * (level > 0)]
-        windows = self.config.windows + ((2 * self.config.interval_reach,) if self.config.interval_reach else ())
+        intervals = 1 + len(self.config.interval_windows) if self.config.interval_reach else 0
+        windows = self.config.windows + (2 * self.config.interval_reach,) * intervals
         for k, window in enumerate(windows):
             r = rates[:, k : k + 1].float()
             mean = block_mean(r)
@@ -124,9 +137,24 @@ class DetailNet(nn.Module):
             parts.append(mu_law(spikes / (4 * window), 255.0))
         return torch.cat(parts, dim=1)
 
+    def widened(self, config: DetailConfig) -> DetailNet:
+        """A stage of ``config`` (this one's with more ``interval_windows``) that computes this one's frames: its
+        first convolution reads the new inputs with zero weights, so a fine-tune starts from this stage exactly."""
+        if replace(config, interval_windows=self.config.interval_windows) != self.config or \
+                config.interval_windows[: len(self.config.interval_windows)] != self.config.interval_windows:
+            raise ValueError(f"a stage of {self.config} widens only by more interval_windows, not to {config}")
+        wider = DetailNet(config)
+        state = self.state_dict()
+        first = state["body.0.weight"]
+        state["body.0.weight"] = torch.cat([first, first.new_zeros(first.shape[0], 2 * (config.rate_channels
+                                                                                    - self.config.rate_channels),
+                                                                   *first.shape[2:])], dim=1)
+        wider.load_state_dict(state)
+        return wider
+
     def forward(self, binned: torch.Tensor, rates: torch.Tensor) -> torch.Tensor:
         """``binned`` (B,1,h,w) linear; ``rates`` (B,K,2h,2w) raw spike rates per plane over each of the
-        config's windows, then TFI when it reads it (``config.rate_channels``) -> (B,1,2h,2w) linear,
+        config's windows, then TFI and its ``interval_windows`` when it reads them (``config.rate_channels``) -> (B,1,2h,2w) linear,
         >= 0 and finite."""
         binned = torch.nan_to_num(binned.float(), nan=0.0, posinf=0.0, neginf=0.0).clamp(min=0.0)
         rates = torch.nan_to_num(rates.float(), nan=0.0, posinf=0.0, neginf=0.0).clamp(0.0, 1.0)

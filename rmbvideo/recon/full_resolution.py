@@ -279,12 +279,19 @@ class FullResolution:
         shared_reach = gate.tfi_reach if gate is not None and 0 in gate_windows else 0
         reaches = sorted({r for r in (detail_reach, shared_reach) if r})
         tfi = dict(max_reach=reaches[-1], shorter=tuple(reaches[:-1])) if reaches else None
-        gate_tfi = [dict(max_reach=gate.tfi_reach, window=w) for w in gate_windows if w]
-        # where each reader's planes are among a frame's raw rates (the windows' TFP, TFI at each reach, the gate's)
+        # TFI over central planes (the gate's candidates, the detail stage's interval windows): one search each
+        # (reach, window), shared where the two ask for the same
+        gate_searches = [(gate.tfi_reach, w) for w in gate_windows if w]
+        detail_searches = [(detail_reach, w) for w in (detail.config.interval_windows if detail is not None else ())]
+        searches = list(dict.fromkeys(gate_searches + detail_searches))
+        windowed = [dict(max_reach=reach, window=w) for reach, w in searches]
+        # where each reader's planes are among a frame's raw rates (the windows' TFP, TFI at each reach, the searches)
+        first_search = len(windows) + len(reaches)
         self._detail_planes = [*range(len(windows)), *([len(windows) + reaches.index(detail_reach)]
-                                                       if detail_reach else [])]
-        own = iter(range(len(windows) + len(reaches), len(windows) + len(reaches) + len(gate_tfi)))
-        self._gate_planes = [len(windows) + reaches.index(shared_reach) if not w else next(own) for w in gate_windows]
+                                                       if detail_reach else []),
+                               *(first_search + searches.index(s) for s in detail_searches)]
+        self._gate_planes = [len(windows) + reaches.index(shared_reach) if not w
+                             else first_search + searches.index((gate.tfi_reach, w)) for w in gate_windows]
         # on a GPU the raw stream's rates are made there too (``rmbvideo.recon.device_rates``: the same frames)
         if rates_on_device is None:
             rates_on_device = rates_on_device_by_default(self.device)
@@ -299,13 +306,13 @@ class FullResolution:
             on_device = self.detail is not None
             self._rates: list = [DeviceTfp(window=w, step=step, on_device=on_device) for w in windows]
             self._rates += [DeviceTfi(step=step, on_device=on_device, **tfi)] if tfi else []
-            self._rates += [DeviceTfi(step=step, on_device=on_device, **options) for options in gate_tfi]
+            self._rates += [DeviceTfi(step=step, on_device=on_device, **options) for options in windowed]
         else:
             # the TFI searches (the detail stage's, the gate's windows) scan each block of planes once between them
             self._scans = BlockScans()
             self._rates = [Tfp(window=w, step=step) for w in windows]
             self._rates += [Tfi(step=step, scans=self._scans, **tfi)] if tfi else []
-            self._rates += [Tfi(step=step, scans=self._scans, **options) for options in gate_tfi]
+            self._rates += [Tfi(step=step, scans=self._scans, **options) for options in windowed]
         # the TFI searches among them, fed block by block (``push_by_block``) so that they share each block's scan
         self._searches = [rate for rate in self._rates if isinstance(rate, Tfi)]
         # whether a raw-rate method on the CPU reads decoded planes (TFI; TFP sums the stored bits)

@@ -87,10 +87,12 @@ class DetailSample:
 
 
 def simulate_detail_sample(seed: int, crop: int, windows: tuple[int, ...], spikezoo_fraction: float,
-                           interval_reach: int = 0, mismatch: tuple[float, float] = (1.0, 1.0)) -> DetailSample:
+                           interval_reach: int = 0, mismatch: tuple[float, float] = (1.0, 1.0),
+                           interval_windows: tuple[int, ...] = ()) -> DetailSample:
     """The sample of ``seed``: a frame at raw plane time ``max(windows)/2 + 10`` (at least
     ``interval_reach`` + 1), every window centred on it; TFI there (``Tfi`` itself) when
-    ``interval_reach`` > 0; a physical capture's threshold mismatch drawn in ``mismatch`` (times the paper's)."""
+    ``interval_reach`` > 0, then TFI over each of ``interval_windows`` central planes; a physical capture's threshold
+    mismatch drawn in ``mismatch`` (times the paper's)."""
     rng = np.random.default_rng([seed, 0xDE7A])
     convention = "spikezoo" if rng.random() < spikezoo_fraction else "physical"
     centre = max(max(windows) // 2 + 10, interval_reach + 1)
@@ -100,8 +102,9 @@ def simulate_detail_sample(seed: int, crop: int, windows: tuple[int, ...], spike
     chunks = list(capture_planes(scene, planes, RAW_RATE_HZ, mismatch=float(rng.uniform(*mismatch))))
     raw = np.concatenate([c.planes for c in chunks]).astype(np.float32)
     rates = [raw[centre - w // 2: centre - w // 2 + w].mean(axis=0) for w in windows]
-    if interval_reach:
-        tfi = Tfi(step=2 * centre, max_reach=interval_reach)  # frame 0 is centred on plane time `centre`
+    for window in (0, *interval_windows) if interval_reach else ():
+        # frame 0 is centred on plane time `centre`
+        tfi = Tfi(step=2 * centre, max_reach=interval_reach, window=window)
         frames = [f for c in chunks for f in tfi.push(c)] + tfi.flush()
         rates.append(frames[0].image)
     rates = np.stack(rates)
@@ -146,16 +149,19 @@ def train_detail(config: DetailTrainConfig, out_dir: Path, name: str = "detail-b
                  resume: bool = False, progress: bool = False, init: Path | None = None) -> Path:
     """Train for ``config.minutes`` of wall time (a progress bar in seconds when ``progress``); write
     ``out_dir/<name>.safetensors`` + card and return it. ``init``: a detail stage's weights to start from (a fine-tune,
-    with a fresh optimizer; its architecture must be ``config.detail``)."""
+    with a fresh optimizer; its architecture must be ``config.detail``, or that with fewer ``interval_windows``:
+    then the new inputs start with zero weights, ``DetailNet.widened``)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(config.seed)
     model = DetailNet(config.detail)
     if init is not None and not resume:
         start, _ = load_detail_model(init)
-        if start.config != config.detail:
-            raise InputError(f"{init}: a detail stage of another architecture ({start.config}, not {config.detail})")
-        model.load_state_dict(start.state_dict())
+        try:
+            model.load_state_dict(start.widened(config.detail).state_dict())
+        except ValueError:
+            raise InputError(f"{init}: a detail stage of another architecture ({start.config}, not "
+                             f"{config.detail})") from None
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
     state = load_checkpoint(out_dir, model, optimizer) if resume else CheckpointState(0, 0.0)
     windows = config.detail.windows
@@ -165,7 +171,7 @@ def train_detail(config: DetailTrainConfig, out_dir: Path, name: str = "detail-b
 
     def simulate(seed: int) -> DetailSample:
         return simulate_detail_sample(seed, config.crop, windows, config.spikezoo_fraction,
-                                      config.detail.interval_reach, config.mismatch)
+                                      config.detail.interval_reach, config.mismatch, config.detail.interval_windows)
 
     val = [simulate(EVAL_SEED_START + 500_000 + k) for k in range(config.val_count)]
     pool = [simulate(base + k) for k in range(config.pool)]
