@@ -154,8 +154,8 @@ class DetailNet(nn.Module):
 
     def forward(self, binned: torch.Tensor, rates: torch.Tensor) -> torch.Tensor:
         """``binned`` (B,1,h,w) linear; ``rates`` (B,K,2h,2w) raw spike rates per plane over each of the
-        config's windows, then TFI and its ``interval_windows`` when it reads them (``config.rate_channels``) -> (B,1,2h,2w) linear,
-        >= 0 and finite."""
+        config's windows, then TFI and its ``interval_windows`` when it reads them (``config.rate_channels``) ->
+        (B,1,2h,2w) linear, >= 0 and finite."""
         binned = torch.nan_to_num(binned.float(), nan=0.0, posinf=0.0, neginf=0.0).clamp(min=0.0)
         rates = torch.nan_to_num(rates.float(), nan=0.0, posinf=0.0, neginf=0.0).clamp(0.0, 1.0)
         up = upsample(binned)

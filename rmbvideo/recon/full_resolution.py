@@ -63,9 +63,9 @@ CPU_PUSH_PLANES = 256
 #: What ``FullResolution`` emits: "full" (the camera's size) or "binned" (the gated binned frames, half each side).
 OUTPUTS = ("full", "binned")
 #: Where the gate takes a TFI candidate's level for a block, the share of the detail inside it that comes from the
-#: candidate's own raw pixels rather than the detail stage's shape (``with_candidate_detail``). Chosen on the development
-#: sets at full resolution among 0, 1/4, 1/2, 3/4, 1 (``models/experiments/raw-tfi-gate/full_shares.py``): the
-#: synthetic sequences 29.75 -> 29.80 dB, the real-video streams 30.53 -> 31.03.
+#: candidate's own raw pixels rather than the detail stage's shape (``with_candidate_detail``). Chosen on the
+#: development sets at full resolution among 0, 1/4, 1/2, 3/4, 1 (``models/experiments/raw-tfi-gate/full_shares.py``):
+#: the synthetic sequences 29.75 -> 29.80 dB, the real-video streams 30.53 -> 31.03.
 CANDIDATE_DETAIL = 0.5
 #: full-resolution pixels one call of the detail stage holds on a GPU (its activations: under 1 kB a pixel)
 DETAIL_BATCH_PIXELS = 1 << 22

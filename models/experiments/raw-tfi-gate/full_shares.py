@@ -14,7 +14,9 @@ Every block keeps the gated level. Each a is scored at full resolution as ``rmbv
 scores the default row, on the development sequences and the real-video streams (``--heldout``: the held-out
 sequences, once, to ship). Run from the repository root (about 2 minutes once the sequences are cached):
 
-    python models/experiments/raw-tfi-gate/full_shares.py [--heldout]
+    python models/experiments/raw-tfi-gate/full_shares.py [--heldout] [--detail STAGE.safetensors]
+
+``--detail``: another detail stage in place of the shipped one (``rmbvideo train-detail``'s output).
 """
 
 import sys
@@ -30,6 +32,7 @@ from rmbvideo.evaluate.harness import SATURATION, SIMULATED_RESPONSE, sequence_c
 from rmbvideo.evaluate.heldout import load_development, load_heldout, load_video_heldout
 from rmbvideo.evaluate.metrics import mu_law_psnr
 from rmbvideo.evaluate.real_video import CONVENTION, RAW_STEP, find_streams, open_stream, scaled_psnr
+from rmbvideo.net.weights import load_detail_model
 from rmbvideo.recon.full_resolution import FullResolution, detail_stage, raw_gate_stage
 from rmbvideo.recon.methods import make_reconstructor
 from rmbvideo.recon.pipeline import FrameCollector, reconstruct_stream
@@ -40,13 +43,15 @@ STREAMS = Path("../shared/data/spikezoo-base")
 STRENGTHS = (0.0, 0.25, 0.5, 0.75, 1.0)
 
 
-def frames(source_of, convention: str, strength: float, keep=None) -> dict[int, np.ndarray]:
-    """The default full-resolution job's frames with ``candidate_detail`` = ``strength``."""
+def frames(source_of, convention: str, strength: float, keep=None, detail=None) -> dict[int, np.ndarray]:
+    """The default full-resolution job's frames with ``candidate_detail`` = ``strength`` (and ``detail`` in place of
+    the shipped detail stage)."""
     recon = make_reconstructor("rmbnet", input_mode="binned", threads=1, convention=convention,
                                response=SIMULATED_RESPONSE)
     readout = RmbReadout(mode=ReadoutMode(trained_readout(recon)))
-    full = FullResolution(recon, readout, step=RAW_STEP, detail=detail_stage("learned"), threads=1,
-                          raw_gate=raw_gate_stage("auto"), candidate_detail=strength)
+    stage = detail if detail is not None else detail_stage("learned")
+    full = FullResolution(recon, readout, step=RAW_STEP, detail=stage, threads=1, raw_gate=raw_gate_stage("auto"),
+                          candidate_detail=strength)
     sink = FrameCollector(keep=keep)
     reconstruct_stream(source_of(), full, sink, chunk_planes=128)
     return {i: f.image for i, f in sink.frames.items()}
@@ -55,6 +60,7 @@ def frames(source_of, convention: str, strength: float, keep=None) -> dict[int, 
 def main() -> None:
     torch.set_num_threads(1)
     heldout = "--heldout" in sys.argv[1:]
+    detail = load_detail_model(sys.argv[sys.argv.index("--detail") + 1])[0] if "--detail" in sys.argv else None
     sequences = load_heldout(False) + load_video_heldout(False) if heldout else load_development()
     rows: dict[str, list[float]] = {}
     began = time.perf_counter()
@@ -62,7 +68,7 @@ def main() -> None:
         truth = {i: np.minimum(gt, SATURATION) for i, gt in full_ground_truth(seq).items()}
         rows[seq.name] = []
         for strength in STRENGTHS:
-            made = frames(lambda: seq, sequence_convention(seq), strength)
+            made = frames(lambda: seq, sequence_convention(seq), strength, detail=detail)
             rows[seq.name].append(float(np.mean([mu_law_psnr(made[i], truth[i]) for i in truth])))
         print(seq.name, " ".join(f"{x:.2f}" for x in rows[seq.name]), flush=True)
     synthetic = list(rows)
@@ -70,7 +76,8 @@ def main() -> None:
         reference = cv2.imread(str(stream.reference), cv2.IMREAD_GRAYSCALE).astype(np.float32) / 255.0
         rows[stream.name] = []
         for strength in STRENGTHS:
-            made = frames(lambda: open_stream(stream), CONVENTION, strength, keep=[stream.frame])[stream.frame]
+            made = frames(lambda: open_stream(stream), CONVENTION, strength, keep=[stream.frame],
+                          detail=detail)[stream.frame]
             rows[stream.name].append(scaled_psnr(made[: reference.shape[0], : reference.shape[1]], reference))
         print(stream.name, " ".join(f"{x:.2f}" for x in rows[stream.name]), flush=True)
     real = [k for k in rows if k not in synthetic]
