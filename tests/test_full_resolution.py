@@ -586,3 +586,25 @@ def test_a_stage_widened_with_interval_windows_starts_as_itself_and_reads_them_i
     # TFI-16 spans more planes than one interval: finer than whole-plane intervals, and as close to the TFP-80 rate
     error = [np.abs(sample.rates[k] - sample.rates[1])[bright].mean() for k in (2, 4)]
     assert error[1] < error[0]
+
+
+def test_the_shipped_detail_stage_reads_the_gates_tfi_searches_and_its_own_without_a_gate() -> None:
+    """The shipped detail stage reads TFI-4 and TFI-16, as the shipped gate does: with the gate it reads the gate's two
+    searches (no search of its own), with the gate off it searches at its own reach."""
+    from rmbvideo.net.weights import default_model_path
+    from rmbvideo.recon.classical import Tfi
+    from rmbvideo.recon.full_resolution import FullResolution, detail_stage, raw_gate_stage
+    from rmbvideo.recon.rmbnet import RmbNetReconstructor
+    from rmbvideo.sensor.readout import RmbReadout
+
+    detail, gate = detail_stage("learned"), raw_gate_stage("auto")
+    assert detail.config.interval_windows == (gate.config.tfi_window, gate.config.long_window)
+    engine = RmbNetReconstructor.from_file(default_model_path(), device="cpu", threads=1)
+    gated = FullResolution(engine, RmbReadout("pure-m"), detail=detail, raw_gate=gate, threads=1)
+    windowed = [(r.max_reach, r.window) for r in gated._rates if isinstance(r, Tfi) and r.window]
+    assert windowed == [(gate.config.tfi_reach, 4), (gate.config.tfi_reach, 16)]
+    assert gated._detail_planes[-2:] == gated._gate_planes
+    alone = FullResolution(engine, RmbReadout("pure-m"), detail=detail, threads=1)
+    assert [(r.max_reach, r.window) for r in alone._rates if isinstance(r, Tfi) and r.window] == [
+        (detail.config.interval_reach, 4), (detail.config.interval_reach, 16)]
+    assert len(alone._detail_planes) == detail.config.rate_channels

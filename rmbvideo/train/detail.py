@@ -113,6 +113,14 @@ def simulate_detail_sample(seed: int, crop: int, windows: tuple[int, ...], spike
     return DetailSample(binned=binned, rates=rates, gt=gt)
 
 
+def detail_description(detail: DetailConfig) -> str:
+    """The model card's one-line description of a stage of ``detail``."""
+    tfi = (f", TFI at a {detail.interval_reach}-plane reach" if detail.interval_reach else "") + "".join(
+        f", TFI-{w}" for w in detail.interval_windows)
+    return ("Detail stage for --resolution full: how each 2x2 block's level is shared among its pixels, from the raw "
+            "TFP rates over " + "/".join(map(str, detail.windows)) + " planes" + tfi)
+
+
 def detail_loss(pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
     """Mean L1 of mu-law frames after dividing both by each ground truth's 99.9th percentile."""
     scale = torch.quantile(gt.flatten(1), 0.999, dim=1).clamp(min=1e-6).reshape(-1, 1, 1, 1)
@@ -220,8 +228,7 @@ def train_detail(config: DetailTrainConfig, out_dir: Path, name: str = "detail-b
     metrics = validate(model, val, windows)
     card = ModelCard(
         name=name,
-        description="Detail stage for --resolution full: how each 2x2 block's level is shared among its pixels, "
-                    "from the raw TFP rates over " + "/".join(map(str, windows)) + " planes",
+        description=detail_description(config.detail),
         training={"config": {k: v for k, v in asdict(config).items() if k != "detail"}, "steps_done": step,
                   **({"init": str(init)} if init is not None else {}),
                   "wall_time_s": round(time.monotonic() - start, 1), "machine": machine_description(torch.device("cpu")),
