@@ -23,8 +23,7 @@ from rmbvideo.evaluate.full_resolution import full_ground_truth
 from rmbvideo.evaluate.harness import SATURATION, SIMULATED_RESPONSE, rate_as_light, sequence_convention
 from rmbvideo.evaluate.heldout import load_development, load_heldout, load_video_heldout
 from rmbvideo.evaluate.metrics import mu_law_psnr
-from rmbvideo.evaluate.real_video import CONVENTION, RAW_STEP, find_streams, scaled_psnr
-from rmbvideo.io.dat import DatReader
+from rmbvideo.evaluate.real_video import CONVENTION, RAW_STEP, find_streams, open_stream, scaled_psnr
 from rmbvideo.net.weights import load_detail_model
 from rmbvideo.recon.full_resolution import FullResolution, detail_inference_copy
 from rmbvideo.recon.methods import make_reconstructor
@@ -62,7 +61,8 @@ def accuracy(paths: list[Path], sequences: list) -> dict[str, dict[str, float]]:
     for stream in streams:
         reference = cv2.imread(str(stream.reference), cv2.IMREAD_GRAYSCALE).astype(np.float32) / 255.0
         for name, detail in details.items():
-            frames = full_frames(detail, DatReader(stream.capture, stream.geometry), CONVENTION, keep=[stream.frame])
+            # made at the reference's moment, as the evaluation makes it (``open_stream``)
+            frames = full_frames(detail, open_stream(stream), CONVENTION, keep=[stream.frame])
             image = frames[stream.frame][: reference.shape[0], : reference.shape[1]]
             scores[name][stream.name] = scaled_psnr(image, reference)
             print(f"{stream.name}: {name} {scores[name][stream.name]:.2f} dB", flush=True)
