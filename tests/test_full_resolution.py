@@ -217,6 +217,8 @@ def test_binned_output_of_a_1bit_capture_is_the_gated_frame_the_full_frames_aver
         FullResolution(engine, RmbReadout("pure-m"), output="binned")
     with pytest.raises(ValueError, match="output must be"):
         FullResolution(engine, RmbReadout("pure-m"), output="half")
+    with pytest.raises(ValueError, match="candidate_detail must lie in 0..1"):
+        FullResolution(engine, RmbReadout("pure-m"), candidate_detail=1.5)
 
 
 def test_the_finishing_thread_runs_where_a_core_is_free_beside_a_cpu_network(monkeypatch) -> None:

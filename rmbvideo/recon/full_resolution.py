@@ -247,6 +247,8 @@ class FullResolution:
             raise ValueError(f"full resolution wraps a method on the binned stream, not {type(binned).__name__}")
         if output not in OUTPUTS:
             raise ValueError(f"output must be one of {OUTPUTS}, not {output!r}")
+        if not 0.0 <= candidate_detail <= 1.0:
+            raise ValueError(f"candidate_detail must lie in 0..1, not {candidate_detail}")
         self.binned = binned
         self.readout = readout
         self.settings = settings
