@@ -14,9 +14,10 @@ Every block keeps the gated level. Each a is scored at full resolution as ``rmbv
 scores the default row, on the development sequences and the real-video streams (``--heldout``: the held-out
 sequences, once, to ship). Run from the repository root (about 2 minutes once the sequences are cached):
 
-    python models/experiments/raw-tfi-gate/full_shares.py [--heldout] [--detail STAGE.safetensors]
+    python models/experiments/raw-tfi-gate/full_shares.py [--heldout] [--detail STAGE.safetensors] [--subtract]
 
-``--detail``: another detail stage in place of the shipped one (``rmbvideo train-detail``'s output).
+``--detail``: another detail stage in place of the shipped one (``rmbvideo train-detail``'s output); ``--subtract``:
+the development sequences simulated with a pixel that resets by subtraction, like car.dat's camera (no real streams).
 """
 
 import sys
@@ -61,7 +62,11 @@ def main() -> None:
     torch.set_num_threads(1)
     heldout = "--heldout" in sys.argv[1:]
     detail = load_detail_model(sys.argv[sys.argv.index("--detail") + 1])[0] if "--detail" in sys.argv else None
-    sequences = load_heldout(False) + load_video_heldout(False) if heldout else load_development()
+    subtract = "--subtract" in sys.argv[1:]
+    if heldout and subtract:
+        raise SystemExit("--subtract scores the development sequences only")
+    sequences = (load_heldout(False) + load_video_heldout(False) if heldout
+                 else load_development(reset="subtract" if subtract else "zero"))
     rows: dict[str, list[float]] = {}
     began = time.perf_counter()
     for seq in sequences:
@@ -72,7 +77,7 @@ def main() -> None:
             rows[seq.name].append(float(np.mean([mu_law_psnr(made[i], truth[i]) for i in truth])))
         print(seq.name, " ".join(f"{x:.2f}" for x in rows[seq.name]), flush=True)
     synthetic = list(rows)
-    for stream in find_streams(STREAMS) if STREAMS.is_dir() else []:
+    for stream in find_streams(STREAMS) if STREAMS.is_dir() and not subtract else []:
         reference = cv2.imread(str(stream.reference), cv2.IMREAD_GRAYSCALE).astype(np.float32) / 255.0
         rows[stream.name] = []
         for strength in STRENGTHS:
