@@ -164,7 +164,7 @@ class RawGate(nn.Module):
         """The TFI candidates' shares (B, candidates, H, W), each in [0, 1] and together at most 1, from
         ``gate_features``: a sigmoid of one logit, or a softmax of the logits beside RMB-Net's fixed 0."""
         scale = self.feature_std.clamp(min=1e-6).reshape(1, -1, 1, 1)
-        # channels-last: oneDNN's kernels for so few channels run 1.25x faster so at 500x500 (as fast at 200x125)
+        # channels-last: oneDNN's kernels for so few channels run 1.04-1.09x faster so (full_shares_checks.py gate-cost)
         standard = ((features - self.feature_mean.reshape(1, -1, 1, 1)) / scale).contiguous(
             memory_format=torch.channels_last)
         logits = self.body(standard)

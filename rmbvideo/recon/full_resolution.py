@@ -175,11 +175,15 @@ def rates_on_device_by_default(device: Any) -> bool:
     return getattr(device, "type", "cpu") == "cuda"
 
 
+def spread(image: np.ndarray) -> np.ndarray:
+    """Each pixel of ``image`` (h, w) copied to the 2x2 block it covers: (2h, 2w)."""
+    return np.repeat(np.repeat(image, 2, axis=0), 2, axis=1)
+
+
 def block_mean(image: np.ndarray) -> np.ndarray:
     """2x2 block means of ``image`` (even sides), spread back to every pixel of the block."""
     h, w = image.shape
-    means = image.reshape(h // 2, 2, w // 2, 2).mean(axis=(1, 3))
-    return np.repeat(np.repeat(means, 2, axis=0), 2, axis=1)
+    return spread(image.reshape(h // 2, 2, w // 2, 2).mean(axis=(1, 3)))
 
 
 def relative_detail(rates: np.ndarray, window: int, settings: DetailSettings = DetailSettings()) -> np.ndarray:
@@ -206,10 +210,9 @@ def with_candidate_detail(full: np.ndarray, gated: np.ndarray, shares: np.ndarra
     reshaped, never more)."""
     if strength == 0 or not len(shares):
         return full
-    level = np.repeat(np.repeat(gated.astype(np.float32), 2, axis=0), 2, axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        shape = np.where(level > 0, full / np.maximum(level, 1e-30), 1.0).astype(np.float32)
-    own = sum(np.repeat(np.repeat(share, 2, axis=0), 2, axis=1) * (candidate - block_mean(candidate) * shape)
+    level = spread(gated.astype(np.float32))
+    shape = np.where(level > 0, full / np.maximum(level, 1e-30), 1.0).astype(np.float32)
+    own = sum(spread(share) * (candidate - block_mean(candidate) * shape)
               for share, candidate in zip(shares, candidates))
     return np.maximum(full + np.float32(strength) * own, 0.0).astype(np.float32)
 
@@ -225,7 +228,7 @@ def upsample(image: np.ndarray) -> np.ndarray:
 def to_block_levels(image: np.ndarray, binned: np.ndarray) -> np.ndarray:
     """``image`` (2h, 2w), >= 0, rescaled per 2x2 block so that every block's mean is its ``binned`` pixel:
     the numpy twin of ``rmbvideo.net.detail.to_block_levels``."""
-    level = np.repeat(np.repeat(binned.astype(np.float32), 2, axis=0), 2, axis=1)
+    level = spread(binned.astype(np.float32))
     return (image * (level / np.maximum(block_mean(image), 1e-30))).astype(np.float32)
 
 
