@@ -567,6 +567,29 @@ def test_step_run_is_the_steps_one_by_one(kw):
         net.step_run(encoded[:4], None)
 
 
+def test_step_run_reads_one_encode_call_as_views_and_several_as_copies():
+    """A run's stacked windows are views of the features when its frames come from one ``encode`` call and copies
+    when they come from several (the streaming engine's batches); both give the same frames."""
+    from rmbvideo.net.model import _consecutive_view
+    from rmbvideo.recon.rmbnet import inference_copy
+
+    torch.manual_seed(0)
+    net = inference_copy(RmbNet(RmbNetConfig(w=2, width=0.25)).eval())
+    i_s = torch.randint(0, 81, (10, 19, 26)).float()
+    i_m = torch.randint(0, 7 * 81, (10, 19, 26)).float()
+    with torch.inference_mode():
+        whole = net.encode(i_s, i_m, range(10))
+        parts = net.encode(i_s[:4], i_m[:4], range(4)) + net.encode(i_s[4:], i_m[4:], range(4, 10))
+        one, _ = net.step_run(whole, None)
+        several, _ = net.step_run(parts, None)
+    view = _consecutive_view([f.f_s[0] for f in whole[2:6]])
+    assert view is not None and view.data_ptr() == whole[2].f_s[0].data_ptr() and view.shape[0] == 4
+    torch.testing.assert_close(view, torch.cat([f.f_s[0] for f in whole[2:6]]), rtol=0, atol=0)
+    assert _consecutive_view([f.f_s[0] for f in parts[2:6]]) is None  # frames 2, 3 | 4, 5: two encode calls
+    assert _consecutive_view([whole[3].f_s[0], whole[2].f_s[0]]) is None  # out of order
+    torch.testing.assert_close(one, several, rtol=1e-5, atol=1e-6)
+
+
 def test_cell_decay_scales_the_carried_cell_state_and_round_trips():
     """``cell_decay`` a: each step starts from a * c (the textbook cell at a = 1, the default, which old cards keep
     by omitting it); the batched run and the graphed recurrence apply it as the step does."""

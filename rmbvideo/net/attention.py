@@ -61,13 +61,15 @@ def attend(logits: Sequence[torch.Tensor], values: Sequence[torch.Tensor],
     is subtracted first, so every weight is <= 1 and the denominator >= 1.
     """
     keys = [k for k in range(len(logits)) if valid is None or valid[k]]
-    chosen = [logits[k].float() for k in keys]  # cast once (bf16 under autocast): read twice below
-    peak = chosen[0]
-    for z in chosen[1:]:
-        peak = torch.maximum(peak, z)
+    peak = logits[keys[0]]
+    for k in keys[1:]:  # in the logits' own dtype (bf16 under autocast): a maximum is exact in any
+        peak = torch.maximum(peak, logits[k])
+    peak = peak.float()
     numerator = denominator = None
-    for n, (k, z) in enumerate(zip(keys, chosen)):
-        weight = (z - peak).mul_(LOG2E).exp2_()  # e^x as 2^(x log2 e): PyTorch's CPU exp2 is ~4x faster than exp
+    for n, k in enumerate(keys):
+        # bf16 - float32 promotes to float32: the cast and the subtraction in one pass; e^x as 2^(x log2 e), as
+        # PyTorch's CPU exp2 is ~4x faster than exp
+        weight = (logits[k] - peak).mul_(LOG2E).exp2_()
         if n == 0:  # float32 weights times the values promote to float32
             numerator, denominator = weight * values[k], weight
         else:  # accumulate in place (one pass each, no new tensors); the first weight is kept for autograd

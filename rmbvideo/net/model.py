@@ -132,12 +132,30 @@ def _stack(tensors: Sequence[torch.Tensor]) -> torch.Tensor:
     return tensors[0].unsqueeze(0) if len(tensors) == 1 else torch.stack(list(tensors))
 
 
+def _consecutive_view(tensors: Sequence[torch.Tensor]) -> torch.Tensor | None:
+    """``torch.cat(tensors)`` as a view, when the tensors are consecutive batch slices of one tensor (the frames of one
+    ``encode`` call are): a run's 2w + 1 stacked windows would otherwise copy every feature map 2w + 1 times. None
+    when they are not."""
+    first = tensors[0]
+    step = first.shape[0] * first.stride(0)
+    base = first.untyped_storage().data_ptr()
+    for j, t in enumerate(tensors):
+        if (t.shape != first.shape or t.stride() != first.stride() or t.dtype != first.dtype
+                or t.untyped_storage().data_ptr() != base or t.storage_offset() != first.storage_offset() + j * step):
+            return None
+    return first.as_strided((len(tensors) * first.shape[0], *first.shape[1:]), first.stride(), first.storage_offset())
+
+
 def _stack_frames(frames: Sequence[EncodedFrame], index: int) -> EncodedFrame:
-    """Frames of batch size 1 as one frame whose batch holds them in order (``index`` names it in pair caches)."""
+    """Frames of batch size 1 as one frame whose batch holds them in order (``index`` names it in pair caches): a view
+    where the frames come from one ``encode`` call, else a copy."""
     first = frames[0]
 
     def cat(tensors: Sequence[torch.Tensor]) -> torch.Tensor:
-        return tensors[0] if len(tensors) == 1 else torch.cat(list(tensors))
+        if len(tensors) == 1:
+            return tensors[0]
+        view = _consecutive_view(tensors)
+        return torch.cat(list(tensors)) if view is None else view
 
     def per_scale(name: str) -> list[torch.Tensor]:
         return [cat([getattr(f, name)[s] for f in frames]) for s in range(len(getattr(first, name)))]
