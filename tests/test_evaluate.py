@@ -123,7 +123,7 @@ def test_table2_rows_scores_and_not_trained(rows):
 def test_outputs_written(rows, sequence, tmp_path):
     md, table = write_tables(rows, tmp_path, notes="notes here\n")
     text = md.read_text()
-    assert "| RMB-Net |" in text and "| Pure-S | — | — | — | — | — | not trained |" in text
+    assert "| RMB-Net |" in text and "| Pure-S | — | — | — | — | — | — | not trained |" in text
     assert text.rstrip().endswith("notes here")
     with open(table, newline="") as fh:
         records = list(csv.DictReader(fh))
@@ -131,6 +131,8 @@ def test_outputs_written(rows, sequence, tmp_path):
     for record in records:
         if record["status"] == "ok":
             assert math.isfinite(float(record["mu_psnr_db"])) and float(record["fps"]) > 0
+            # every row that made frames has its frame-to-frame score; an oracle pick of rows per sequence has none
+            assert (record["temporal_mu_psnr_db"] == "") == (record["method"] == BEST_RAW)
         else:
             assert record["mu_psnr_db"] == "" and record["status"] == "not trained"
     assert csv_table(rows) == table.read_text()
@@ -355,3 +357,16 @@ def test_real_capture_comparison_at_the_first_and_last_frame(tmp_path):
     with pytest.raises(InputError, match="no frame 99"):
         real_capture_comparison(capture, tmp_path / "x.png", device="cpu", frame=99)
     assert not (tmp_path / "x.png").exists()
+
+
+def test_full_resolution_table_has_the_synthetic_frame_to_frame_column():
+    """The full-resolution table's "synthetic temporal" column is the mean of the synthetic sequences' temporal scores
+    (real streams have one reference frame, so none), and a dash where no sequence has one."""
+    from rmbvideo.evaluate.full_resolution import FullScores, markdown
+
+    scores = FullScores(psnr={"a": {"TFI": 30.0}, "b": {"TFI": 32.0}, "real": {"TFI": 28.0}},
+                        temporal={"a": {"TFI": 20.0}, "b": {"TFI": 24.0}}, fps={"TFI": [100.0]})
+    table = markdown(scores, ["a", "b"], ["real"])
+    assert "| synthetic temporal |" in table and "| TFI | 30.00 | 32.00 | 28.00 | 31.00 | 28.00 | 22.00 | 100.0 |" in table
+    assert "| TFI | 28.00 | — | 28.00 | — | 100.0 |" in markdown(FullScores(psnr={"real": {"TFI": 28.0}},
+                                                                       fps={"TFI": [100.0]}), [], ["real"])

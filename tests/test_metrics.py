@@ -18,6 +18,7 @@ from rmbvideo.evaluate.metrics import (
     pu21_psnr,
     ssim,
     ssim_torch,
+    temporal_mu_law_psnr,
 )
 
 
@@ -51,6 +52,28 @@ def test_metrics_order_a_closer_prediction_higher() -> None:
     assert mu_law_psnr(slight, gt) > mu_law_psnr(heavy, gt) + 5.0
     assert mu_law_ssim(slight, gt) > mu_law_ssim(heavy, gt) + 0.05
     assert pu21_psnr(slight, gt) > pu21_psnr(heavy, gt) + 5.0
+
+
+
+def test_temporal_psnr_counts_what_changes_between_frames_not_a_steady_error() -> None:
+    """A frame-to-frame flicker lowers the temporal score; the same error held still in every frame does not, though
+    it costs the per-frame score; identical videos reach the cap; one frame has no pairs (NaN)."""
+    rng = np.random.default_rng(5)
+    truth = [hdr_frame(10) * (1.0 + 0.1 * k) for k in range(6)]
+    steady_error = np.exp(rng.normal(0.0, 0.3, truth[0].shape))
+    steady = [t * steady_error for t in truth]
+    flicker = [t * np.exp(rng.normal(0.0, 0.3, t.shape)) for t in truth]
+    assert temporal_mu_law_psnr(truth, truth) == PSNR_CAP_DB
+    per_frame = [np.mean([mu_law_psnr(p, t) for p, t in zip(video, truth)]) for video in (steady, flicker)]
+    assert abs(per_frame[0] - per_frame[1]) < 1.0  # the same error per frame ...
+    assert temporal_mu_law_psnr(steady, truth) > temporal_mu_law_psnr(flicker, truth) + 10.0  # ... held still or not
+    scaled = temporal_mu_law_psnr([f * 3 for f in flicker], [t * 3 for t in truth])
+    assert scaled == pytest.approx(temporal_mu_law_psnr(flicker, truth))  # no dependence on the linear unit
+    assert math.isnan(temporal_mu_law_psnr(truth[:1], truth[:1]))
+    dark = [np.zeros((16, 16)), np.full((16, 16), np.nan), np.full((16, 16), np.inf)]
+    assert math.isfinite(temporal_mu_law_psnr(dark, [np.zeros((16, 16))] * 3))
+    with pytest.raises(ValueError, match="3 frames against 2"):
+        temporal_mu_law_psnr(dark, dark[:2])
 
 
 @pytest.mark.parametrize("pred_value", [0.0, 1.0, 1e30])

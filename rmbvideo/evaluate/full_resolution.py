@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from rmbvideo.evaluate.harness import (SATURATION, SIMULATED_RESPONSE, TFI_WINDOWS, downsample_2x, rate_as_light,
-                                       sequence_convention)
+                                       sequence_convention, temporal_score)
 from rmbvideo.evaluate.heldout import RAW_RATE_HZ, VIDEO_KINDS, Sequence
 from rmbvideo.evaluate.metrics import mu_law_psnr, mu_law_ssim, ssim
 from rmbvideo.evaluate.real_video import (
@@ -131,10 +131,12 @@ def full_ground_truth(seq: Sequence) -> dict[int, np.ndarray]:
 
 @dataclass
 class FullScores:
-    """Per sequence (or stream) name: row -> (PSNR, SSIM); frames/s per row; binned-resolution checks."""
+    """Per sequence (or stream) name: row -> (PSNR, SSIM); per synthetic sequence: row -> temporal PSNR; frames/s per
+    row; binned-resolution checks."""
 
     psnr: dict[str, dict[str, float]] = field(default_factory=dict)
     ssim: dict[str, dict[str, float]] = field(default_factory=dict)
+    temporal: dict[str, dict[str, float]] = field(default_factory=dict)
     fps: dict[str, list[float]] = field(default_factory=dict)
     binned_check: dict[str, dict[str, float]] = field(default_factory=dict)  # seq -> row -> binned-res PSNR
     pictures: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
@@ -160,6 +162,7 @@ def score_sequences(sequences: Seq[Sequence], rows: Seq[FullRow], scores: FullSc
             frames = {i: at_full_resolution(row, produced[i]) for i in truth}
             psnr[row.name] = float(np.mean([mu_law_psnr(frames[i], truth[i]) for i in truth]))
             ssim_[row.name] = float(np.mean([mu_law_ssim(frames[i], truth[i]) for i in truth]))
+            scores.temporal.setdefault(seq.name, {})[row.name] = temporal_score(frames, truth)
             scores.fps.setdefault(row.name, []).append(emitted / seconds if seconds > 0 else math.inf)
             if row.kind != "raw":  # full outputs 2x2-averaged, and the binned output itself as it was made
                 binned = {i: produced[i][: seq.shape[0], : seq.shape[1]] if row.kind == "binned-up"
@@ -196,17 +199,20 @@ def markdown(scores: FullScores, synthetic: Seq[str], real: Seq[str]) -> str:
     rows = list(next(iter(scores.psnr.values())))
     names = [*synthetic, *real]
     lines = ["# Full-resolution evaluation", "",
-             "| method | " + " | ".join(names) + " | synthetic mean | real mean | frames/s |",
-             "|---|" + "---:|" * (len(names) + 3)]
+             "| method | " + " | ".join(names) + " | synthetic mean | real mean | synthetic temporal | frames/s |",
+             "|---|" + "---:|" * (len(names) + 4)]
     for row in rows:
         cells = [f"{scores.psnr[n][row]:.2f}" for n in names]
         syn = f"{np.mean([scores.psnr[n][row] for n in synthetic]):.2f}" if synthetic else "—"
         rea = f"{np.mean([scores.psnr[n][row] for n in real]):.2f}" if real else "—"
+        temporal = [scores.temporal[n][row] for n in synthetic if row in scores.temporal.get(n, {})]
+        tem = f"{np.mean(temporal):.2f}" if temporal else "—"
         fps = f"{np.mean(scores.fps[row]):.1f}" if row in scores.fps else "—"
-        lines.append(f"| {row} | " + " | ".join(cells) + f" | {syn} | {rea} | {fps} |")
+        lines.append(f"| {row} | " + " | ".join(cells) + f" | {syn} | {rea} | {tem} | {fps} |")
     lines += ["", "Synthetic: mu-law PSNR (dB) against the full-resolution ground truth; real video: linear PSNR "
               "with a least-squares gain against the full-resolution reference. 'best classical' picks the best "
-              "raw row per sequence (an oracle window choice).", "",
+              "raw row per sequence (an oracle window choice). Synthetic temporal: the PSNR of the mu-law "
+              "frame-to-frame differences against the truth's (``temporal_mu_law_psnr``), what shows as flicker.", "",
               "## Binned-resolution check (synthetic, mu-law PSNR against the binned ground truth)", "",
               "Each full-resolution output 2x2-averaged, against the binned output (difference in brackets).", ""]
     if scores.binned_check:

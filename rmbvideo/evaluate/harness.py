@@ -33,7 +33,7 @@ import numpy as np
 
 from rmbvideo.chunks import Frame, SpikeChunk
 from rmbvideo.evaluate.heldout import Sequence
-from rmbvideo.evaluate.metrics import mu_law_psnr, mu_law_ssim, pu21_psnr
+from rmbvideo.evaluate.metrics import mu_law_psnr, mu_law_ssim, pu21_psnr, temporal_mu_law_psnr
 from rmbvideo.net.weights import default_raw_gate_path, model_readout
 from rmbvideo.recon.full_resolution import FullResolution, raw_gate_stage
 from rmbvideo.recon.methods import get_method, make_reconstructor
@@ -76,8 +76,9 @@ class MethodSpec:
 @dataclass
 class MethodResult:
     """One method on one sequence: its scored ``frames`` (index -> linear image, at GT size), mean
-    metrics over them, wall-clock ``seconds`` for all ``frames_emitted`` frames, and for RMB-Net the
-    part of that spent in the network (``network_seconds``; None for other methods)."""
+    metrics over them (``temporal``: ``temporal_mu_law_psnr`` over consecutive scored frames), wall-clock
+    ``seconds`` for all ``frames_emitted`` frames, and for RMB-Net the part of that spent in the network
+    (``network_seconds``; None for other methods)."""
 
     frames: dict[int, np.ndarray]
     psnr: float
@@ -86,6 +87,7 @@ class MethodResult:
     seconds: float
     frames_emitted: int
     network_seconds: float | None = None
+    temporal: float = math.nan
 
     @property
     def frames_per_second(self) -> float:
@@ -211,7 +213,25 @@ def run_method(spec: MethodSpec, seq: Sequence) -> MethodResult:
         scored[i] = frame.image
     psnr, ssim, pu21 = score_frames(scored, seq)
     return MethodResult(frames=scored, psnr=psnr, ssim=ssim, pu21=pu21, seconds=seconds,
-                        frames_emitted=len(frames), network_seconds=network)
+                        frames_emitted=len(frames), network_seconds=network,
+                        temporal=temporal_score(scored, {i: np.minimum(seq.gt[i], SATURATION) for i in scored}))
+
+
+def temporal_score(frames: dict[int, np.ndarray], truth: dict[int, np.ndarray]) -> float:
+    """``temporal_mu_law_psnr`` of ``frames`` (index -> image) against ``truth`` (the same indices), over the runs of
+    consecutive indices, weighted by their pairs; NaN without a pair."""
+    keys = sorted(frames)
+    runs: list[list[int]] = []
+    for i in keys:
+        if runs and i == runs[-1][-1] + 1:
+            runs[-1].append(i)
+        else:
+            runs.append([i])
+    pairs = [(run, len(run) - 1) for run in runs if len(run) > 1]
+    if not pairs:
+        return math.nan
+    scores = [temporal_mu_law_psnr([frames[i] for i in run], [truth[i] for i in run]) for run, _ in pairs]
+    return float(np.average(scores, weights=[n for _, n in pairs]))
 
 
 @dataclass
@@ -226,6 +246,7 @@ class RowResult:
     pu21: float = math.nan
     fps: float = math.nan
     network_fps: float = math.nan
+    temporal: float = math.nan
     figure_frames: dict[int, np.ndarray] = field(default_factory=dict)
     per_sequence: dict[str, float] = field(default_factory=dict)  # sequence name -> mu-law PSNR
     middle_frames: dict[str, np.ndarray] = field(default_factory=dict)  # sequence name -> its middle scored frame
@@ -241,6 +262,7 @@ def aggregate(name: str, results: list[MethodResult], sequences: list[Sequence])
         psnr=float(np.mean([r.psnr for r in results])),
         ssim=float(np.mean([r.ssim for r in results])),
         pu21=float(np.mean([r.pu21 for r in results])),
+        temporal=float(np.mean([r.temporal for r in results])),
         fps=frames / seconds if seconds > 0 else math.inf,
         network_fps=(frames / sum(network) if sum(network) > 0 else math.inf) if network else math.nan,
         figure_frames=results[0].frames,
