@@ -128,8 +128,9 @@ def _notes(sequences: list, quick: bool, device: str, figure: tuple[str, int], r
         "convention (`reconstruct --convention`; until 2026-11-28 always Poisson, 39 % bright at half a spike per "
         "plane there).",
         "- Metrics: PSNR and SSIM of mu-law tone-mapped frames (mu = 5000) after dividing by the ground truth's "
-        "99.9th percentile; PU21 PSNR replaces HDR-VDP-3/HDR-VQM (MATLAB only). Per-sequence means, then the "
-        "mean over sequences.",
+        "99.9th percentile; PU21 PSNR replaces HDR-VDP-3/HDR-VQM (MATLAB only); temporal mu-PSNR: the PSNR of the "
+        "mu-law frame-to-frame differences against the ground truth's over consecutive scored frames (flicker and "
+        "shimmer; an error held still costs nothing there). Per-sequence means, then the mean over sequences.",
         f"- frames/s: output frames per wall-clock second, end to end from the input stream, measured in this run "
         f"({platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, torch {torch.__version__} with "
         f"{torch.get_num_threads()} threads, device {device}). Network frames/s: RMB-Net's network alone.",
