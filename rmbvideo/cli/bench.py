@@ -273,13 +273,15 @@ def _run(text: str) -> tuple[int, int, int]:
 @click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True,
               help="Device of the network.")
 @click.option("--run", "runs", multiple=True, default=("200x125x128", "500x500x16"), show_default=True,
-              help="Binned WIDTHxHEIGHTxFRAMES: frame size and output frames per batched pass (repeatable).")
+              help="Binned WIDTHxHEIGHTxFRAMES: frame size and output frames per batched pass (on a CPU also made "
+                   "frame by frame; repeatable).")
 @click.option("--precision", "precisions", type=click.Choice(["fp32", "bf16"]), multiple=True,
               default=("fp32", "bf16"), show_default=True, help="Precision (repeatable).")
 @click.option("--threads", type=click.IntRange(min=1), default=1, show_default=True, help="Torch threads.")
 @click.option("--json", "as_json", is_flag=True, help="Print the results as JSON.")
 def network(device: str, runs: tuple[str, ...], precisions: tuple[str, ...], threads: int, as_json: bool) -> None:
-    """RMB-Net alone (encoders and batched pass on tensors on the device), with and without CUDA graphs on a GPU."""
+    """RMB-Net alone (encoders and batched pass on tensors on the device), with and without CUDA graphs on a GPU; on a
+    CPU also frame by frame, the path the engine takes there."""
     import torch
 
     from rmbvideo.bench.network import bench_network, network_table
