@@ -8,6 +8,11 @@ method's per-frame mu-law PSNR, for the development sequences the default was ne
 default job at full resolution against the full-resolution truth, beside TFI-4 and TFI-16 there, a few minutes):
 
     python models/experiments/temporal-consistency/measure.py [--heldout] [--full]
+    python models/experiments/temporal-consistency/measure.py picture OUT.png [SEQUENCE]
+
+``picture``: x-t slices of a held-out sequence (fast-0 unless named): the row whose truth changes most over the clip,
+one line per frame, time downwards, for the truth and each binned method; ghosting shows as a trail beside an edge's
+path, flicker as streaks across it.
 """
 
 import sys
@@ -38,6 +43,31 @@ def specs() -> list[MethodSpec]:
 
 #: the full-resolution rows measured with ``--full`` (``rmbvideo.evaluate.full_resolution.full_rows``)
 FULL_ROWS = (FULL_LEARNED, NO_RAW_GATE, "TFI-4", "TFI-16")
+
+
+def picture(out: str, name: str = "fast-0") -> None:
+    """``picture`` (the module's docstring): x-t slices of ``name`` side by side, written to ``out``."""
+    import cv2
+
+    from rmbvideo.io.png import write_png
+
+    seq = next(s for s in load_heldout(False) + load_video_heldout(False) if s.name == name)
+    made = {spec.name: run_method(spec, seq).frames for spec in specs()[:5]}
+    keys = sorted(next(iter(made.values())))
+    truth = np.stack([np.minimum(seq.gt[i], SATURATION) for i in keys])
+    row = int(np.argmax(np.log1p(truth / truth.mean()).std(axis=0).mean(axis=1)))
+    scale = float(np.percentile(truth, 99.9)) or 1.0
+    tiles = []
+    for label, video in [("truth", truth), *((k, np.stack([v[i] for i in keys])) for k, v in made.items())]:
+        slice_ = np.clip(np.nan_to_num(video[:, row, :] / scale), 0.0, 1.0)
+        tone = np.log1p(5000.0 * slice_) / np.log1p(5000.0)
+        tile = cv2.resize((tone * 255).astype(np.uint8), (2 * tone.shape[1], 12 * tone.shape[0]),
+                          interpolation=cv2.INTER_NEAREST)
+        tile = np.vstack([np.zeros((18, tile.shape[1]), np.uint8), tile])
+        cv2.putText(tile, label[:48], (4, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.4, 255, 1, cv2.LINE_AA)
+        tiles.append(np.hstack([tile, np.zeros((tile.shape[0], 6), np.uint8)]))
+    write_png(out, np.vstack([np.hstack(tiles[:3]), np.hstack(tiles[3:] + [np.zeros_like(tiles[0])] * (6 - len(tiles)))]))
+    print(f"{name}: row {row}, frames {keys[0]}-{keys[-1]} -> {out}")
 
 
 def main() -> None:
@@ -73,4 +103,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    if sys.argv[1:2] == ["picture"]:
+        picture(*sys.argv[2:4])
+    else:
+        main()
