@@ -370,3 +370,29 @@ def test_full_resolution_table_has_the_synthetic_frame_to_frame_column():
     assert "| synthetic temporal |" in table and "| TFI | 30.00 | 32.00 | 28.00 | 31.00 | 28.00 | 22.00 | 100.0 |" in table
     assert "| TFI | 28.00 | — | 28.00 | — | 100.0 |" in markdown(FullScores(psnr={"real": {"TFI": 28.0}},
                                                                        fps={"TFI": [100.0]}), [], ["real"])
+
+
+def test_evaluate_precision_reaches_every_rmbnet_row(tmp_path):
+    """`evaluate --precision` is the network's precision in every table's RMB-Net rows: forced bf16 moves their
+    frames against fp32 and leaves the classical rows as they were; the CLI takes the option."""
+    from click.testing import CliRunner
+
+    from rmbvideo.cli import main
+    from rmbvideo.evaluate.full_resolution import full_rows
+    from rmbvideo.evaluate.real_video import evaluate_streams, find_streams, real_video_rows
+    from rmbvideo.evaluate.texture_pans import TEXTURE_PANS, write_texture_pan
+    from rmbvideo.io.dat import DatGeometry
+    from rmbvideo.net.weights import MODELS_DIR
+
+    specs = table2_specs(MODELS_DIR, "cpu", "fp32")
+    assert all(s.options["precision"] == "fp32" for s in specs if s.method == "rmbnet")
+    assert all(r.options["precision"] == "bf16" for r in full_rows(precision="bf16") if r.method == "rmbnet")
+    write_texture_pan(TEXTURE_PANS[-1], tmp_path, DatGeometry(64, 40))
+    streams = find_streams(tmp_path)
+    scores = {p: evaluate_streams(streams, real_video_rows(device="cpu", precision=p))[streams[0].name]
+              for p in ("fp32", "bf16")}
+    assert not np.array_equal(scores["fp32"]["RMB-Net"].image, scores["bf16"]["RMB-Net"].image)
+    assert np.array_equal(scores["fp32"]["MG20"].image, scores["bf16"]["MG20"].image)
+    result = CliRunner().invoke(main, ["evaluate", "--no-heldout", "--real-video", str(tmp_path), "-o",
+                                       str(tmp_path / "out"), "--device", "cpu", "--precision", "fp32", "--quiet"])
+    assert result.exit_code == 0, result.output

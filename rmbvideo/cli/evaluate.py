@@ -28,7 +28,8 @@ log = logging.getLogger(__name__)
 
 
 def _real_video(streams: list[RealStream], model: Path, device: str, out_dir: Path, stem: str = "real_video",
-                title: str = "Real-video streams", pictured: tuple[str, ...] = ("",)) -> list[Path]:
+                title: str = "Real-video streams", pictured: tuple[str, ...] = ("",),
+                precision: str = "auto") -> list[Path]:
     """Score the real-video ``streams`` (``find_streams``); write ``STEM.md`` and ``STEM.png`` (of the streams whose
     name contains one of ``pictured``)."""
     from rmbvideo.evaluate.real_video import (
@@ -43,7 +44,7 @@ def _real_video(streams: list[RealStream], model: Path, device: str, out_dir: Pa
     from rmbvideo.io.png import write_png
     from rmbvideo.io.atomic import atomic_write_text
 
-    results = evaluate_streams(streams, real_video_rows(model, device))
+    results = evaluate_streams(streams, real_video_rows(model, device, precision=precision))
     md = out_dir / f"{stem}.md"
     atomic_write_text(md, f"# {title} (reference frame, least-squares gain, binned resolution)\n\n"
                       + markdown_table(results) + "\nCells: linear PSNR (dB) / SSIM of the frame made at the "
@@ -84,7 +85,18 @@ def _development(out_dir: Path, models: list[Path], cache_dir: Path | None, real
     return [path] + ([] if figure is None else [write_png(out_dir / "development.png", figure)])
 
 
-def _notes(sequences: list, quick: bool, device: str, figure: tuple[str, int], reset: str = "zero") -> str:
+def _precision_used(precision: str, device: str) -> str:
+    """What ``precision`` runs the network in on ``device``: "fp32" or "bf16" (and "auto" named as such)."""
+    import torch
+
+    from rmbvideo.recon.precision import uses_bf16
+
+    used = "bf16" if uses_bf16(precision, torch.device(device)) else "fp32"
+    return f"auto: {used}" if precision == "auto" else used
+
+
+def _notes(sequences: list, quick: bool, device: str, figure: tuple[str, int], reset: str = "zero",
+           precision: str = "auto") -> str:
     """The Markdown notes under the table: what was measured, on what, how."""
     import torch
 
@@ -133,7 +145,8 @@ def _notes(sequences: list, quick: bool, device: str, figure: tuple[str, int], r
         "shimmer; an error held still costs nothing there). Per-sequence means, then the mean over sequences.",
         f"- frames/s: output frames per wall-clock second, end to end from the input stream, measured in this run "
         f"({platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, torch {torch.__version__} with "
-        f"{torch.get_num_threads()} threads, device {device}). Network frames/s: RMB-Net's network alone.",
+        f"{torch.get_num_threads()} threads, device {device}, precision {_precision_used(precision, device)}). "
+        "Network frames/s: RMB-Net's network alone.",
         "- 'not trained': no weight file in the models folder (ablations: `[ablations/]rmbnet-binned-<w0|pure-s|"
         "pure-m|full-m|no-xba|no-xta>.safetensors`, from the short recipes `ablation-*.toml`).",
         f"- Figure: {figure[0]}, frame {figure[1]}; zooms of the darkest and brightest textured ground-truth "
@@ -148,7 +161,7 @@ FIGURE_COLUMNS = ("TFW-L", "GC20", "MG20", "RMB-Net", "RMB-Net + raw gate (1-bit
 
 
 def _heldout_outputs(rows: list[RowResult], sequences: list[Sequence], out_dir: Path, quick: bool, device: str,
-                     reset: str) -> list[Path]:
+                     reset: str, precision: str = "auto") -> list[Path]:
     """The held-out tables (evaluation.md/.csv), the comparison figure and the fast/dark sequences' figures."""
     import numpy as np
 
@@ -157,7 +170,8 @@ def _heldout_outputs(rows: list[RowResult], sequences: list[Sequence], out_dir: 
 
     figure_seq = sequences[0]
     figure_frame = figure_seq.scored_frames[len(figure_seq.scored_frames) // 2]
-    md, table = write_tables(rows, out_dir, _notes(sequences, quick, device, (figure_seq.name, figure_frame), reset))
+    md, table = write_tables(rows, out_dir, _notes(sequences, quick, device, (figure_seq.name, figure_frame), reset,
+                                                   precision))
     # figures show the ground truth as it is scored: clipped at the sensor's saturation
     png = write_comparison_png(rows, np.minimum(figure_seq.gt[figure_frame], SATURATION), figure_frame,
                                out_dir / "evaluation.png")
@@ -181,6 +195,10 @@ def _heldout_outputs(rows: list[RowResult], sequences: list[Sequence], out_dir: 
               help="Cache of simulated held-out sequences [~/.cache/rmbvideo/heldout].")
 @click.option("--device", type=click.Choice(["auto", "cpu", "cuda"]), default="auto", show_default=True,
               help="Device for RMB-Net rows.")
+@click.option("--precision", type=click.Choice(["auto", "fp32", "bf16"]), default="auto", show_default=True,
+              help="RMB-Net's precision, as `reconstruct --precision` (auto: bf16 on CPUs with AVX512-BF16 or AMX). "
+                   "bf16 moves the binned scores by up to 0.02 dB; fp32 gave the same figures, to 0.01 dB, on every CPU "
+                   "measured. Not used by --development.")
 @click.option("--json", "as_json", is_flag=True, help="Also print the rows as JSON on stdout.")
 @click.option("--real", "real_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Also write real_comparison.png for this real capture (RMB-Net vs TFP vs TFI).")
@@ -210,7 +228,7 @@ def _heldout_outputs(rows: list[RowResult], sequences: list[Sequence], out_dir: 
 @quiet_option
 @verbose_option
 def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Path | None, device: str,
-             as_json: bool, real_path: Path | None, real_video: Path | None, heldout: bool, texture_pans: bool,
+             precision: str, as_json: bool, real_path: Path | None, real_video: Path | None, heldout: bool, texture_pans: bool,
              full_resolution: bool, development: bool, reset: str, candidates: tuple[Path, ...], quiet: bool) -> None:
     """Score TFW-S/L, TFI, GC20, MG20, RMB-Net, its ablations and the classical methods on the raw
     capture (2x2-averaged) on the held-out synthetic set, and optionally on real-video streams (with
@@ -245,16 +263,18 @@ def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Pat
     sequences, rows, written = [], [], []
     if heldout:
         sequences = load_heldout(quick, cache_dir, reset) + load_video_heldout(quick, cache_dir, reset=reset)
-        rows = with_best_raw(evaluate_rows(table2_specs(models_dir, resolved), sequences,
+        rows = with_best_raw(evaluate_rows(table2_specs(models_dir, resolved, precision), sequences,
                                            progress=progress_enabled(quiet)))
-        written = _heldout_outputs(rows, sequences, out_dir, quick, resolved, reset)
+        written = _heldout_outputs(rows, sequences, out_dir, quick, resolved, reset, precision)
         from rmbvideo.evaluate.video_checks import write_checks
 
         video = [seq for seq in sequences if json.loads(seq.description).get("kind")]
         written += write_checks(out_dir, "rmbnet", {"model": models_dir / "rmbnet-binned.safetensors",
-                                                    "device": resolved, "threads": 1}, video, quick)
+                                                    "device": resolved, "precision": precision, "threads": 1},
+                                   video, quick)
     if streams:
-        written += _real_video(streams, models_dir / "rmbnet-binned.safetensors", resolved, out_dir)
+        written += _real_video(streams, models_dir / "rmbnet-binned.safetensors", resolved, out_dir,
+                               precision=precision)
     if texture_pans:
         from rmbvideo.evaluate.heldout import default_cache_dir
         from rmbvideo.evaluate.texture_pans import texture_pan_folder
@@ -262,14 +282,16 @@ def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Pat
         folder = texture_pan_folder(cache_dir if cache_dir is not None else default_cache_dir())
         written += _real_video(find_streams(folder), models_dir / "rmbnet-binned.safetensors", resolved, out_dir,
                                "texture_pans", "Development clips: textures panned in spikezoo's convention",
-                               pictured=("c16-v14", "c16-v28"))
+                               pictured=("c16-v14", "c16-v28"), precision=precision)
     if full_resolution and (sequences or streams):
         from rmbvideo.evaluate.full_resolution import write_full_resolution
 
-        written += write_full_resolution(out_dir, sequences, streams, models_dir / "rmbnet-binned.safetensors")
+        written += write_full_resolution(out_dir, sequences, streams, models_dir / "rmbnet-binned.safetensors",
+                                         precision=precision)
     if real_path is not None:
         model = models_dir / "rmbnet-binned.safetensors"
-        written.append(real_capture_comparison(real_path, out_dir / "real_comparison.png", model, resolved))
+        written.append(real_capture_comparison(real_path, out_dir / "real_comparison.png", model, resolved,
+                                               precision=precision))
     if as_json:
         click.echo(json.dumps([{"method": r.name, "status": r.status,
                                 **{k: (getattr(r, k) if math.isfinite(getattr(r, k)) else None)

@@ -66,11 +66,12 @@ class FullRow:
     raw_gate: bool = False
 
 
-def full_rows(model: Path | None = None, threads: int | None = 1) -> list[FullRow]:
-    """RMB-Net at full and at binned resolution, TFP at every window and TFI on the raw capture."""
+def full_rows(model: Path | None = None, threads: int | None = 1, precision: str = "auto") -> list[FullRow]:
+    """RMB-Net at full and at binned resolution (its network and detail stage in ``precision``), TFP at every window
+    and TFI on the raw capture."""
     from rmbvideo.net.weights import default_detail_path, default_raw_gate_path
 
-    rmbnet = {"model": model, "input_mode": "binned", "threads": threads}
+    rmbnet = {"model": model, "input_mode": "binned", "threads": threads, "precision": precision}
     gate = default_raw_gate_path().is_file()
     learned = ([FullRow(FULL_LEARNED, "rmbnet", rmbnet, "full-learned", raw_gate=gate)]
                + ([FullRow(NO_RAW_GATE, "rmbnet", rmbnet, "full-learned")] if gate else [])
@@ -93,7 +94,8 @@ def run_row(row: FullRow, source: Any, keep: list[int] | None = None,
     if row.kind in ("full", "full-learned"):
         stage = detail_stage("learned" if row.kind == "full-learned" else "classical")
         recon = FullResolution(recon, readout, step=RAW_STEP, detail=stage, threads=options.get("threads"),
-                               raw_gate=raw_gate_stage("auto" if row.raw_gate else "off", options.get("model")))
+                               raw_gate=raw_gate_stage("auto" if row.raw_gate else "off", options.get("model")),
+                               precision=options.get("precision", "auto"))
         readout = None
     elif row.kind == "raw":
         readout = None
@@ -226,12 +228,12 @@ def markdown(scores: FullScores, synthetic: Seq[str], real: Seq[str]) -> str:
 
 
 def write_full_resolution(out_dir: Path, sequences: Seq[Sequence], streams: Seq[RealStream], model: Path,
-                          threads: int | None = 1) -> list[Path]:
+                          threads: int | None = 1, precision: str = "auto") -> list[Path]:
     """Score everything, write ``full_resolution.md`` and ``full_resolution.png``; returns the paths."""
     from rmbvideo.io.atomic import atomic_write_text
 
     scores = FullScores()
-    rows = full_rows(model, threads)
+    rows = full_rows(model, threads, precision)
     score_sequences(sequences, rows, scores)
     score_streams(streams, rows, scores)
     md = out_dir / "full_resolution.md"

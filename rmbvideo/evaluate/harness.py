@@ -394,17 +394,19 @@ def ablation_model_path(models_dir: Path, stem: str) -> Path:
     return flat if flat.is_file() and not nested.is_file() else nested
 
 
-def table2_specs(models_dir: Path, device: str = "auto") -> list[MethodSpec]:
+def table2_specs(models_dir: Path, device: str = "auto", precision: str = "auto") -> list[MethodSpec]:
     """The rows of the paper's Table 2 (without Spk2ImgNet): the baselines on the default model's input
     (the binned stream through the readout it was trained on), RMB-Net (``rmbnet-binned`` in
     ``models_dir``), RMB-Net on the RMB readout (``rmbnet-binned-rmb``, when the default reads another),
     the classical methods on the raw capture, and the ablations (``ablation_model_path``). RMB-Net also reads the
     cameras as it would a real one (``CLOSED_FORM_ROW``), and is run as the default job runs it on a 1-bit capture,
-    with the raw gate (``GATED_ROW``), when the gate is installed."""
+    with the raw gate (``GATED_ROW``), when the gate is installed. ``precision``: the network's, as ``reconstruct
+    --precision``."""
     models_dir = Path(models_dir)
 
     def rmbnet(name: str, path: Path, readout: str, **options: str) -> MethodSpec:
-        return MethodSpec(name, "rmbnet", {"model": str(path), "device": device, "input_mode": "binned", **options},
+        return MethodSpec(name, "rmbnet", {"model": str(path), "device": device, "precision": precision,
+                                           "input_mode": "binned", **options},
                           readout)
 
     default = models_dir / "rmbnet-binned.safetensors"

@@ -248,7 +248,8 @@ def score_stream(stream: RealStream, rows: Iterable[RealRow]) -> dict[str, RealS
     return scores
 
 
-def real_video_rows(model: Path | None = None, device: str = "cpu", threads: int | None = 1) -> list[RealRow]:
+def real_video_rows(model: Path | None = None, device: str = "cpu", threads: int | None = 1,
+                    precision: str = "auto") -> list[RealRow]:
     """The real-video table: the baselines and RMB-Net on the model's input (the binned stream through
     the readout it was trained on), RMB-Net as the default job runs it on these 1-bit captures (with the raw gate,
     ``GATED_ROW``, when installed), RMB-Net on the RMB readout when the model reads another and
@@ -257,7 +258,8 @@ def real_video_rows(model: Path | None = None, device: str = "cpu", threads: int
 
     model = Path(model) if model is not None else default_model_path("binned")
     readout = model_readout(model)
-    options = {"device": device, "input_mode": "binned", "threads": threads, "convention": CONVENTION}
+    options = {"device": device, "precision": precision, "input_mode": "binned", "threads": threads,
+               "convention": CONVENTION}
     rows = [
         RealRow("TFW-S", "tfw", {"window": 10, "step": 10}, readout=readout),
         RealRow("TFW-L", "tfw", {"window": 70, "step": 10}, readout=readout),

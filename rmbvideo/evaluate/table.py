@@ -208,7 +208,7 @@ def write_comparison_png(rows: Seq[RowResult], gt: np.ndarray, frame_index: int,
 
 
 def real_capture_comparison(path: Path, out_png: Path, model: Path | None = None, device: str = "auto",
-                            frame: int | str = "middle") -> Path:
+                            frame: int | str = "middle", precision: str = "auto") -> Path:
     """Side-by-side of a real capture: RMB-Net (shipped binned model, or ``model``) vs TFP vs TFI.
 
     The capture's geometry comes from its sidecar, else the 400x250 defaults; RMB-Net reads it in the convention
@@ -230,7 +230,7 @@ def real_capture_comparison(path: Path, out_png: Path, model: Path | None = None
 
     reader = open_capture(Path(path), width=None, height=None, flip=None, header_cols=None, rate_hz=None)
     camera = simulated_camera(Path(path))  # read as `reconstruct` reads it: its convention and response
-    rmbnet = make_reconstructor("rmbnet", model=model, device=device, input_mode="binned",
+    rmbnet = make_reconstructor("rmbnet", model=model, device=device, precision=precision, input_mode="binned",
                                 convention=auto_convention(reader, Path(path)),
                                 response=response_for(None if camera is None else camera.effects))
     runs = {
