@@ -106,6 +106,28 @@ def test_fast_detail_copy_agrees_with_the_stage_and_leaves_it_unchanged() -> Non
     torch.testing.assert_close(bf16, expected, rtol=1e-2, atol=1e-3)
 
 
+def test_detail_features_are_each_windows_deviation_and_count_in_the_convolutions_layout() -> None:
+    """The stage's inputs: the bilinear deviation, then per rate plane its deviation from the block mean (one spike's
+    worth added below) and its block mean rate mu-law compressed, in that order; channels-last, and in bf16 the
+    float32 planes rounded as autocast would round them."""
+    import torch
+
+    from rmbvideo.mulaw import mu_law
+    from rmbvideo.net.detail import DetailConfig, DetailNet, block_mean, upsample
+
+    stage = DetailNet(DetailConfig(windows=(6, 20), channels=4, layers=2))
+    up, rates = upsample(torch.rand(2, 1, 6, 8)), torch.rand(2, 2, 12, 16) * torch.tensor([0.0, 1.0]).reshape(1, 2, 1, 1)
+    features = stage.features(up, rates)
+    assert features.shape == (2, 5, 12, 16) and features.is_contiguous(memory_format=torch.channels_last)
+    for k, window in enumerate((6, 20)):
+        mean = block_mean(rates[:, k : k + 1])
+        torch.testing.assert_close(features[:, 1 + 2 * k : 2 + 2 * k],
+                                   ((rates[:, k : k + 1] - mean) / (mean + 1.0 / (4 * window))).clamp(-1.0, 3.0))
+        torch.testing.assert_close(features[:, 2 + 2 * k : 3 + 2 * k], mu_law(mean, 255.0))
+    assert torch.equal(features[:, 1:3], torch.zeros_like(features[:, 1:3]))  # a window that never fired
+    assert torch.equal(stage.features(up, rates, torch.bfloat16), features.to(torch.bfloat16))
+
+
 def _capture(path: Path, planes: int = 400) -> Path:
     """64x48 raw, a bright vertical stripe every other column on the left half: detail finer than a bin."""
     rng = np.random.default_rng(1)

@@ -121,21 +121,26 @@ class DetailNet(nn.Module):
             layers[-1].weight.zero_()
             layers[-1].bias.zero_()
 
-    def features(self, up: torch.Tensor, rates: torch.Tensor) -> torch.Tensor:
-        """(B, 1 + 2K, H, W): the bilinear deviation from the block level, then per rate plane (each
-        window, then each TFI, read as if over 2 * ``interval_reach`` planes) the rate's relative deviation
-        from its block mean and the block's spike count (mu-law compressed)."""
+    def features(self, up: torch.Tensor, rates: torch.Tensor, dtype: torch.dtype = torch.float32) -> torch.Tensor:
+        """(B, 1 + 2K, H, W), channels-last, in ``dtype``: the bilinear deviation from the block level, then per rate
+        plane (each window, then each TFI, read as if over 2 * ``interval_reach`` planes) the rate's relative
+        deviation from its block mean and the block's spike count (mu-law compressed). Every plane is computed in
+        float32, all at once, and written once into the convolutions' layout and dtype (bf16 rounds as autocast
+        would)."""
         level = F.interpolate(mean_2x2(up), scale_factor=2.0, mode="nearest")
-        parts = [(up / level.clamp(min=1e-12) - 1.0).clamp(-1.0, 1.0) * (level > 0)]
         intervals = 1 + len(self.config.interval_windows) if self.config.interval_reach else 0
         windows = self.config.windows + (2 * self.config.interval_reach,) * intervals
-        for k, window in enumerate(windows):
-            r = rates[:, k : k + 1].float()
-            mean = block_mean(r)
-            spikes = mean * (4 * window)  # spikes in the block over the window
-            parts.append(((r - mean) / (mean + 1.0 / (4 * window))).clamp(-1.0, 3.0))
-            parts.append(mu_law(spikes / (4 * window), 255.0))
-        return torch.cat(parts, dim=1)
+        r = rates[:, : len(windows)].float()
+        # a block holds 4 * window trials over a window: its mean rate is its spike count per trial, and one spike's
+        # worth, 1 / (4 * window), keeps the relative deviation finite in a block that never fired
+        floor = torch.tensor([1.0 / (4 * w) for w in windows], dtype=torch.float32, device=r.device)
+        mean = block_mean(r)
+        out = torch.empty((r.shape[0], 1 + 2 * len(windows), *r.shape[2:]), dtype=dtype, device=r.device,
+                          memory_format=torch.channels_last)
+        out[:, :1] = (up / level.clamp(min=1e-12) - 1.0).clamp(-1.0, 1.0) * (level > 0)
+        out[:, 1::2] = ((r - mean) / (mean + floor.reshape(1, -1, 1, 1))).clamp(-1.0, 3.0)
+        out[:, 2::2] = mu_law(mean, 255.0)
+        return out
 
     def widened(self, config: DetailConfig) -> DetailNet:
         """A stage of ``config`` (this one's with more ``interval_windows``) that computes this one's frames: its
@@ -160,8 +165,9 @@ class DetailNet(nn.Module):
         rates = torch.nan_to_num(rates.float(), nan=0.0, posinf=0.0, neginf=0.0).clamp(0.0, 1.0)
         up = upsample(binned)
         # channels-last: oneDNN's kernels for so few channels are several times faster so; the engine holds the
-        # weights channels-last anyway, this makes the stage as loaded (training) run the same kernels
-        features = self.features(up, rates).contiguous(memory_format=torch.channels_last)
+        # weights channels-last anyway, this makes the stage as loaded (training) run the same kernels. In the
+        # weights' dtype: bf16 weights (``detail_inference_copy``) run under autocast, which would cast the features
+        features = self.features(up, rates, self.body[0].weight.dtype)
         d = self.body(features).float()  # float32 whatever the body ran in: 1 + d keeps its digits
         d = d - block_mean(d)  # mean 1 + d over a block is 1, so no block of the factor is 0 throughout
         return to_block_levels(up * (1.0 + d).clamp(min=0.0), binned)

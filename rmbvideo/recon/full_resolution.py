@@ -122,16 +122,21 @@ def raw_gate_stage(kind: str = "auto", model: Any = None) -> Any:
 def detail_inference_copy(detail: Any, precision: str = "auto", device: Any = "cpu") -> Any:
     """An eval-mode copy of a detail stage for fast inference on ``device``: channels-last convolutions (1.7x faster
     on this project's CPU), their weights in bf16 where the project's precision policy runs bf16
-    (``rmbvideo.recon.precision``: 2.8x faster than channels-last fp32 on this project's CPU). ``detail`` itself is
-    left unchanged."""
+    (``rmbvideo.recon.precision``: 2.8x faster than channels-last fp32 on this project's CPU), and ReLUs that take
+    bf16 through its bit pattern (``InplaceReLU``, the same values). ``detail`` itself is left unchanged."""
     import copy
 
     import torch
 
     from rmbvideo.recon.precision import uses_bf16
 
+    from rmbvideo.net.activations import InplaceReLU
+
     device = torch.device(device)
     fast = copy.deepcopy(detail).eval().to(device, memory_format=torch.channels_last)
+    for k, layer in enumerate(fast.body):
+        if isinstance(layer, torch.nn.ReLU):
+            fast.body[k] = InplaceReLU()
     if uses_bf16(precision, device):
         for layer in fast.body:
             if isinstance(layer, torch.nn.Conv2d):
