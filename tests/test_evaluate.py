@@ -396,3 +396,15 @@ def test_evaluate_precision_reaches_every_rmbnet_row(tmp_path):
     result = CliRunner().invoke(main, ["evaluate", "--no-heldout", "--real-video", str(tmp_path), "-o",
                                        str(tmp_path / "out"), "--device", "cpu", "--precision", "fp32", "--quiet"])
     assert result.exit_code == 0, result.output
+
+
+def test_development_table_has_the_frame_to_frame_mean():
+    """The candidates' table puts each model's mean frame-to-frame score beside its per-frame mean (a dash when the
+    sequences gave none)."""
+    from rmbvideo.evaluate.development import DevelopmentScore, markdown
+
+    score = DevelopmentScore("a", {"s1": 30.0, "s2": 32.0}, -1.0, 0.5, {}, {}, 0.01, {}, temporal={"s1": 27.0, "s2": 29.0})
+    table = markdown([score, DevelopmentScore("b", {"s1": 30.0, "s2": 30.0}, 0.0, 0.0, {}, {}, 0.0, {})],
+                     [Path("a"), Path("b")])
+    assert "| frame to frame (temporal mu-PSNR) |" in table
+    assert "| a | 31.00 | 28.00 | -1.00 / +0.50 |" in table and "| b | 30.00 | — | +0.00 / +0.00 |" in table

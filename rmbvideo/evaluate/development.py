@@ -2,7 +2,8 @@
 at the evaluation's held-out tables.
 
 Per model file: the mean mu-law PSNR of each development sequence's scored frames
-(``heldout.load_development``: the held-out kinds drawn from other evaluation seeds), the first and last
+(``heldout.load_development``: the held-out kinds drawn from other evaluation seeds) and their frame-to-frame score
+(``metrics.temporal_mu_law_psnr``: flicker), the first and last
 frames against their clip's median (dB), the development clips (texture pans in spikezoo's convention),
 the real-video streams when given, the development sequences again as a real camera's pixel makes them (reset by
 subtraction, like ``car.dat``'s: the rate convention with the camera's noise), the dark-end bias at 1e-3 on a flat field of seed 1 (the
@@ -20,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rmbvideo.evaluate.harness import MethodSpec, run_frames, score_frames
+from rmbvideo.evaluate.harness import SATURATION, MethodSpec, run_frames, score_frames, temporal_score
 from rmbvideo.evaluate.heldout import Sequence
 from rmbvideo.evaluate.metrics import mu_law_psnr
 from rmbvideo.evaluate.real_video import (CONVENTION, RealRow, RealScore, RealStream, binned_reference,
@@ -60,6 +61,7 @@ class DevelopmentScore:
     state_age: dict[str, float]  # long still clip -> late minus early mean (dB)
     camera: dict[str, float] = field(default_factory=dict)  # the sequences from a pixel reset by subtraction
     pictures: Pictures = field(default_factory=dict)  # the frames ``PICTURED`` names
+    temporal: dict[str, float] = field(default_factory=dict)  # each sequence's frame-to-frame (temporal) mu-PSNR
 
     @property
     def real(self) -> dict[str, float]:
@@ -88,22 +90,25 @@ def pictured_frames(name: str, frames: Seq[int], pictured: dict[str, tuple[str, 
 
 def score_sequences(model: Path, sequences: Seq[Sequence], device: str = "cpu",
                     pictured: dict[str, tuple[str, ...]] | None = None
-                    ) -> tuple[dict[str, float], float, float, Pictures]:
+                    ) -> tuple[dict[str, float], float, float, Pictures, dict[str, float]]:
     """Mean mu-law PSNR of each sequence's scored frames, the mean drop of its first and last frame
-    below the median of all its frames, and the frames ``pictured`` names (``PICTURED`` when None)."""
+    below the median of all its frames, the frames ``pictured`` names (``PICTURED`` when None), and each sequence's
+    frame-to-frame score (``temporal_score`` over its scored frames)."""
     spec = MethodSpec("candidate", "rmbnet", _options(model, device), _readout(model))
-    scores, first, last, pictures = {}, [], [], {}
+    scores, first, last, pictures, temporal = {}, [], [], {}, {}
     for seq in sequences:
         frames, _, _ = run_frames(spec, seq)
         images = {f.index: f.image for f in frames}
-        scores[seq.name] = score_frames({i: images[i] for i in seq.scored_frames}, seq)[0]
+        scored = {i: images[i] for i in seq.scored_frames}
+        scores[seq.name] = score_frames(scored, seq)[0]
+        temporal[seq.name] = temporal_score(scored, {i: np.minimum(seq.gt[i], SATURATION) for i in scored})
         per_frame = {i: mu_law_psnr(images[i], seq.gt[i]) for i in images}
         median = float(np.median(list(per_frame.values())))
         first.append(per_frame[min(per_frame)] - median)
         last.append(per_frame[max(per_frame)] - median)
         for i in pictured_frames(seq.name, sorted(images), PICTURED if pictured is None else pictured):
             pictures[seq.name, i] = images[i]
-    return scores, float(np.mean(first)), float(np.mean(last)), pictures
+    return scores, float(np.mean(first)), float(np.mean(last)), pictures, temporal
 
 
 def score_streams(model: Path, streams: Seq[RealStream], device: str = "cpu") -> dict[str, RealScore]:
@@ -124,14 +129,14 @@ def score_candidate(model: Path, sequences: Seq[Sequence], clips: Seq[RealStream
                     camera: Seq[Sequence] = (), pictured: dict[str, tuple[str, ...]] | None = None) -> DevelopmentScore:
     """Every development figure of one model file (``long``: still clips for the state's age; ``camera``: sequences
     a pixel reset by subtraction made, scored apart; ``pictured``: the frames kept for the figure)."""
-    seq_scores, first, last, pictures = score_sequences(model, sequences, device, pictured)
+    seq_scores, first, last, pictures, temporal = score_sequences(model, sequences, device, pictured)
     camera_scores = {f"{seq}{CAMERA_SUFFIX}": value for seq, value in score_sequences(model, camera, device, {})[0].items()}
     options = {"model": Path(model), "device": device, "threads": 1}
     bias = dark_bias("rmbnet", options, levels=(DARK_LEVEL,), seed=DARK_SEED)[DARK_LEVEL][0]
     ages = {a.sequence: a.late_db - a.early_db for a in (state_age_report("rmbnet", options, seq) for seq in long)}
     return DevelopmentScore(name or f"{Path(model).parent.name}/{Path(model).stem}", seq_scores, first, last,
                             {k: v.psnr for k, v in score_streams(model, clips, device).items()},
-                            score_streams(model, real, device), bias, ages, camera_scores, pictures)
+                            score_streams(model, real, device), bias, ages, camera_scores, pictures, temporal)
 
 
 def score_candidates(models: Seq[Path], sequences: Seq[Sequence], clips: Seq[RealStream], real: Seq[RealStream],
@@ -156,13 +161,15 @@ def markdown(scores: Seq[DevelopmentScore], models: Seq[Path]) -> str:
     """The candidates' table, then the per-sequence and per-stream figures."""
     lines = ["# Development sets: candidate models", "",
              "Never the evaluation's held-out tables: choose a training stage here, then run the full evaluation once.", "",
-             "| model | development sequences (mu-PSNR) | first / last frame vs median (dB) | development clips (PSNR) "
+             "| model | development sequences (mu-PSNR) | frame to frame (temporal mu-PSNR) "
+             "| first / last frame vs median (dB) | development clips (PSNR) "
              "| real-video streams (PSNR) | a real camera's pixel (mu-PSNR) | dark end at 1e-3 (seed 1) "
              "| long still clips: late - early (dB) |",
-             "|---|---:|---:|---:|---:|---:|---:|---|"]
+             "|---|---:|---:|---:|---:|---:|---:|---:|---|"]
     for s in scores:
         ages = " / ".join(f"{value:+.2f}" for value in s.state_age.values()) or "—"
-        lines.append(f"| {s.name} | {s.sequence_mean:.2f} | {s.first_frame_db:+.2f} / {s.last_frame_db:+.2f} | "
+        lines.append(f"| {s.name} | {s.sequence_mean:.2f} | {_mean(s.temporal)} "
+                     f"| {s.first_frame_db:+.2f} / {s.last_frame_db:+.2f} | "
                      f"{_mean(s.clips)} | {_mean(s.real)} | {_mean(s.camera)} | {100 * s.dark_bias:+.1f} % | {ages} |")
     lines += ["", "Per set (dB):", ""]
     columns = [name for s in scores[:1] for name in [*s.sequences, *s.clips, *s.real, *s.camera, *s.state_age]]
