@@ -477,7 +477,9 @@ class Tfi:
 
     @staticmethod
     def _count(planes: np.ndarray) -> np.ndarray:
-        return planes.sum(axis=0, dtype=np.int64)
+        """Spikes per pixel over ``planes`` (at most a block's ``_TFI_BLOCK_PLANES``): summed in uint16, 4-5x faster
+        than in int64 and exact here; added to the int64 counts."""
+        return planes.sum(axis=0, dtype=np.uint16)
 
     @staticmethod
     def _image(interval: np.ndarray, spikes: np.ndarray | None = None) -> np.ndarray:
