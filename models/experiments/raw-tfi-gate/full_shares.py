@@ -14,9 +14,10 @@ Every block keeps the gated level. Each a is scored at full resolution as ``rmbv
 scores the default row, on the development sequences and the real-video streams (``--heldout``: the held-out
 sequences, once, to ship). Run from the repository root (about 2 minutes once the sequences are cached):
 
-    python models/experiments/raw-tfi-gate/full_shares.py [--heldout] [--detail STAGE.safetensors] [--subtract]
+    python models/experiments/raw-tfi-gate/full_shares.py [--heldout] [--detail STAGE.safetensors|classical] [--subtract]
 
-``--detail``: another detail stage in place of the shipped one (``rmbvideo train-detail``'s output); ``--subtract``:
+``--detail``: another detail stage in place of the shipped one (``rmbvideo train-detail``'s output), or ``classical``
+for ``reconstruct --detail classical`` (the raw rates' relative detail, no network); ``--subtract``:
 the development sequences simulated with a pixel that resets by subtraction, like car.dat's camera (no real streams).
 """
 
@@ -50,7 +51,7 @@ def frames(source_of, convention: str, strength: float, keep=None, detail=None) 
     recon = make_reconstructor("rmbnet", input_mode="binned", threads=1, convention=convention,
                                response=SIMULATED_RESPONSE)
     readout = RmbReadout(mode=ReadoutMode(trained_readout(recon)))
-    stage = detail if detail is not None else detail_stage("learned")
+    stage = None if detail == "classical" else detail if detail is not None else detail_stage("learned")
     full = FullResolution(recon, readout, step=RAW_STEP, detail=stage, threads=1, raw_gate=raw_gate_stage("auto"),
                           candidate_detail=strength)
     sink = FrameCollector(keep=keep)
@@ -61,7 +62,8 @@ def frames(source_of, convention: str, strength: float, keep=None, detail=None) 
 def main() -> None:
     torch.set_num_threads(1)
     heldout = "--heldout" in sys.argv[1:]
-    detail = load_detail_model(sys.argv[sys.argv.index("--detail") + 1])[0] if "--detail" in sys.argv else None
+    chosen = sys.argv[sys.argv.index("--detail") + 1] if "--detail" in sys.argv else None
+    detail = "classical" if chosen == "classical" else load_detail_model(chosen)[0] if chosen else None
     subtract = "--subtract" in sys.argv[1:]
     if heldout and subtract:
         raise SystemExit("--subtract scores the development sequences only")
