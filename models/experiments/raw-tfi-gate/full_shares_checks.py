@@ -1,7 +1,7 @@
 """Checks behind the candidates' own detail and the detail stage that reads TFI-4/16 (the sixth stop of
 2026-11-29; ``results.md``, "At full resolution, the candidates' own pixels"). Run from the repository root:
 
-    python models/experiments/raw-tfi-gate/full_shares_checks.py variants    # noise-aware variants, development sets
+    python models/experiments/raw-tfi-gate/full_shares_checks.py variants [NAME ...]   # noise-aware variants, development
     python models/experiments/raw-tfi-gate/full_shares_checks.py pictures OUT   # crops, the share 0 against 1/2
     python models/experiments/raw-tfi-gate/full_shares_checks.py cost BEFORE.safetensors CAPTURE.dat [ROUNDS]
     python models/experiments/raw-tfi-gate/full_shares_checks.py gate-cost   # the gate's convolutions, channels-last
@@ -65,12 +65,30 @@ def _agreement(full, gated, shares, candidates, strength=0.5):
     return np.maximum(full + np.float32(strength) * own, 0).astype(np.float32)
 
 
-def variants() -> None:
+def _regularity(tau: float):
+    """``with_candidate_detail`` with a per-block strength from its intervals' regularity, exp(-|ln(TFI-4 / TFI-16)| /
+    ``tau``) averaged over the block: up to the whole of the candidates' detail where the two windows agree (a still,
+    noise-free pixel fires periodically), none where they do not (a camera's shot noise, or motion)."""
+    def mix(full, gated, shares, candidates, strength=0.5):
+        ratio = np.abs(np.log((candidates[0] + 1e-4) / (candidates[1] + 1e-4)))
+        regular = block_mean(np.exp(-ratio / tau).astype(np.float32))
+        level = spread(gated.astype(np.float32))
+        shape = np.where(level > 0, full / np.maximum(level, 1e-30), 1.0)
+        own = sum(spread(s) * (c - block_mean(c) * shape) for s, c in zip(shares, candidates))
+        return np.maximum(full + regular * own, 0).astype(np.float32)
+    return mix
+
+
+def variants(*chosen: str) -> None:
+    """Each variant (those ``chosen`` by name, all when none) on the development sets."""
     torch.set_num_threads(1)
     shipped = fr.with_candidate_detail
     sequences, streams = load_development(), find_streams(STREAMS) if STREAMS.is_dir() else []
     for name, mix in {"shipped": shipped, "TFI-4's shape": _shaped_by(0), "TFI-16's shape": _shaped_by(1),
-                      "agreement": _agreement}.items():
+                      "agreement": _agreement, "regularity 0.05": _regularity(0.05),
+                      "regularity 0.1": _regularity(0.1), "regularity 0.2": _regularity(0.2)}.items():
+        if chosen and name not in chosen:
+            continue
         fr.with_candidate_detail = mix  # looked up by FullResolution at each frame
         scores = []
         for seq in sequences:
