@@ -90,6 +90,11 @@ class _Totals(Protocol):
         ...
 
 
+#: Byte planes (1-bit spikes, bin counts) and how many of them a uint16 sum holds without overflow (257 * 255 = 65535).
+_NARROW = (np.dtype(np.bool_), np.dtype(np.uint8))
+_NARROW_RUN = 257
+
+
 class _DenseTotals:
     """Totals of unpacked channels: integer channels in int64, others in float64 (exact for the
     dyadic values produced upstream), so results do not depend on chunking."""
@@ -99,7 +104,11 @@ class _DenseTotals:
 
     def add(self, channels: Sequence[np.ndarray], a: int, b: int) -> None:
         for total, channel in zip(self._total, channels):
-            total += channel[a:b].sum(axis=0, dtype=total.dtype)
+            if channel.dtype in _NARROW:  # bytes: summed in uint16 runs that cannot overflow, 4-5x faster, exact
+                for start in range(a, b, _NARROW_RUN):
+                    total += channel[start : min(b, start + _NARROW_RUN)].sum(axis=0, dtype=np.uint16)
+            else:
+                total += channel[a:b].sum(axis=0, dtype=total.dtype)
 
     def snapshot(self) -> list[np.ndarray]:
         return [t.copy() for t in self._total]
