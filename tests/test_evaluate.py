@@ -374,7 +374,8 @@ def test_full_resolution_table_has_the_synthetic_frame_to_frame_column():
 
 def test_evaluate_precision_reaches_every_rmbnet_row(tmp_path):
     """`evaluate --precision` is the network's precision in every table's RMB-Net rows: forced bf16 moves their
-    frames against fp32 and leaves the classical rows as they were; the CLI takes the option."""
+    frames against fp32 and leaves the classical rows as they were; the CLI takes the option, and refuses it with
+    --development, which would not use it."""
     from click.testing import CliRunner
 
     from rmbvideo.cli import main
@@ -396,6 +397,8 @@ def test_evaluate_precision_reaches_every_rmbnet_row(tmp_path):
     result = CliRunner().invoke(main, ["evaluate", "--no-heldout", "--real-video", str(tmp_path), "-o",
                                        str(tmp_path / "out"), "--device", "cpu", "--precision", "fp32", "--quiet"])
     assert result.exit_code == 0, result.output
+    refused = CliRunner().invoke(main, ["evaluate", "--development", "--precision", "bf16", "-o", str(tmp_path / "dev")])
+    assert refused.exit_code == 2 and "--precision" in refused.output and not (tmp_path / "dev").exists()
 
 
 def test_development_table_has_the_frame_to_frame_mean():

@@ -590,6 +590,15 @@ def test_step_run_reads_one_encode_call_as_views_and_several_as_copies():
     torch.testing.assert_close(one, several, rtol=1e-5, atol=1e-6)
 
 
+def test_evict_pairs_forgets_every_pair_with_a_frame_older_than_needed():
+    """The pair cache keeps a pair only while both its frames are still needed (the engine and `bench network`)."""
+    from rmbvideo.net.model import evict_pairs
+
+    cache = {(s, q, k): torch.zeros(1) for s in (0, 2) for q in range(3, 7) for k in range(3, 7)}
+    evict_pairs(cache, 5)
+    assert cache and all(q >= 5 and k >= 5 for _, q, k in cache) and len(cache) == 2 * 2 * 2
+
+
 def test_cell_decay_scales_the_carried_cell_state_and_round_trips():
     """``cell_decay`` a: each step starts from a * c (the textbook cell at a = 1, the default, which old cards keep
     by omitting it); the batched run and the graphed recurrence apply it as the step does."""

@@ -12,9 +12,8 @@ from dataclasses import asdict, dataclass
 
 import torch
 
-from rmbvideo.net.model import RmbNet
+from rmbvideo.net.model import PairCache, RmbNet, evict_pairs, window_indices
 from rmbvideo.net.weights import default_model_path, load_model
-from rmbvideo.net.model import window_indices
 from rmbvideo.recon.rmbnet import ENCODE_BATCH, inference_copy
 
 #: binned sizes (width, height) and frames per batched pass measured by default: the engine's GPU defaults there
@@ -70,13 +69,12 @@ def _frame_by_frame(net: RmbNet, inputs: tuple[torch.Tensor, ...], count: int) -
                                 i_c[first : ids.stop] if net.config.centre_windows else None):
             encoded[frame.index] = frame
     middle = time.perf_counter()
-    cache: dict = {}
+    cache: PairCache = {}
     state = None
     for i in range(w, w + count):
         window = [encoded[j] for j in window_indices(i, w, None)]
         _, state = net.step(window, state, cache, aligned=aligned[i - w : i - w + 1] if net.config.aligned else None)
-        for key in [k for k in cache if min(k[1], k[2]) < i - w + 1]:
-            del cache[key]
+        evict_pairs(cache, i + 1 - w)  # as the engine: the next frame looks w frames back
     return middle - began, time.perf_counter() - middle
 
 

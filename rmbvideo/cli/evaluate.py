@@ -198,7 +198,7 @@ def _heldout_outputs(rows: list[RowResult], sequences: list[Sequence], out_dir: 
 @click.option("--precision", type=click.Choice(["auto", "fp32", "bf16"]), default="auto", show_default=True,
               help="RMB-Net's precision, as `reconstruct --precision` (auto: bf16 on CPUs with AVX512-BF16 or AMX). "
                    "bf16 moves the binned scores by up to 0.02 dB; fp32 gave the same figures, to 0.01 dB, on every CPU "
-                   "measured. Not used by --development.")
+                   "measured. Not with --development, whose candidates run as the engine runs them.")
 @click.option("--json", "as_json", is_flag=True, help="Also print the rows as JSON on stdout.")
 @click.option("--real", "real_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Also write real_comparison.png for this real capture (RMB-Net vs TFP vs TFI).")
@@ -228,8 +228,8 @@ def _heldout_outputs(rows: list[RowResult], sequences: list[Sequence], out_dir: 
 @quiet_option
 @verbose_option
 def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Path | None, device: str,
-             precision: str, as_json: bool, real_path: Path | None, real_video: Path | None, heldout: bool, texture_pans: bool,
-             full_resolution: bool, development: bool, reset: str, candidates: tuple[Path, ...], quiet: bool) -> None:
+             precision: str, as_json: bool, real_path: Path | None, real_video: Path | None, heldout: bool,
+             texture_pans: bool, full_resolution: bool, development: bool, reset: str, candidates: tuple[Path, ...], quiet: bool) -> None:
     """Score TFW-S/L, TFI, GC20, MG20, RMB-Net, its ablations and the classical methods on the raw
     capture (2x2-averaged) on the held-out synthetic set, and optionally on real-video streams (with
     --no-heldout, those alone); with --development, candidate models on the development sets instead."""
@@ -244,6 +244,8 @@ def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Pat
     models_dir = models_dir if models_dir is not None else MODELS_DIR
     if candidates and not development:
         raise click.UsageError("--candidate needs --development")
+    if development and precision != "auto":
+        raise click.UsageError("--precision is not used by --development (its candidates run as the engine runs them)")
     if not heldout and (development or as_json or not (real_video or texture_pans or real_path)):
         raise click.UsageError("--no-heldout scores only --real-video, --texture-pans or --real (not --development "
                                "or --json, which are the held-out set's)")
@@ -295,7 +297,8 @@ def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Pat
     if as_json:
         click.echo(json.dumps([{"method": r.name, "status": r.status,
                                 **{k: (getattr(r, k) if math.isfinite(getattr(r, k)) else None)
-                                   for k in ("psnr", "ssim", "pu21", "fps", "network_fps")}} for r in rows],
+                                   for k in ("psnr", "ssim", "pu21", "temporal", "fps", "network_fps")}}
+                               for r in rows],
                               indent=2))
     for path in written:
         log.info("wrote %s", path)

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rmbvideo.evaluate.harness import SATURATION, MethodSpec, run_frames, score_frames, temporal_score
+from rmbvideo.evaluate.harness import MethodSpec, run_frames, score_frames, scored_truth, temporal_score
 from rmbvideo.evaluate.heldout import Sequence
 from rmbvideo.evaluate.metrics import mu_law_psnr
 from rmbvideo.evaluate.real_video import (CONVENTION, RealRow, RealScore, RealStream, binned_reference,
@@ -101,7 +101,7 @@ def score_sequences(model: Path, sequences: Seq[Sequence], device: str = "cpu",
         images = {f.index: f.image for f in frames}
         scored = {i: images[i] for i in seq.scored_frames}
         scores[seq.name] = score_frames(scored, seq)[0]
-        temporal[seq.name] = temporal_score(scored, {i: np.minimum(seq.gt[i], SATURATION) for i in scored})
+        temporal[seq.name] = temporal_score(scored, scored_truth(seq, scored))
         per_frame = {i: mu_law_psnr(images[i], seq.gt[i]) for i in images}
         median = float(np.median(list(per_frame.values())))
         first.append(per_frame[min(per_frame)] - median)

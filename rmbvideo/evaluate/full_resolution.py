@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from rmbvideo.evaluate.harness import (SATURATION, SIMULATED_RESPONSE, TFI_WINDOWS, downsample_2x, rate_as_light,
-                                       sequence_convention, temporal_score)
+                                       scored_truth, sequence_convention, temporal_score)
 from rmbvideo.evaluate.heldout import RAW_RATE_HZ, VIDEO_KINDS, Sequence
 from rmbvideo.evaluate.metrics import mu_law_psnr, mu_law_ssim, ssim
 from rmbvideo.evaluate.real_video import (
@@ -154,7 +154,7 @@ def score_sequences(sequences: Seq[Sequence], rows: Seq[FullRow], scores: FullSc
     """Score every row on every held-out sequence at full resolution."""
     for seq in sequences:
         truth = {i: np.minimum(gt, SATURATION) for i, gt in full_ground_truth(seq).items()}
-        binned_truth = {i: np.minimum(seq.gt[i], SATURATION) for i in truth}
+        binned_truth = scored_truth(seq, truth)
         psnr, ssim_ = {}, {}
         for row in rows:
             produced, seconds, emitted = run_row(row, seq, convention=sequence_convention(seq))

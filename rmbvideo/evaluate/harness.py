@@ -185,9 +185,14 @@ def run_frames(spec: MethodSpec, seq: Sequence) -> tuple[list[Frame], float, flo
     return frames, seconds, summary.stages.get("network")
 
 
+def scored_truth(seq: Sequence, indices: Iterable[int]) -> dict[int, np.ndarray]:
+    """``seq``'s ground truth at ``indices`` as it is scored: clipped at the sensor's saturation."""
+    return {i: np.minimum(seq.gt[i], SATURATION) for i in indices}
+
+
 def score_frames(frames: dict[int, np.ndarray], seq: Sequence) -> tuple[float, float, float]:
     """Mean mu-law PSNR, mu-law SSIM and PU21 PSNR of ``frames`` (index -> image) against ``seq.gt``."""
-    truth = {i: np.minimum(seq.gt[i], SATURATION) for i in frames}
+    truth = scored_truth(seq, frames)
     scores = np.array([(mu_law_psnr(image, truth[i]), mu_law_ssim(image, truth[i]), pu21_psnr(image, truth[i]))
                        for i, image in frames.items()])
     return tuple(float(v) for v in scores.mean(axis=0))  # type: ignore[return-value]
@@ -214,7 +219,7 @@ def run_method(spec: MethodSpec, seq: Sequence) -> MethodResult:
     psnr, ssim, pu21 = score_frames(scored, seq)
     return MethodResult(frames=scored, psnr=psnr, ssim=ssim, pu21=pu21, seconds=seconds,
                         frames_emitted=len(frames), network_seconds=network,
-                        temporal=temporal_score(scored, {i: np.minimum(seq.gt[i], SATURATION) for i in scored}))
+                        temporal=temporal_score(scored, scored_truth(seq, scored)))
 
 
 def temporal_score(frames: dict[int, np.ndarray], truth: dict[int, np.ndarray]) -> float:

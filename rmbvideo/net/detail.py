@@ -117,6 +117,10 @@ class DetailNet(nn.Module):
                        nn.ReLU(inplace=True)]
         layers.append(nn.Conv2d(config.channels, 1, 3, padding=1))
         self.body = nn.Sequential(*layers)
+        # one spike's worth per rate plane, 1 / (4 * window): a block holds 4 * window trials over a window, and this
+        # keeps the relative deviation finite in a block that never fired (made once; not a weight, not saved)
+        self.register_buffer("spike_floor", torch.tensor([1.0 / (4 * w) for w in self.rate_windows],
+                                                         dtype=torch.float32).reshape(1, -1, 1, 1), persistent=False)
         with torch.no_grad():  # start as bilinear upsampling rescaled to the block levels
             layers[-1].weight.zero_()
             layers[-1].bias.zero_()
@@ -128,19 +132,22 @@ class DetailNet(nn.Module):
         float32, all at once, and written once into the convolutions' layout and dtype (bf16 rounds as autocast
         would)."""
         level = F.interpolate(mean_2x2(up), scale_factor=2.0, mode="nearest")
-        intervals = 1 + len(self.config.interval_windows) if self.config.interval_reach else 0
-        windows = self.config.windows + (2 * self.config.interval_reach,) * intervals
-        r = rates[:, : len(windows)].float()
-        # a block holds 4 * window trials over a window: its mean rate is its spike count per trial, and one spike's
-        # worth, 1 / (4 * window), keeps the relative deviation finite in a block that never fired
-        floor = torch.tensor([1.0 / (4 * w) for w in windows], dtype=torch.float32, device=r.device)
-        mean = block_mean(r)
-        out = torch.empty((r.shape[0], 1 + 2 * len(windows), *r.shape[2:]), dtype=dtype, device=r.device,
+        planes = len(self.rate_windows)
+        r = rates[:, :planes].float()
+        mean = block_mean(r)  # a block's mean rate: its spike count per trial
+        out = torch.empty((r.shape[0], 1 + 2 * planes, *r.shape[2:]), dtype=dtype, device=r.device,
                           memory_format=torch.channels_last)
         out[:, :1] = (up / level.clamp(min=1e-12) - 1.0).clamp(-1.0, 1.0) * (level > 0)
-        out[:, 1::2] = ((r - mean) / (mean + floor.reshape(1, -1, 1, 1))).clamp(-1.0, 3.0)
+        out[:, 1::2] = ((r - mean) / (mean + self.spike_floor)).clamp(-1.0, 3.0)
         out[:, 2::2] = mu_law(mean, 255.0)
         return out
+
+    @property
+    def rate_windows(self) -> tuple[int, ...]:
+        """The planes each rate input counts over: each window, then each TFI, read as if over 2 * ``interval_reach``
+        planes."""
+        intervals = 1 + len(self.config.interval_windows) if self.config.interval_reach else 0
+        return self.config.windows + (2 * self.config.interval_reach,) * intervals
 
     def widened(self, config: DetailConfig) -> DetailNet:
         """A stage of ``config`` (this one's with more ``interval_windows``) that computes this one's frames: its

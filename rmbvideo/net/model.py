@@ -67,6 +67,12 @@ EVIDENCE_SCALES: tuple[float | None, ...] = (0.1, 2.0, None, 0.25)
 PairCache = dict[tuple[int, int, int], torch.Tensor]
 
 
+def evict_pairs(cache: PairCache, oldest_needed: int) -> None:
+    """Forget the pair logits of ``cache`` whose query or key frame is older than ``oldest_needed``."""
+    for key in [k for k in cache if min(k[1], k[2]) < oldest_needed]:
+        del cache[key]
+
+
 @dataclass
 class EncodedFrame:
     """Everything RMB-Net derives from one preliminary frame alone, computed once per frame.

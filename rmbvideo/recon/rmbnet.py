@@ -42,6 +42,7 @@ from rmbvideo.net.model import (
     EncodedFrame,
     PairCache,
     RmbNet,
+    evict_pairs,
     priming_frames,
     window_indices,
     window_valid,
@@ -557,8 +558,7 @@ class RmbNetReconstructor:
         for store in (self._encoded, self._raw):
             for fid in [k for k in store if k < oldest_needed]:
                 del store[fid]
-        for key in [k for k in self._pair_cache if k[1] < oldest_needed or k[2] < oldest_needed]:
-            del self._pair_cache[key]
+        evict_pairs(self._pair_cache, oldest_needed)
         for key in [k for k in self._flow_cache if min(k[:2]) < oldest_needed]:
             del self._flow_cache[key]
         if self._aligned_box is not None:

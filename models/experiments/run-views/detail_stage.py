@@ -1,6 +1,7 @@
-"""The detail stage's inference copy against the stage as it was at a commit (``REV``, default HEAD~1): one 400x250
-frame, one thread, the two alternated in one process (ABBA), the median of the per-round ratios, and the largest
-difference of their outputs. Run from the repository root:
+"""The detail stage's inference copy against the stage as it was at a commit (``REV``; by default cc349c6~1, the
+stage before its inputs were written once into the convolutions' layout): one 400x250 frame, one thread, the two
+alternated in one process (ABBA), the median of the per-round ratios, and the largest difference of their outputs. The
+old ``rmbvideo/net/detail.py`` is read from the repository's own history. Run from the repository root:
 
     python models/experiments/run-views/detail_stage.py [auto|fp32] [ROUNDS] [REV]
 """
@@ -15,7 +16,7 @@ from rmbvideo.net.weights import default_detail_path, load_detail_model
 from rmbvideo.recon.full_resolution import detail_inference_copy
 
 torch.set_num_threads(1)
-rev = sys.argv[3] if len(sys.argv) > 3 else "HEAD~1"
+rev = sys.argv[3] if len(sys.argv) > 3 else "cc349c6~1"
 old_src = subprocess.run(["git", "show", f"{rev}:rmbvideo/net/detail.py"], capture_output=True, text=True, check=True).stdout
 ns = {}
 exec(compile(old_src, "old_detail", "exec"), ns)

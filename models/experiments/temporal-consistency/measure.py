@@ -25,7 +25,7 @@ import torch
 from rmbvideo.evaluate.full_resolution import (FULL_LEARNED, NO_RAW_GATE, at_full_resolution, full_ground_truth,
                                                full_rows, run_row)
 from rmbvideo.evaluate.harness import (GATED_ROW, RAW_SPECS, SATURATION, MethodSpec, baseline_specs, run_method,
-                                       sequence_convention, temporal_score)
+                                       scored_truth, sequence_convention, temporal_score)
 from rmbvideo.evaluate.heldout import load_development, load_heldout, load_video_heldout
 from rmbvideo.evaluate.metrics import mu_law_psnr
 from rmbvideo.net.weights import default_model_path, model_readout
@@ -54,7 +54,7 @@ def picture(out: str, name: str = "fast-0") -> None:
     seq = next(s for s in load_heldout(False) + load_video_heldout(False) if s.name == name)
     made = {spec.name: run_method(spec, seq).frames for spec in specs()[:5]}
     keys = sorted(next(iter(made.values())))
-    truth = np.stack([np.minimum(seq.gt[i], SATURATION) for i in keys])
+    truth = np.stack(list(scored_truth(seq, keys).values()))
     row = int(np.argmax(np.log1p(truth / truth.mean()).std(axis=0).mean(axis=1)))
     scale = float(np.percentile(truth, 99.9)) or 1.0
     tiles = []
@@ -84,7 +84,7 @@ def main() -> None:
         for spec in rows:
             if full_truth is None:
                 frames = run_method(spec, seq).frames
-                truth = {i: np.minimum(seq.gt[i], SATURATION) for i in frames}
+                truth = scored_truth(seq, frames)
             else:
                 made = run_row(spec, seq, convention=sequence_convention(seq))[0]
                 truth = full_truth
