@@ -15,7 +15,7 @@ from rmbvideo.net.convlstm import ConvLSTMCell
 from rmbvideo.net.decoder import upsample2x
 from rmbvideo.net.encoder import MaxPool2x2
 from rmbvideo.net.config import RmbNetConfig
-from rmbvideo.net.model import RmbNet, canonical_batch, window_indices, window_valid
+from rmbvideo.net.model import RmbNet, canonical_batch, window_indices, window_reach, window_valid
 from rmbvideo.mulaw import inverse_mu_law, mu_law
 
 
@@ -656,3 +656,48 @@ def test_edge_input_reads_where_the_clip_cuts_the_window_and_leaves_the_rest_of_
         edged, _ = model.forward_sequence(i_s, i_m, prime=2)
     torch.testing.assert_close(edged[:, 2:5], widened[:, 2:5], rtol=0, atol=0)  # whole windows: unchanged
     assert all(not torch.allclose(edged[:, i], widened[:, i]) for i in (0, 1, 5, 6))
+
+
+def test_edge_slide_fills_a_cut_window_with_the_frames_beyond_its_other_end():
+    """``edge_slide``: the positions past a clip's edge hold the frames beyond the window's other end, nearest first,
+    where the clip has them, and are valid; mid-clip windows and the window's reach are as before otherwise."""
+    assert window_indices(0, 3, 10, slide=True) == [6, 5, 4, 0, 1, 2, 3]
+    assert window_indices(9, 3, 10, slide=True) == [6, 7, 8, 9, 5, 4, 3]
+    assert window_indices(1, 3, 10, slide=True) == [6, 5, 0, 1, 2, 3, 4]
+    assert window_valid(0, 3, 10, slide=True) == [True] * 7
+    assert window_indices(0, 3, 5, slide=True) == [0, 0, 4, 0, 1, 2, 3]  # a clip too short to fill the window
+    assert window_valid(0, 3, 5, slide=True) == [False, False, True, True, True, True, True]
+    assert window_indices(0, 3, None, slide=True) == [6, 5, 4, 0, 1, 2, 3]  # the end not known: only the start slides
+    for i in range(3, 7):
+        assert window_indices(i, 3, 10, slide=True) == window_indices(i, 3, 10)
+        assert window_valid(i, 3, 10, slide=True) == window_valid(i, 3, 10) == [True] * 7
+    assert window_reach(0, 3, 10, slide=True) == range(0, 7) and window_reach(0, 3, 10) == range(0, 4)
+    assert window_reach(9, 3, 10, slide=True) == range(3, 10)
+
+
+def test_edge_slide_changes_only_the_attention_of_an_edge_frame():
+    """A slid edge window's extra frames reach both attentions (the fused features change) but not the pooled means
+    nor the edge planes (the head's inputs are the cut window's); whole windows give the model's frames exactly."""
+    assert "edge_slide" not in RmbNetConfig().to_dict()  # older cards stay as they were written
+    with pytest.raises(ValueError, match="edge_slide"):
+        RmbNetConfig(w=0, edge_slide=True)
+    cfg = RmbNetConfig(w=2, width=0.25, pooled_windows=(3, 5), edge_input=True, edge_slide=True)
+    assert RmbNetConfig.from_dict(cfg.to_dict()) == cfg
+    torch.manual_seed(0)
+    cut = RmbNet(replace(cfg, edge_slide=False)).eval()
+    slid = RmbNet(cfg).eval()
+    slid.load_state_dict(cut.state_dict())
+    i_s, i_m = torch.rand(1, 8, 16, 16) * 10, torch.rand(1, 8, 16, 16) * 70
+    with torch.inference_mode():
+        frames = slid.encode(i_s[0], i_m[0], range(8))
+        for i in (0, 7):
+            a = cut._prepare([frames[j] for j in window_indices(i, 2, 8)], {}, window_valid(i, 2, 8), 0.0, None)
+            b = slid._prepare([frames[j] for j in window_indices(i, 2, 8, slide=True)], {},
+                              window_valid(i, 2, 8, slide=True), 0.0, None)
+            assert torch.equal(a.decoder_inputs[2], b.decoder_inputs[2])  # pooled means and edge planes: the cut's
+            assert not torch.equal(a.decoder_inputs[0], b.decoder_inputs[0])  # what the attention fused: not
+        for i in range(2, 6):  # whole windows: the same inputs to the decoder
+            window, valid = [frames[j] for j in window_indices(i, 2, 8)], window_valid(i, 2, 8)
+            for a, b in zip(cut._prepare(window, {}, valid, 0.0, None).decoder_inputs[::2],
+                            slid._prepare(window, {}, valid, 0.0, None).decoder_inputs[::2]):
+                assert torch.equal(a, b)

@@ -451,3 +451,23 @@ def test_a_batched_engine_makes_whole_runs_whatever_the_chunks(monkeypatch):
     assert [f.index for f in batched] == [f.index for f in plain]
     np.testing.assert_allclose(np.stack([f.image for f in batched]), np.stack([f.image for f in plain]),
                                rtol=1e-5, atol=1e-6)
+
+
+def test_a_model_whose_edge_windows_slide_streams_its_forward_sequence():
+    """``edge_slide``: the engine waits for the frames a slid first window reads, keeps those a slid last window
+    reads back, and gives ``forward_sequence``'s frames whatever the chunks; warped windows are refused."""
+    model = tiny(edge_slide=True)
+    data = rmb_stream(95)
+    results = {size: stream(model, split(data, size))[0] for size in (1, 7, 95)}
+    prelim = PreliminaryFrames(n=10)
+    pframes = prelim.push(data) + prelim.flush()
+    with torch.inference_mode():
+        i_s = torch.from_numpy(np.stack([p.i_s for p in pframes]))[None]
+        i_m = torch.from_numpy(np.stack([p.i_m for p in pframes]))[None]
+        reference = model.forward_sequence(i_s, i_m, prime=model.config.w)[0][0]
+    for size, frames in results.items():
+        assert [f.index for f in frames] == [p.index for p in pframes], size
+        images = np.stack([f.image for f in frames])
+        np.testing.assert_allclose(images, reference.numpy(), rtol=1e-5, atol=1e-7 * float(reference.max()))
+    with pytest.raises(ValueError, match="edge_slide"):
+        RmbNetReconstructor(model, device="cpu", align="dis")

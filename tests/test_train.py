@@ -584,3 +584,26 @@ def test_train_lists_every_bundled_recipe_with_what_it_is_for():
     assert "the head told where a clip's edges cut the window" in lines["video-edge-input-head-cpu"]
     missing = CliRunner().invoke(main, ["train"])
     assert missing.exit_code == 2 and "--list" in missing.output
+
+
+def test_a_model_whose_edge_windows_slide_trains_on_the_frames_the_engine_gives_it(tmp_path):
+    """``edge_slide``: the TBPTT segments read the frames a slid edge window reaches (beyond a segment's own), so the
+    training losses are those of ``forward_sequence``'s frames, primed or not; the hold keeps an edge frame's truth."""
+    from dataclasses import replace
+
+    from rmbvideo.train.loop import held_targets
+
+    sample = SampleCache(tmp_path, SampleSpec(mode="binned", crop=16, frames=6, n=4, warmup_frames=1)).get(0)
+    batch = Batch.from_samples([sample], torch.device("cpu"))
+    cut = _tiny_model(w=2).eval()  # a first frame's slid window reads frame 4, past the first segment's own reach
+    model = RmbNet(replace(cut.config, edge_slide=True)).eval()
+    model.load_state_dict(cut.state_dict())
+    with torch.no_grad():
+        for prime in (0, 1):
+            losses = list(segment_losses(model, batch, tbptt=2, loss_config=LossConfig(), edges=True, prime=prime))
+            trained = sum(segment.loss for segment in losses)
+            torch.testing.assert_close(trained, _per_frame_loss(model, batch, prime), rtol=1e-5, atol=1e-6)
+    targets = held_targets(model, batch, edges=True, prime=1)
+    w = model.config.w
+    torch.testing.assert_close(targets[:, :w], batch.gt[:, :w], rtol=0, atol=0)
+    torch.testing.assert_close(targets[:, -w:], batch.gt[:, -w:], rtol=0, atol=0)

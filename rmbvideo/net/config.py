@@ -57,6 +57,10 @@ class RmbNetConfig:
     ``edge_input``: the head also sees where the clip's edges cut the window (two constant planes, the fractions of
     its w past and w future positions that lie outside the clip; both 0 mid-clip), last of its inputs, so a clip's
     edge frames can be read differently from the rest without changing it.
+    ``edge_slide``: where a clip's edge cuts a frame's window, its missing positions hold the frames beyond the window's
+    other end instead (``window_indices``), real evidence for both attentions, which read their keys as a set, so an
+    edge frame's attention fuses 2w + 1 frames, all from its one side, as its aligned mean does with
+    ``aligned_shift``; the pooled means and the edge planes still read the window as the edge cuts it.
     """
 
     w: int = 3
@@ -86,6 +90,7 @@ class RmbNetConfig:
     aligned_evidence: bool = False
     cell_decay: float = 1.0
     edge_input: bool = False
+    edge_slide: bool = False
 
     def __post_init__(self) -> None:
         if not 0 <= self.w <= 3:
@@ -122,6 +127,8 @@ class RmbNetConfig:
             raise ValueError(f"aligned_radius must be in 0..{MAX_ALIGNED_RADIUS}, got {self.aligned_radius}")
         if self.edge_input and self.w < 1:
             raise ValueError("edge_input needs a window (w >= 1)")
+        if self.edge_slide and self.w < 1:
+            raise ValueError("edge_slide needs a window (w >= 1)")
         if not 0.0 < self.cell_decay <= 1.0:
             raise ValueError(f"cell_decay must be in (0, 1], got {self.cell_decay}")
         if self.blend and (self.input_mode != "binned" or self.readout != "pure-m"):
@@ -155,8 +162,8 @@ class RmbNetConfig:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary (tuples become lists; no ``pooled_windows`` key when there are none, no
         ``convention_input`` key when it is off, no ``readout`` key for the RMB design, no ``blend`` key
-        when it is off, no ``centre_windows`` key when there are none, no ``aligned*`` key when off or unset, no ``edge_input``
-        or ``cell_decay`` key at their defaults)."""
+        when it is off, no ``centre_windows`` key when there are none, no ``aligned*`` key when off or unset, no ``edge_input``,
+        ``edge_slide`` or ``cell_decay`` key at their defaults)."""
         out = asdict(self)
         out["base_channels"] = list(self.base_channels)
         out["pooled_windows"] = list(self.pooled_windows)
@@ -178,8 +185,9 @@ class RmbNetConfig:
             del out["aligned_radius"]
         if self.cell_decay == 1.0:
             del out["cell_decay"]
-        if not self.edge_input:
-            del out["edge_input"]
+        for name in ("edge_input", "edge_slide"):
+            if not out[name]:
+                del out[name]
         return out
 
     @classmethod

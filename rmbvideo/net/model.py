@@ -97,17 +97,40 @@ class EncodedFrame:
     centre: torch.Tensor | None = None
 
 
-def window_indices(i: int, w: int, count: int | None) -> list[int]:
+def window_indices(i: int, w: int, count: int | None, slide: bool = False) -> list[int]:
     """Frame indices of the window around ``i``; positions past the clip's edges hold frame 0 /
-    frame ``count-1`` as placeholders (``window_valid`` says which positions are real)."""
+    frame ``count-1`` as placeholders (``window_valid`` says which positions are real). With ``slide``
+    (``RmbNetConfig.edge_slide``) they hold the frames beyond the window's other end instead, nearest first, where the
+    clip has them."""
     last = math.inf if count is None else count - 1
-    return [int(min(max(j, 0), last)) for j in range(i - w, i + w + 1)]
+    ids = [int(min(max(j, 0), last)) for j in range(i - w, i + w + 1)]
+    if slide:
+        before = [p for p in range(2 * w + 1) if i - w + p < 0]
+        after = [p for p in range(2 * w + 1) if i - w + p > last]
+        for n, p in enumerate(reversed(before)):
+            if i + w + 1 + n <= last:
+                ids[p] = i + w + 1 + n
+        for n, p in enumerate(after):
+            if i - w - 1 - n >= 0:
+                ids[p] = i - w - 1 - n
+    return ids
 
 
-def window_valid(i: int, w: int, count: int | None) -> list[bool]:
-    """Which positions of the window around ``i`` hold a real frame (inside 0..count-1)."""
+def window_valid(i: int, w: int, count: int | None, slide: bool = False) -> list[bool]:
+    """Which positions of the window around ``i`` hold a real frame (inside 0..count-1, or with ``slide`` a frame
+    from beyond the window's other end)."""
     last = math.inf if count is None else count - 1
-    return [0 <= j <= last for j in range(i - w, i + w + 1)]
+    own = [0 <= j <= last for j in range(i - w, i + w + 1)]
+    if not slide:
+        return own
+    ids, cut = window_indices(i, w, count, slide=True), window_indices(i, w, count)
+    return [ok or a != b for ok, a, b in zip(own, ids, cut)]
+
+
+def window_reach(i: int, w: int, count: int | None, slide: bool = False) -> range:
+    """The frames the window around ``i`` reads (placeholders included)."""
+    ids = window_indices(i, w, count, slide)
+    return range(min(ids), max(ids) + 1)
 
 
 def priming_frames(prime: int, count: int | None) -> range:
@@ -489,15 +512,19 @@ class RmbNet(nn.Module):
     def _prepare(self, window: Sequence[EncodedFrame], cache: PairCache, valid: list[bool],
                  convention: torch.Tensor | float, aligned: torch.Tensor | None) -> "_Prepared":
         """Everything of a step before the decoder: the attention, the temporal fusion and the head's inputs."""
-        ref = window[self.config.w]
+        w = self.config.w
+        ref = window[w]
         mask = None if all(valid) else valid
         reference = [canonical_batch(self._bit_fused(s, [ref], window, cache, mask)[0]) for s in range(2)]
         f_ms_coarse = self._bit_fused(2, window, window, cache, mask)
-        reference.append(canonical_batch(f_ms_coarse[self.config.w]))
+        reference.append(canonical_batch(f_ms_coarse[w]))
         fused = self.time_fusion(f_ms_coarse, mask).contiguous(memory_format=torch.channels_last)
-        pooled = self._pooled_rates(window, valid)
+        # the pooled means and the edge planes read the window's own frames: not those a slid edge window brought in
+        own = [v and frame.index - ref.index == p - w for p, (v, frame) in enumerate(zip(valid, window))] \
+            if self.config.edge_slide else valid
+        pooled = self._pooled_rates(window, own)
         aligned_rate, evidence = self.normalise_aligned(aligned, ref.size)
-        inputs = self._head_inputs(window, valid, convention, pooled, aligned_rate, evidence)
+        inputs = self._head_inputs(window, own, convention, pooled, aligned_rate, evidence)
         return _Prepared(ref, (fused, reference, inputs), pooled, aligned_rate)
 
     def _finish(self, z: torch.Tensor, prepared: "_Prepared", convention: torch.Tensor | float) -> torch.Tensor:
@@ -542,14 +569,15 @@ class RmbNet(nn.Module):
             i_s.transpose(0, 1).flatten(0, 1), i_m.transpose(0, 1).flatten(0, 1), range(count),
             None if i_c is None else i_c.transpose(0, 1).flatten(0, 1),
         )
+        w, slide = self.config.w, self.config.edge_slide
         for i in priming_frames(prime, count) if state is None else ():
-            state = self.step_backward([frames[j] for j in window_indices(i, self.config.w, count)], state,
-                                       window_valid(i, self.config.w, count), convention,
+            state = self.step_backward([frames[j] for j in window_indices(i, w, count, slide)], state,
+                                       window_valid(i, w, count, slide), convention,
                                        None if i_a is None else i_a[:, i])
         outputs = []
         for i in range(count):
-            window = [frames[j] for j in window_indices(i, self.config.w, count)]
-            t, state = self.step(window, state, valid=window_valid(i, self.config.w, count), convention=convention,
+            window = [frames[j] for j in window_indices(i, w, count, slide)]
+            t, state = self.step(window, state, valid=window_valid(i, w, count, slide), convention=convention,
                                  aligned=None if i_a is None else i_a[:, i])
             outputs.append(t[:, 0])
         out = torch.stack(outputs, dim=1)

@@ -45,6 +45,7 @@ from rmbvideo.net.model import (
     evict_pairs,
     priming_frames,
     window_indices,
+    window_reach,
     window_valid,
 )
 from rmbvideo.recon.aligned_box import AlignedBoxConfig, aligned_window, network_input
@@ -230,6 +231,10 @@ class RmbNetReconstructor:
         self.align = align
         self.n = model.config.n if n is None else n
         self._w = model.config.w
+        self._slide = model.config.edge_slide
+        if self._slide and align != "none":  # warped windows are encoded by position: a slid frame would pass as own
+            raise ValueError(f"a model whose edge windows slide inwards (edge_slide) reads unwarped windows, not "
+                             f"align={align!r}")
         self._prime = self._w if prime is None else prime
         self._kept_means: dict[int, Ready] = {}
         self._primed = False
@@ -419,18 +424,19 @@ class RmbNetReconstructor:
             mean = self._aligned(i, count)
             if mean is not None:
                 self._kept_means[i] = mean = Ready(mean.result())
-            state = self._net.step_backward(self._window(i, count), state, window_valid(i, self._w, count),
+            state = self._net.step_backward(self._window(i, count), state, self._valid(i, count),
                                             self._convention, self._aligned_input(mean))
         self._state = state
 
     def _ready(self, i: int) -> bool:
         """Frame ``i`` can be made before the capture ends: its window and, for a model that reads it,
         its aligned mean's window (whatever the clip's length) have all been received."""
+        reach = window_reach(i, self._w, None, self._slide).stop - 1
         if self._aligned_box is None:
-            return i + self._w < self._received
+            return reach < self._received
         config = self._net.config
         last = aligned_window(i, config.aligned_half_width, None, config.aligned_shift)[-1]
-        return max(i + self._w, last) < self._received
+        return max(reach, last) < self._received
 
     def _accept(self, frames: list[PrelimLike]) -> None:
         if not frames:
@@ -465,8 +471,12 @@ class RmbNetReconstructor:
         except ValueError as exc:
             raise InputError(f"preliminary frame {frame.index}: {exc}") from None
 
+    def _valid(self, i: int, count: int | None) -> list[bool]:
+        """Which positions of frame ``i``'s window hold real frames (``window_valid``, slid where the model's are)."""
+        return window_valid(i, self._w, count, self._slide)
+
     def _window(self, i: int, count: int | None) -> list[EncodedFrame]:
-        ids = window_indices(i, self._w, count)
+        ids = window_indices(i, self._w, count, self._slide)
         if self.align == "none":
             return [self._encoded[j] for j in ids]
         from rmbvideo.recon.flow import align
@@ -517,7 +527,7 @@ class RmbNetReconstructor:
     def _emit(self, i: int, count: int | None, mean: AlignedMean | Ready | None) -> Frame:
         """Frame ``i`` from its window and its queued aligned mean (the network's input made by ``_aligned_input``)."""
         cache = self._pair_cache if self.align == "none" else None
-        t, state = self._net.step(self._window(i, count), self._state, cache, valid=window_valid(i, self._w, count),
+        t, state = self._net.step(self._window(i, count), self._state, cache, valid=self._valid(i, count),
                                   convention=self._convention, aligned=self._aligned_input(mean))
         if not all_finite(t):
             self.nonfinite_frames += 1
@@ -552,9 +562,10 @@ class RmbNetReconstructor:
                 for k, i in enumerate(run)]
 
     def _evict(self, next_out: int) -> None:
-        """Forget what no frame from ``next_out`` on needs: the network looks w frames back, the aligned mean
-        its radius (twice that when its window slides inwards at the clip's end, which is not known yet)."""
-        oldest_needed = next_out - self._w
+        """Forget what no frame from ``next_out`` on needs: the network looks w frames back (2w when its edge windows
+        slide inwards: the clip's end is not known yet), the aligned mean its radius (twice that when its window
+        slides inwards)."""
+        oldest_needed = next_out - self._w * (2 if self._slide else 1)
         for store in (self._encoded, self._raw):
             for fid in [k for k in store if k < oldest_needed]:
                 del store[fid]

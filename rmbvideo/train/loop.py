@@ -29,7 +29,7 @@ from tqdm import tqdm
 
 from rmbvideo.errors import InputError
 from rmbvideo.net.decoder import DecoderState
-from rmbvideo.net.model import RmbNet, priming_frames, window_indices, window_valid
+from rmbvideo.net.model import RmbNet, priming_frames, window_indices, window_reach, window_valid
 from rmbvideo.net.weights import ModelCard, default_model_path, load_model, save_model, widen_model
 from rmbvideo.scenes.random_scenes import (
     EVAL_SEED_START,
@@ -99,20 +99,21 @@ def aged_state(model: RmbNet, batch: Batch, outputs: range, passes: int) -> Deco
     as a long capture's, where the sample alone would only give states as young as it is long."""
     if passes < 1:
         return None
-    w, count = model.config.w, batch.i_s.shape[1]
+    w, count, slide = model.config.w, batch.i_s.shape[1], model.config.edge_slide
     order = list(outputs)
     state: DecoderState | None = None
     with torch.no_grad():
         frames = _encode_all(model, batch, 0, count)
         for remaining in range(passes, 0, -1):
             for i in (order[:0:-1] if remaining % 2 else order[:-1]):
-                window = [frames[j] for j in window_indices(i, w, count)]
+                window = [frames[j] for j in window_indices(i, w, count, slide)]
                 aligned = None if batch.i_a is None else batch.i_a[:, i]
                 if remaining % 2:
-                    state = model.step_backward(window, state, window_valid(i, w, count), batch.convention, aligned)
+                    state = model.step_backward(window, state, window_valid(i, w, count, slide), batch.convention,
+                                                aligned)
                 else:
-                    state = model.step(window, state, valid=window_valid(i, w, count), convention=batch.convention,
-                                       aligned=aligned)[1]
+                    state = model.step(window, state, valid=window_valid(i, w, count, slide),
+                                       convention=batch.convention, aligned=aligned)[1]
     return detach_state(state)
 
 
@@ -120,13 +121,14 @@ def primed_state(model: RmbNet, batch: Batch, prime: int, frames: list | None = 
     """The state a sample's first frame starts from as a clip's first: the network run backwards over frames
     ``prime`` .. 1 without gradients, as the engine primes a clip (``priming_frames``; None when ``prime`` is 0).
     ``frames``: the sample's encodings from frame 0 when the caller has them (else encoded here)."""
-    w, count = model.config.w, batch.i_s.shape[1]
+    w, count, slide = model.config.w, batch.i_s.shape[1], model.config.edge_slide
     state: DecoderState | None = None
     with torch.no_grad():
-        frames = _encode_all(model, batch, 0, min(prime + w + 1, count)) if frames is None else frames
+        reach = max([prime + w + 1, *(window_reach(i, w, count, slide).stop for i in priming_frames(prime, count))])
+        frames = _encode_all(model, batch, 0, min(reach, count)) if frames is None else frames
         for i in priming_frames(prime, count):
-            state = model.step_backward([frames[j] for j in window_indices(i, w, count)], state,
-                                        window_valid(i, w, count), batch.convention,
+            state = model.step_backward([frames[j] for j in window_indices(i, w, count, slide)], state,
+                                        window_valid(i, w, count, slide), batch.convention,
                                         None if batch.i_a is None else batch.i_a[:, i])
     return detach_state(state)
 
@@ -146,15 +148,15 @@ def held_targets(teacher: RmbNet, batch: Batch, edges: bool, prime: int) -> torc
     """The batch's ground truth with each supervised output whose window lies whole inside the sample replaced by
     ``teacher``'s linear output (started as the trained model's run is): trained on these, a run moves the edge
     frames towards the truth and holds the rest of a clip where the teacher had it."""
-    w, count = teacher.config.w, batch.i_s.shape[1]
+    w, count, slide = teacher.config.w, batch.i_s.shape[1], teacher.config.edge_slide
     outputs = output_range(count, w, edges)
     targets = batch.gt.clone()
     with torch.no_grad():
         frames = _encode_all(teacher, batch, 0, count)
         state = primed_state(teacher, batch, prime, frames) if edges and prime else None
         for i in outputs:
-            t, state = teacher.step([frames[j] for j in window_indices(i, w, count)], state,
-                                    valid=window_valid(i, w, count), convention=batch.convention,
+            t, state = teacher.step([frames[j] for j in window_indices(i, w, count, slide)], state,
+                                    valid=window_valid(i, w, count, slide), convention=batch.convention,
                                     aligned=None if batch.i_a is None else batch.i_a[:, i])
             if all(window_valid(i, w, count)):
                 targets[:, i] = teacher.to_linear(t[:, 0])
@@ -166,7 +168,7 @@ def segment_losses(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossCon
     """Yield the TBPTT segments of one batch in order; the caller back-propagates each before
     asking for the next, so only one segment's graph exists at a time. The sample's first frame
     starts the recurrent state (``start_state``): fresh, primed as the engine primes a clip's first frame, or aged."""
-    w = model.config.w
+    w, slide = model.config.w, model.config.edge_slide
     count = batch.i_s.shape[1]
     supervised = output_range(count, w, edges)
     outputs = len(supervised)
@@ -174,15 +176,17 @@ def segment_losses(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossCon
     previous: torch.Tensor | None = None  # the last output, for the temporal term (detached across segments)
     for first in range(supervised.start, supervised.stop, tbptt):
         last = min(first + tbptt, supervised.stop) - 1
-        lo, hi = max(first - w, 0), min(last + w + 1, count)
+        reaches = [window_reach(i, w, count, slide) for i in range(first, last + 1)]
+        lo, hi = min(r.start for r in reaches), max(r.stop for r in reaches)
         frames = _encode_all(model, batch, lo, hi)
         cache: dict = {}
         state_in = state
         segment_loss = torch.zeros((), device=batch.i_s.device)
         parts = dict.fromkeys(LOSS_PARTS, 0.0)
         for i in range(first, last + 1):
-            window = [frames[j - lo] for j in window_indices(i, w, count)]
-            t, state = model.step(window, state, cache, valid=window_valid(i, w, count), convention=batch.convention,
+            window = [frames[j - lo] for j in window_indices(i, w, count, slide)]
+            t, state = model.step(window, state, cache, valid=window_valid(i, w, count, slide),
+                                  convention=batch.convention,
                                   aligned=None if batch.i_a is None else batch.i_a[:, i])
             loss, step_parts = reconstruction_loss(t[:, 0], batch.gt[:, i], loss_config, batch.convention)
             if loss_config.temporal > 0 and previous is not None:

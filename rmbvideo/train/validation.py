@@ -40,8 +40,9 @@ def validate(model: RmbNet, samples: list[Sample], quanta: int | None, saturatio
         frames = model.encode(batch.i_s[0], batch.i_m[0], range(count), None if batch.i_c is None else batch.i_c[0])
         state = None
         for i in output_range(count, w, edges):
-            window = [frames[j] for j in window_indices(i, w, count)]
-            t, state = model.step(window, state, valid=window_valid(i, w, count), convention=batch.convention,
+            window = [frames[j] for j in window_indices(i, w, count, model.config.edge_slide)]
+            t, state = model.step(window, state, valid=window_valid(i, w, count, model.config.edge_slide),
+                                  convention=batch.convention,
                                   aligned=None if batch.i_a is None else batch.i_a[:, i])
             pred = model.to_linear(t)[0, 0].float().cpu().numpy()
             gt = np.clip(sample.gt[i], 0.0, saturation)
