@@ -696,8 +696,15 @@ def test_edge_slide_changes_only_the_attention_of_an_edge_frame():
                               window_valid(i, 2, 8, slide=True), 0.0, None)
             assert torch.equal(a.decoder_inputs[2], b.decoder_inputs[2])  # pooled means and edge planes: the cut's
             assert not torch.equal(a.decoder_inputs[0], b.decoder_inputs[0])  # what the attention fused: not
-        for i in range(2, 6):  # whole windows: the same inputs to the decoder
+        for i in range(2, 6):  # whole windows: the same inputs to the decoder, in either direction of time
             window, valid = [frames[j] for j in window_indices(i, 2, 8)], window_valid(i, 2, 8)
-            for a, b in zip(cut._prepare(window, {}, valid, 0.0, None).decoder_inputs[::2],
-                            slid._prepare(window, {}, valid, 0.0, None).decoder_inputs[::2]):
-                assert torch.equal(a, b)
+            for order in (1, -1):
+                for a, b in zip(cut._prepare(window[::order], {}, valid, 0.0, None).decoder_inputs[::2],
+                                slid._prepare(window[::order], {}, valid, 0.0, None).decoder_inputs[::2]):
+                    assert torch.equal(a, b)
+        for i in (0, 7):  # an edge window run backwards (priming) reads its own frames' means and planes too
+            a = cut._prepare([frames[j] for j in window_indices(i, 2, 8)][::-1], {}, window_valid(i, 2, 8)[::-1],
+                             0.0, None)
+            b = slid._prepare([frames[j] for j in window_indices(i, 2, 8, slide=True)][::-1], {},
+                              window_valid(i, 2, 8, slide=True)[::-1], 0.0, None)
+            assert torch.equal(a.decoder_inputs[2], b.decoder_inputs[2])

@@ -519,8 +519,9 @@ class RmbNet(nn.Module):
         f_ms_coarse = self._bit_fused(2, window, window, cache, mask)
         reference.append(canonical_batch(f_ms_coarse[w]))
         fused = self.time_fusion(f_ms_coarse, mask).contiguous(memory_format=torch.channels_last)
-        # the pooled means and the edge planes read the window's own frames: not those a slid edge window brought in
-        own = [v and frame.index - ref.index == p - w for p, (v, frame) in enumerate(zip(valid, window))] \
+        # the pooled means and the edge planes read the window's own frames, not those a slid edge window brought in
+        # (from further than w frames away, either way: ``step_backward`` reverses a window)
+        own = [v and abs(frame.index - ref.index) <= w for v, frame in zip(valid, window)] \
             if self.config.edge_slide else valid
         pooled = self._pooled_rates(window, own)
         aligned_rate, evidence = self.normalise_aligned(aligned, ref.size)
