@@ -16,7 +16,7 @@ import rmbvideo.io.atomic as atomic
 from rmbvideo.batch import MARKER_NAME, REPORT_NAME
 from rmbvideo.cli import main
 from rmbvideo.io.dat import DatGeometry, write_dat
-from rmbvideo.io.geometry_guess import CONVINCING_SCORE, guess_geometry
+from rmbvideo.io.geometry_guess import CONVINCING_SCORE, guess_geometry, tied_with_best
 
 from cli_helpers import GEOM, capture, cli, one_line_error
 
@@ -116,11 +116,35 @@ def test_geometry_that_does_not_divide_the_file_and_the_guess(tmp_path: Path) ->
     assert proc.returncode == 0 and "--width 96 --height 64" in proc.stdout
 
 
+def test_a_geometry_the_data_cannot_tell_is_said_to_be_a_tie(tmp_path: Path) -> None:
+    """A scene whose rows are all alike (a left-to-right ramp) fits every height that divides the file: the guess
+    says the best candidates tie and asks for the geometry; a scene with structure both ways is not a tie."""
+    width, height, planes = 96, 64, 60
+    ramp = np.linspace(0.02, 0.9, width, dtype=np.float32)[None, :].repeat(height, 0)
+    charge = np.random.default_rng(0).random(width)[None, :].repeat(height, 0)  # columns at their own phases
+    spikes = []
+    for _ in range(planes):
+        charge += ramp
+        spikes.append(charge >= 1.0)
+        charge[spikes[-1]] -= 1.0
+    flat = tmp_path / "ramp.dat"
+    write_dat(flat, np.stack(spikes).astype(np.uint8), DatGeometry(width, height))
+    report = json.loads(cli("info", flat, "--guess-geometry", "--json").stdout)
+    assert report["ambiguous"] and report["guesses"][0]["score"] > CONVINCING_SCORE
+    proc = cli("info", flat, "--guess-geometry")
+    assert proc.returncode == 0 and "cannot tell them apart" in proc.stdout and "--height" in proc.stdout
+    structured = tmp_path / "cap.dat"
+    write_dat(structured, moving_scene(48, 64, 96), DatGeometry(96, 64))
+    assert not json.loads(cli("info", structured, "--guess-geometry", "--json").stdout)["ambiguous"]
+    assert "cannot tell" not in cli("info", structured, "--guess-geometry").stdout
+
+
 def test_geometry_guess_of_a_real_capture(shared_data: Path) -> None:
     guesses = guess_geometry(shared_data / "real" / "car.dat")
     best = guesses[0]
     assert (best.geometry.width, best.geometry.height, best.geometry.header_cols) == (400, 250, 0)
     assert best.planes == 200 and best.score > guesses[1].score + 0.05
+    assert tied_with_best(guesses) == [best]
 
 
 # --- outputs that cannot be written -------------------------------------------------------------

@@ -69,15 +69,17 @@ def info(input_path: Path, width, height, flip, header_cols, rate_hz, as_json: b
 
 def show_geometry_guesses(input_path: Path, as_json: bool) -> None:
     """Print the likeliest geometries of ``input_path``, best first, with the options selecting them."""
-    from rmbvideo.io.geometry_guess import CONVINCING_SCORE, guess_geometry
+    from rmbvideo.io.geometry_guess import CONVINCING_SCORE, TIE_SCORE, guess_geometry, tied_with_best
 
     guesses = guess_geometry(input_path)
+    convincing = bool(guesses) and guesses[0].score >= CONVINCING_SCORE
+    tied = tied_with_best(guesses) if convincing else []
     records = [{"width": g.geometry.width, "height": g.geometry.height, "header_cols": g.geometry.header_cols,
                 "score": round(g.score, 4), "row_correlation": round(g.row_correlation, 4),
                 "plane_correlation": round(g.plane_correlation, 4), "planes": g.planes,
                 "trailing_bytes": g.trailing_bytes, "options": g.options} for g in guesses]
     if as_json:
-        click.echo(json.dumps({"file": str(input_path), "guesses": records}))
+        click.echo(json.dumps({"file": str(input_path), "guesses": records, "ambiguous": len(tied) > 1}))
         return
     click.echo(f"likely geometries of {input_path} (best first; orientation cannot be told, flip assumed):")
     click.echo("  score  row-corr  plane-corr  stored WxH   whole planes  trailing bytes  options")
@@ -85,5 +87,9 @@ def show_geometry_guesses(input_path: Path, as_json: bool) -> None:
         size = f"{r['width']}x{r['height']}"
         click.echo(f"  {r['score']:5.3f}  {r['row_correlation']:8.3f}  {r['plane_correlation']:10.3f}  {size:<10}  "
                    f"{r['planes']:>12}  {r['trailing_bytes']:>14}  {r['options']}")
-    if not guesses or guesses[0].score < CONVINCING_SCORE:
+    if not convincing:
         click.echo("no geometry makes this data look like images: is it a spike capture?")
+    elif len(tied) > 1:
+        click.echo(f"the first {len(tied)} score within {TIE_SCORE} of each other: the data cannot tell them apart "
+                   "(a scene with little structure down its columns?); give the geometry with --width/--height or a "
+                   "capture.json sidecar")

@@ -37,6 +37,9 @@ COMMON_BONUS = 0.02
 MULTIPLE_TOLERANCE = 0.05
 # below this score no candidate looks like images (e.g. random bytes)
 CONVINCING_SCORE = 0.2
+# candidates within this score of the best are not told apart by the data: a scene whose rows are all alike (no
+# structure down its columns) fits every height that divides the file about equally well
+TIE_SCORE = 0.01
 
 
 @dataclass(frozen=True)
@@ -112,6 +115,12 @@ def guess_geometry(path: str | os.PathLike[str], top: int = 5) -> list[GeometryG
                                                              c.geometry.header_cols) in common)),
                                 c.geometry.plane_bytes, c.geometry.width))
     return guesses[:top]
+
+
+def tied_with_best(guesses: list[GeometryGuess]) -> list[GeometryGuess]:
+    """The ``guesses`` (best first) whose score lies within ``TIE_SCORE`` of the best one's: more than one means the
+    data cannot choose between them."""
+    return [g for g in guesses if guesses and g.score >= guesses[0].score - TIE_SCORE]
 
 
 def _score(bits: np.ndarray, geometry: DatGeometry, size: int) -> GeometryGuess:
