@@ -456,9 +456,26 @@ def test_a_batched_engine_makes_whole_runs_whatever_the_chunks(monkeypatch):
 def test_a_model_whose_edge_windows_slide_streams_its_forward_sequence():
     """``edge_slide``: the engine waits for the frames a slid first window reads, keeps those a slid last window
     reads back, and gives ``forward_sequence``'s frames whatever the chunks; warped windows are refused."""
+    from rmbvideo.net.model import window_indices, window_valid
+
     model = tiny(edge_slide=True)
     data = rmb_stream(95)
     results = {size: stream(model, split(data, size))[0] for size in (1, 7, 95)}
+    engine = RmbNetReconstructor(model, device="cpu", precision="fp32", prime=0)
+    seen, step = [], engine._net.step
+
+    def recording(window, *args, valid=None, **kw):  # the windows the engine hands the network, in its order
+        seen.append(([f.index for f in window], list(valid)))
+        return step(window, *args, valid=valid, **kw)
+
+    engine._net.step = recording
+    for chunk in split(data, 7):
+        engine.push(chunk)
+    engine.flush()
+    count = len(seen)
+    assert count == 9 and seen == [(window_indices(i, 2, count, slide=True), window_valid(i, 2, count, slide=True))
+                                   for i in range(count)]
+    assert seen[0][0] == [4, 3, 0, 1, 2] and seen[-1][0] == [6, 7, 8, 5, 4] and all(seen[0][1] + seen[-1][1])
     prelim = PreliminaryFrames(n=10)
     pframes = prelim.push(data) + prelim.flush()
     with torch.inference_mode():

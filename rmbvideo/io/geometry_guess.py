@@ -120,7 +120,7 @@ def guess_geometry(path: str | os.PathLike[str], top: int = 5) -> list[GeometryG
 def tied_with_best(guesses: list[GeometryGuess]) -> list[GeometryGuess]:
     """The ``guesses`` (best first) whose score lies within ``TIE_SCORE`` of the best one's: more than one means the
     data cannot choose between them."""
-    return [g for g in guesses if guesses and g.score >= guesses[0].score - TIE_SCORE]
+    return [g for g in guesses if g.score >= guesses[0].score - TIE_SCORE]
 
 
 def _score(bits: np.ndarray, geometry: DatGeometry, size: int) -> GeometryGuess:

@@ -1,5 +1,6 @@
 """Where the default full-resolution job's threads spend a 2-core CPU: each thread's CPU time per frame (read from
-Linux's /proc/self/task), the wall time per frame and the share of the cores in use, under the default thread policy.
+Linux's /proc/self/task), the wall time per frame and the share of the cores in use, under the default thread policy;
+then the same job on one thread (``threads=1``: everything inline), whose CPU a frame is what the stages need alone.
 The capture: the bundled demo scene simulated at the camera's 400x250 for 0.2 s (written once to a temporary folder);
 one warm-up run first. Run from the repository root (about a minute):
 
@@ -14,6 +15,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import rmbvideo
+from rmbvideo.allocator import keep_freed_memory
 from rmbvideo.recon.run import reconstruct_frames
 
 TICK = os.sysconf("SC_CLK_TCK")
@@ -32,6 +34,7 @@ def thread_cpu() -> dict[int, float]:
 
 
 def main() -> None:
+    keep_freed_memory()  # the allocator policy every command sets
     with tempfile.TemporaryDirectory() as folder:
         capture = Path(folder) / "demo400.dat"
         rmbvideo.simulate_capture(replace(rmbvideo.load_scene("demo"), width=400, height=250, duration_s=0.2), capture)
@@ -55,6 +58,9 @@ def main() -> None:
         seen.update(thread_cpu())
         done.set()
         sampler.join()
+        began = time.perf_counter()
+        alone = len(list(reconstruct_frames(capture, "rmbnet", threads=1)))
+        one_thread = (time.perf_counter() - began) / alone
     used = {tid: cpu - before.get(tid, 0.0) for tid, cpu in seen.items() if names.get(tid) != "sampler"}
     total = sum(used.values())
     print(f"{count} frames, {1e3 * wall / count:.1f} ms a frame, {100 * total / wall:.0f} % of a core in use on "
@@ -62,6 +68,8 @@ def main() -> None:
     for tid, cpu in sorted(used.items(), key=lambda kv: -kv[1]):
         if cpu >= 0.01:
             print(f"  {names.get(tid, str(tid)):16s} {1e3 * cpu / count:5.1f} ms of CPU a frame")
+    print(f"  together {1e3 * total / count:.1f} ms of CPU a frame; on one thread, everything inline: "
+          f"{1e3 * one_thread:.1f} ms a frame")
 
 
 if __name__ == "__main__":
