@@ -97,6 +97,19 @@ def test_atomic_path_into_a_missing_folder_is_an_output_error(tmp_path: Path) ->
 # ---- EXR ----------------------------------------------------------------------------------------
 
 
+def test_atomic_outputs_get_a_plain_files_mode_whatever_wrote_them(tmp_path: Path) -> None:
+    import os
+    import stat
+
+    plain = tmp_path / "plain.txt"
+    plain.write_text("x")
+    target = tmp_path / "made.bin"
+    with atomic_path(target) as temp:
+        fd = os.open(temp, os.O_WRONLY | os.O_CREAT, 0o600)  # as safetensors creates its files
+        os.close(fd)
+    assert stat.S_IMODE(target.stat().st_mode) == stat.S_IMODE(plain.stat().st_mode)
+
+
 def test_exr_half_round_trip_clips_above_half_max_and_keeps_time(tmp_path: Path) -> None:
     image = np.array([[0.0, 0.25, 1.5], [1000.0, 7e4, 1e9]], np.float32)
     path = tmp_path / "f.exr"

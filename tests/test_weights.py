@@ -40,6 +40,13 @@ def _card(tmp_path) -> dict:
     return json.loads((tmp_path / "m.json").read_text())
 
 
+def test_weight_files_are_as_readable_as_their_cards(tmp_path):
+    import stat
+
+    path = save_model(tmp_path / "m", tiny(), CARD)
+    assert stat.S_IMODE(path.stat().st_mode) == stat.S_IMODE((tmp_path / "m.json").stat().st_mode)
+
+
 def test_mismatched_cards_are_refused(tmp_path):
     path = save_model(tmp_path / "m", tiny(), CARD)
     with pytest.raises(ModelError, match="'binned'.*'native'"):

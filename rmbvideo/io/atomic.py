@@ -34,6 +34,18 @@ _ENVIRONMENT_ERRNOS = frozenset(
 )
 
 
+def _process_umask() -> int:
+    """The process's file-creation mask (set back at once: read this way at import, before any thread writes)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+#: The mode a file opened for writing gets here: what every atomic output is given, whatever made it (safetensors
+#: creates its files readable by their owner only, so a model trained for a group would be closed to it).
+FILE_MODE = 0o666 & ~_process_umask()
+
+
 def temp_path_for(final: Path) -> Path:
     """A fresh hidden temporary name beside ``final``: ``.name.tmp-<pid>-<random>``."""
     final = Path(final)
@@ -88,6 +100,11 @@ def atomic_path(final: Path) -> Iterator[Path]:
         raise
     if not temp.exists():
         raise OutputError(f"{final}: cannot write: nothing was written to {temp.name}")
+    try:
+        os.chmod(temp, FILE_MODE)
+    except OSError as exc:
+        remove_quietly(temp)
+        raise output_error(final, exc) from exc
     commit(temp, final)
 
 
