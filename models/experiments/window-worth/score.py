@@ -1,9 +1,12 @@
 """The window-worth pair scored on the held-out sets: the two fine-tuned runs (``rmbvideo train window-worth-w3-cpu`` /
 ``window-worth-w0-cpu``) and, as their starting points, stage 19 as shipped and narrowed to w = 0 untrained
-(``narrow.py``). Run from the repository root once both runs are done (about 20 minutes on one core):
+(``narrow.py``). Run from the repository root (a few minutes a model on one core):
 
-    python models/experiments/window-worth/score.py models/training/window-worth/w3/window-worth-w3.safetensors \\
-        models/training/window-worth/w0/window-worth-w0.safetensors
+    python models/experiments/window-worth/score.py
+
+The runs are read from ``models/training/window-worth/w3`` and ``w0`` (``rmbvideo train window-worth-w3-cpu -o
+models/training/window-worth/w3``, likewise w0); a model not there yet is left out. Each model's scores are kept in
+``scores/`` here and read back on the next call, so a model is scored once.
 
 Each model is run as the default reads the binned stream (its pure-M readout, the simulated cameras' response), on
 the held-out synthetic sequences and video sequences (the ablation pairs' set, ``score_pair.py``) and on the real
@@ -12,7 +15,7 @@ the first and last frames' mean drop below each clip's median, the real streams'
 for the pairs.
 """
 
-import sys
+import json
 from pathlib import Path
 
 import numpy as np
@@ -24,19 +27,39 @@ from rmbvideo.net.weights import default_model_path
 
 HERE = Path(__file__).parent
 REAL = Path("../shared/data/spikezoo-base")
+RUNS = Path("models/training/window-worth")
+#: label -> (the file its scores are kept in, under ``scores/``; the weights)
+MODELS = {"stage 19 (w = 3, shipped)": ("stage19", default_model_path("binned")),
+          "stage 19 at w = 0, untrained": ("stage19-w0", HERE / "stage19-w0.safetensors"),
+          "w = 3, fine-tuned": ("w3", RUNS / "w3" / "window-worth-w3.safetensors"),
+          "w = 0, fine-tuned": ("w0", RUNS / "w0" / "window-worth-w0.safetensors")}
 
 
-def main(w3_run: str, w0_run: str) -> None:
-    models = {"stage 19 (w = 3, shipped)": default_model_path("binned"),
-              "stage 19 at w = 0, untrained": HERE / "stage19-w0.safetensors",
-              "w = 3, fine-tuned": Path(w3_run), "w = 0, fine-tuned": Path(w0_run)}
+def scored(key: str, path: Path, sequences: list, streams: list) -> tuple[dict, float, float, dict]:
+    """The model's per-sequence scores, first/last-frame drops and real-stream scores, from ``scores/key.json`` when
+    kept."""
+    kept = HERE / "scores" / f"{key}.json"
+    if kept.is_file():
+        data = json.loads(kept.read_text())
+        return data["sequences"], data["first"], data["last"], data["real"]
+    scores, first, last, _, _ = score_sequences(path, sequences, pictured={})
+    real = {s: r.psnr for s, r in score_streams(path, streams).items()}
+    kept.parent.mkdir(exist_ok=True)
+    kept.write_text(json.dumps({"model": str(path), "sequences": scores, "first": first, "last": last, "real": real},
+                               indent=1) + "\n")
+    return scores, first, last, real
+
+
+def main() -> None:
     sequences = load_heldout(False) + load_video_heldout(False)
     streams = find_streams(REAL) if REAL.is_dir() else []
     rows = {}
-    for name, path in models.items():
-        scores, first, last, _, _ = score_sequences(path, sequences, pictured={})
-        real = {s: r.psnr for s, r in score_streams(path, streams).items()}
-        rows[name] = (scores, first, last, real)
+    for name, (key, path) in MODELS.items():
+        if not path.is_file():
+            print(f"{name}: {path} not trained yet")
+            continue
+        rows[name] = scored(key, path, sequences, streams)
+        scores, real = rows[name][0], rows[name][3]
         print(f"{name}: sequences {np.mean(list(scores.values())):.2f}, real {np.mean(list(real.values()) or [0]):.2f}",
               flush=True)
     names = [s.name for s in sequences]
@@ -49,6 +72,8 @@ def main(w3_run: str, w0_run: str) -> None:
               f"{np.mean(list(real.values()) or [float('nan')]):.2f} | {first:+.2f} / {last:+.2f} |")
     for w3, w0 in (("stage 19 (w = 3, shipped)", "stage 19 at w = 0, untrained"),
                    ("w = 3, fine-tuned", "w = 0, fine-tuned")):
+        if w3 not in rows or w0 not in rows:
+            continue
         diff = [rows[w3][0][n] - rows[w0][0][n] for n in names]
         real = [rows[w3][3][n] - rows[w0][3][n] for n in reals]
         print(f"\n{w3} minus {w0}: sequences {np.mean(diff):+.2f} dB (least {min(diff):+.2f}, most {max(diff):+.2f}; "
@@ -57,4 +82,4 @@ def main(w3_run: str, w0_run: str) -> None:
 
 
 if __name__ == "__main__":
-    main(*sys.argv[1:3])
+    main()
