@@ -11,7 +11,14 @@ import torch
 from rmbvideo.errors import ModelError
 from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.model import RmbNet
-from rmbvideo.net.weights import ModelCard, average_models, load_model, merge_aligned_candidates, save_model
+from rmbvideo.net.weights import (
+    ModelCard,
+    average_models,
+    load_model,
+    merge_aligned_candidates,
+    save_model,
+    without_window,
+)
 
 
 def tiny(**kw) -> RmbNet:
@@ -143,3 +150,30 @@ def test_merging_the_aligned_candidates_is_exact_where_their_logits_differ_by_th
                                   rtol=1e-4, atol=1e-6)
     with pytest.raises(ValueError, match="no second aligned mean"):
         merge_aligned_candidates(merged, difference)
+
+
+def test_without_the_window_a_model_computes_what_it_does_on_a_lone_frame_where_the_dropped_weights_are_zero():
+    model = tiny(blend=True, readout="pure-m", pooled_windows=(3,), convention_input=True, centre_windows=(2,),
+                 aligned=True, edge_input=True)
+    first, last = model.decoder.head[0][0], model.decoder.head[-1]
+    features = first.out_channels
+    # head inputs: features, the reference's 2, the pooled window's 2, convention, centre, aligned, the 2 edge planes
+    dropped_inputs = [features + 2, features + 3, first.in_channels - 2, first.in_channels - 1]
+    with torch.no_grad():
+        last.weight.normal_(0.0, 0.1)
+        last.bias.normal_(0.0, 1.0)
+        first.weight[:, dropped_inputs] = 0.0
+        last.weight[3] = 0.0  # the pooled window's blend logit: far below the rest
+        last.bias[3] = -1e4
+    torch.manual_seed(2)
+    i_s, i_m, i_c = torch.rand(1, 1, 16, 24) * 10, torch.rand(1, 1, 16, 24) * 70, torch.rand(1, 1, 1, 16, 24) * 14
+    i_a = torch.rand(1, 1, 16, 24) * 70
+    narrow = without_window(model)
+    assert narrow.config.w == 0 and not narrow.config.pooled_windows and not narrow.config.edge_input
+    with torch.inference_mode():  # a one-frame clip: the w = 1 window's other positions are missing
+        expected = model.forward_sequence(i_s, i_m, i_c=i_c, i_a=i_a, convention=1.0)[0]
+        torch.testing.assert_close(narrow.forward_sequence(i_s, i_m, i_c=i_c, i_a=i_a, convention=1.0)[0], expected)
+        with torch.no_grad():  # the weights it drops are the pooled window's and the edge planes', no others
+            model.decoder.head[0][0].weight[:, features + 4] += 1.0
+        assert not torch.allclose(without_window(model).forward_sequence(i_s, i_m, i_c=i_c, i_a=i_a, convention=1.0)[0],
+                                  expected)

@@ -225,6 +225,30 @@ def widen_model(old: RmbNet, config: RmbNetConfig, new_logit: float | None = Non
     return widened.eval()
 
 
+def without_window(old: RmbNet) -> RmbNet:
+    """``old`` at w = 0, to train a model without the window from everything ``old`` learned: every weight kept but
+    the head's inputs from the pooled windows' means and the edge planes, and the pooled windows' blend logits, which
+    a network without a window lacks (the attention then reads the reference frame alone). Where those weights are
+    zero (the logits' far below the rest) it computes what ``old`` does on a window whose other frames are all
+    missing."""
+    cfg = old.config
+    narrow = RmbNet(replace(cfg, w=0, pooled_windows=(), edge_input=False))
+    state = old.state_dict()
+    first, last = "decoder.head.0.0", f"decoder.head.{len(old.decoder.head) - 1}"
+    features, inputs = state[f"{first}.weight"].shape[:2]
+    # the head reads the decoder's features (as many as it makes), then ``RmbNet._head_inputs``: the reference's 2,
+    # 2 per pooled window, ..., the 2 edge planes last
+    pooled = range(features + 2, features + 2 + 2 * len(cfg.pooled_windows))
+    edge = range(inputs - 2 * int(cfg.edge_input), inputs)
+    state[f"{first}.weight"] = state[f"{first}.weight"][:, [c for c in range(inputs) if c not in pooled and c not in edge]]
+    if cfg.blend:  # outputs: t, then the logits of (own estimate, reference box, each pooled window, ...)
+        logits = [c for c in range(state[f"{last}.bias"].shape[0]) if c not in range(3, 3 + len(cfg.pooled_windows))]
+        for name in ("weight", "bias"):
+            state[f"{last}.{name}"] = state[f"{last}.{name}"][logits]
+    narrow.load_state_dict(state)
+    return narrow.eval()
+
+
 def merge_aligned_candidates(old: RmbNet, difference: float) -> RmbNet:
     """``old`` without its second aligned mean (``aligned_centre`` -> 0: the central readouts' mean, whose flows
     and warps cost a third of the aligned means' time), as if that input were the whole frames' mean: its

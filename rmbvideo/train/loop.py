@@ -30,7 +30,7 @@ from tqdm import tqdm
 from rmbvideo.errors import InputError
 from rmbvideo.net.decoder import DecoderState
 from rmbvideo.net.model import RmbNet, priming_frames, window_indices, window_reach, window_valid
-from rmbvideo.net.weights import ModelCard, default_model_path, load_model, save_model, widen_model
+from rmbvideo.net.weights import ModelCard, default_model_path, load_model, save_model, widen_model, without_window
 from rmbvideo.scenes.random_scenes import (
     EVAL_SEED_START,
     HELD_OUT_PANORAMA,
@@ -304,11 +304,14 @@ class Trainer:
 
     def initial_model(self, source: str) -> RmbNet:
         """The weights of model ``source`` (a file or a shipped model's name) as this recipe's network, widened where
-        it gained inputs or candidates (``widen_model``; new blend logits at the recipe's ``init_new_logit``)."""
+        it gained inputs or candidates (``widen_model``; new blend logits at the recipe's ``init_new_logit``), and
+        without its window (``without_window``) for a recipe at w = 0."""
         path = Path(source)
         if not path.suffix:
             path = default_model_path(self.config.model.input_mode).with_name(f"{source}.safetensors")
         old, _card = load_model(path)
+        if self.config.model.w == 0 < old.config.w:  # a recipe without the window, from a model with one
+            old = without_window(old)
         try:
             widened = widen_model(old, self.config.model, self.config.init_new_logit)
         except ValueError as error:

@@ -1,6 +1,6 @@
 """The window-worth pair scored on the held-out sets: the two fine-tuned runs (``rmbvideo train window-worth-w3-cpu`` /
-``window-worth-w0-cpu``) and, as their starting points, stage 19 as shipped and narrowed to w = 0 untrained
-(``narrow.py``). Run from the repository root (a few minutes a model on one core):
+``window-worth-w0-cpu``) and, as their starting points, stage 19 as shipped and without its window, untrained
+(``rmbvideo.net.weights.without_window``, as the w = 0 recipe starts). Run from the repository root (a few minutes a model on one core):
 
     python models/experiments/window-worth/score.py
 
@@ -16,6 +16,7 @@ for the pairs.
 """
 
 import json
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -23,14 +24,14 @@ import numpy as np
 from rmbvideo.evaluate.development import score_sequences, score_streams
 from rmbvideo.evaluate.heldout import load_heldout, load_video_heldout
 from rmbvideo.evaluate.real_video import find_streams
-from rmbvideo.net.weights import default_model_path
+from rmbvideo.net.weights import ModelCard, default_model_path, load_model, save_model, without_window
 
 HERE = Path(__file__).parent
 REAL = Path("../shared/data/spikezoo-base")
 RUNS = Path("models/training/window-worth")
 #: label -> (the file its scores are kept in, under ``scores/``; the weights)
 MODELS = {"stage 19 (w = 3, shipped)": ("stage19", default_model_path("binned")),
-          "stage 19 at w = 0, untrained": ("stage19-w0", HERE / "stage19-w0.safetensors"),
+          "stage 19 at w = 0, untrained": ("stage19-w0", None),
           "w = 3, fine-tuned": ("w3", RUNS / "w3" / "window-worth-w3.safetensors"),
           "w = 0, fine-tuned": ("w0", RUNS / "w0" / "window-worth-w0.safetensors")}
 
@@ -55,6 +56,9 @@ def main() -> None:
     streams = find_streams(REAL) if REAL.is_dir() else []
     rows = {}
     for name, (key, path) in MODELS.items():
+        if path is None:  # stage 19 without its window, as the w = 0 run starts
+            path = Path(tempfile.mkdtemp()) / "stage19-w0.safetensors"
+            save_model(path, without_window(load_model(default_model_path("binned"))[0]), ModelCard(name="stage19-w0"))
         if not path.is_file():
             print(f"{name}: {path} not trained yet")
             continue
