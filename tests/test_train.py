@@ -607,3 +607,32 @@ def test_a_model_whose_edge_windows_slide_trains_on_the_frames_the_engine_gives_
     w = model.config.w
     torch.testing.assert_close(targets[:, :w], batch.gt[:, :w], rtol=0, atol=0)
     torch.testing.assert_close(targets[:, -w:], batch.gt[:, -w:], rtol=0, atol=0)
+
+
+def test_bf16_training_runs_the_network_under_autocast_and_the_losses_in_fp32(tmp_path, monkeypatch):
+    """``optim.precision`` bf16: the forward passes under bf16 autocast (the loss differs from fp32's by bf16's
+    rounding only), every loss term computed outside it (in bf16 SSIM's sums lose what they measure: a trained
+    model's loss doubled), and the backward pass gives finite gradients to every weight fp32's reaches."""
+    import rmbvideo.train.loop as loop
+
+    cache = SampleCache(tmp_path, TINY_SPEC)
+    batch = Batch.from_samples([cache.get(0), cache.get(1)], torch.device("cpu"))
+    model = _tiny_model()
+    fp32 = train_batch(model, batch, tbptt=2, loss_config=LossConfig())
+    reached = {name for name, p in model.named_parameters() if p.grad is not None and p.grad.abs().sum() > 0}
+    model.zero_grad(set_to_none=True)
+    autocast_in_loss = []
+    loss = loop.reconstruction_loss
+
+    def recorded(pred, *args, **kwargs):
+        autocast_in_loss.append(torch.is_autocast_enabled("cpu") or pred.dtype != torch.float32)
+        return loss(pred, *args, **kwargs)
+
+    monkeypatch.setattr(loop, "reconstruction_loss", recorded)
+    bf16 = train_batch(model, batch, tbptt=2, loss_config=LossConfig(), bf16=True)
+    assert autocast_in_loss and not any(autocast_in_loss)
+    assert bf16["loss"] == pytest.approx(fp32["loss"], rel=0.05) and bf16["loss"] != fp32["loss"]
+    grads = {name: p.grad for name, p in model.named_parameters() if p.grad is not None}
+    assert reached <= set(grads) and all(torch.isfinite(g).all() and g.dtype == torch.float32 for g in grads.values())
+    assert load_recipe(RECIPES_DIR / "cpu.toml").optim.precision == "fp32"
+    assert load_recipe(RECIPES_DIR / "cpu.toml").with_precision("auto").optim.precision == "auto"

@@ -37,11 +37,14 @@ from rmbvideo.cli.options import DEVICE_CHOICE, AliasOption
                    "machine); the samples are the same for any count.")
 @click.option("--device", type=DEVICE_CHOICE, default="auto", show_default=True,
               help="Where to train (auto: CUDA when available, else CPU).")
+@click.option("--precision", type=click.Choice(["auto", "fp32", "bf16"]), default=None,
+              help="Override the recipe's precision of the network's forward passes (bf16: under bf16 autocast, "
+                   "the losses in fp32; auto: bf16 on CPUs with AVX512-BF16 or AMX) [default: the recipe's, fp32].")
 @quiet_option
 @verbose_option
 def train(recipe: str | None, list_recipes: bool, out_dir: Path | None, cache_dir: Path | None, resume: bool,
           minutes: float | None, steps: int | None, seed: int | None, workers: int | None, device: str,
-          quiet: bool) -> None:
+          precision: str | None, quiet: bool) -> None:
     """Train RMB-Net from RECIPE (a .toml file or a bundled recipe name; --list shows the bundled ones)."""
     from rmbvideo.errors import InputError
     from rmbvideo.train.config import bundled_recipe, bundled_recipes, load_recipe
@@ -65,6 +68,8 @@ def train(recipe: str | None, list_recipes: bool, out_dir: Path | None, cache_di
         config = config.with_seed(seed)
     if workers is not None:
         config = config.with_workers(workers)
+    if precision is not None:
+        config = config.with_precision(precision)
     import torch
 
     if device == "auto":

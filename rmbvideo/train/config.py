@@ -17,6 +17,7 @@ from typing import Any
 
 from rmbvideo.errors import InputError
 from rmbvideo.net.config import RmbNetConfig
+from rmbvideo.recon.precision import PRECISIONS
 from rmbvideo.train.dataset import SampleSpec
 from rmbvideo.train.loss import LossConfig
 from rmbvideo.scenes.random_scenes import SceneRanges
@@ -88,6 +89,10 @@ class OptimConfig:
     # the truth, so a run on the edge frames holds the rest of a clip where that model had it (needs init and edges)
     hold_whole_windows: bool = False
     trainable: tuple[str, ...] = ()
+    # the network's forward passes under bf16 autocast ("bf16"; "auto": where the CPU computes bf16 natively, the
+    # engine's policy, ``rmbvideo.recon.precision``), the losses always in fp32 (in bf16 SSIM's sums lose the
+    # difference it measures); "fp32", as every recipe before the second stop of 2026-12-01 was trained
+    precision: str = "fp32"
 
 
 @dataclass(frozen=True)
@@ -132,6 +137,10 @@ class TrainConfig:
         """The same recipe with another seed: other initial weights and other training scenes (a run's
         spread between seeds, for comparisons such as the ablations)."""
         return replace(self, seed=seed)
+
+    def with_precision(self, precision: str) -> "TrainConfig":
+        """The same recipe with the network's forward passes in another precision (``OptimConfig.precision``)."""
+        return replace(self, optim=replace(self.optim, precision=precision))
 
     def with_workers(self, workers: int) -> "TrainConfig":
         """The same recipe simulated by another number of processes (the samples do not change)."""
@@ -238,6 +247,8 @@ def _check_ranges(config: TrainConfig, path: Path) -> None:
         problems.append("optim.lr, lr_final, steps, batch and tbptt must be positive")
     if not 0.0 <= o.edges <= 1.0:
         problems.append("optim.edges must be a fraction of steps in [0, 1]")
+    if o.precision not in PRECISIONS:
+        problems.append(f"optim.precision must be one of {', '.join(PRECISIONS)}")
     if o.val_every < 1 or o.checkpoint_every < 1 or o.threads < 0:
         problems.append("optim.val_every and checkpoint_every must be >= 1, threads >= 0")
     if problems:

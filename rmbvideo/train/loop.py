@@ -37,6 +37,7 @@ from rmbvideo.scenes.random_scenes import (
     TRAIN_PANORAMAS,
 )
 from rmbvideo.sensor.effects import REALISTIC_EFFECTS
+from rmbvideo.recon.precision import uses_bf16
 from rmbvideo.threads import default_threads
 from rmbvideo.train.checkpoint import (
     CheckpointState,
@@ -164,30 +165,37 @@ def held_targets(teacher: RmbNet, batch: Batch, edges: bool, prime: int) -> torc
 
 
 def segment_losses(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossConfig,
-                   edges: bool = False, aged_passes: int = 0, prime: int = 0) -> Iterator[SegmentLoss]:
+                   edges: bool = False, aged_passes: int = 0, prime: int = 0, bf16: bool = False
+                   ) -> Iterator[SegmentLoss]:
     """Yield the TBPTT segments of one batch in order; the caller back-propagates each before
     asking for the next, so only one segment's graph exists at a time. The sample's first frame
-    starts the recurrent state (``start_state``): fresh, primed as the engine primes a clip's first frame, or aged."""
+    starts the recurrent state (``start_state``): fresh, primed as the engine primes a clip's first frame, or aged.
+    ``bf16``: the network runs under bf16 autocast, the losses in fp32; the backward pass (the caller's) outside it."""
     w, slide = model.config.w, model.config.edge_slide
     count = batch.i_s.shape[1]
     supervised = output_range(count, w, edges)
     outputs = len(supervised)
-    state: DecoderState | None = start_state(model, batch, supervised, edges, aged_passes, prime)
+    device = batch.i_s.device.type
+    with torch.autocast(device, torch.bfloat16, enabled=bf16):
+        state: DecoderState | None = start_state(model, batch, supervised, edges, aged_passes, prime)
     previous: torch.Tensor | None = None  # the last output, for the temporal term (detached across segments)
     for first in range(supervised.start, supervised.stop, tbptt):
         last = min(first + tbptt, supervised.stop) - 1
         reaches = [window_reach(i, w, count, slide) for i in range(first, last + 1)]
         lo, hi = min(r.start for r in reaches), max(r.stop for r in reaches)
-        frames = _encode_all(model, batch, lo, hi)
+        with torch.autocast(device, torch.bfloat16, enabled=bf16):
+            frames = _encode_all(model, batch, lo, hi)
         cache: dict = {}
         state_in = state
         segment_loss = torch.zeros((), device=batch.i_s.device)
         parts = dict.fromkeys(LOSS_PARTS, 0.0)
         for i in range(first, last + 1):
             window = [frames[j - lo] for j in window_indices(i, w, count, slide)]
-            t, state = model.step(window, state, cache, valid=window_valid(i, w, count, slide),
-                                  convention=batch.convention,
-                                  aligned=None if batch.i_a is None else batch.i_a[:, i])
+            with torch.autocast(device, torch.bfloat16, enabled=bf16):
+                t, state = model.step(window, state, cache, valid=window_valid(i, w, count, slide),
+                                      convention=batch.convention,
+                                      aligned=None if batch.i_a is None else batch.i_a[:, i])
+            t = t.float()
             loss, step_parts = reconstruction_loss(t[:, 0], batch.gt[:, i], loss_config, batch.convention)
             if loss_config.temporal > 0 and previous is not None:
                 change = temporal_loss(t[:, 0], previous, batch.gt[:, i], batch.gt[:, i - 1], loss_config)
@@ -228,16 +236,19 @@ def train_mode(model: nn.Module) -> None:
 
 def train_batch(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossConfig,
                 edges: bool = False, aged_passes: int = 0, prime: int = 0,
-                teacher: RmbNet | None = None) -> dict[str, float]:
+                teacher: RmbNet | None = None, bf16: bool = False) -> dict[str, float]:
     """Forward and backward one batch with TBPTT (gradients accumulate in ``.grad``; the caller
     steps the optimizer). Returns the mean loss and its parts over the supervised outputs. With a ``teacher``
-    the outputs whose window is whole are trained against its outputs (``held_targets``)."""
+    the outputs whose window is whole are trained against its outputs (``held_targets``). ``bf16``: the forward
+    passes (the teacher's too) under bf16 autocast (``segment_losses``)."""
     if teacher is not None:
-        batch = replace(batch, gt=held_targets(teacher, batch, edges, prime))
+        with torch.autocast(batch.i_s.device.type, torch.bfloat16, enabled=bf16):
+            held = held_targets(teacher, batch, edges, prime)
+        batch = replace(batch, gt=held.float())
     train_mode(model)
     outputs = len(output_range(batch.i_s.shape[1], model.config.w, edges))
     totals = dict.fromkeys(LOSS_PARTS, 0.0)
-    for segment in segment_losses(model, batch, tbptt, loss_config, edges, aged_passes, prime):
+    for segment in segment_losses(model, batch, tbptt, loss_config, edges, aged_passes, prime, bf16):
         segment.loss.backward()
         for key, value in segment.parts.items():
             totals[key] += value
@@ -298,6 +309,7 @@ class Trainer:
             self.warm_start(config.init)
         self.optimizer = torch.optim.Adam(freeze_except(self.model, config.optim.trainable), lr=config.optim.lr)
         self.teacher = self.held_teacher()
+        self.bf16 = uses_bf16(config.optim.precision, self.device)
         self._prefetcher = (SamplePrefetcher(config.sample_spec(), self.step_seeds, depth=max(3, config.data.workers),
                                              workers=config.data.workers)
                             if config.data.scenes == "video" else None)
@@ -384,7 +396,7 @@ class Trainer:
                 self.optimizer.zero_grad(set_to_none=True)
                 edges = bool(np.random.default_rng([cfg.seed, step, 2]).random() < cfg.optim.edges)
                 losses = train_batch(self.model, batch, cfg.optim.tbptt, cfg.loss, edges, cfg.optim.aged_passes,
-                                     cfg.optim.prime, self.teacher)
+                                     cfg.optim.prime, self.teacher, self.bf16)
                 if not all(math.isfinite(v) for v in losses.values()):
                     raise FloatingPointError(f"step {step}: non-finite loss {losses} (seeds {self.step_seeds(step)})")
                 torch.nn.utils.clip_grad_norm_(self.model.parameters(), cfg.optim.grad_clip)
@@ -436,7 +448,8 @@ class Trainer:
                 "machine": machine_description(self.device),
                 "optimizer": f"Adam, lr {cfg.optim.lr} cosine to {cfg.optim.lr_final} over steps or wall time, batch {cfg.optim.batch}, "
                              f"grad-norm clip {cfg.optim.grad_clip}"
-                             + (f"; trained only {', '.join(cfg.optim.trainable)} (the rest frozen)" if cfg.optim.trainable else ""),
+                             + (f"; trained only {', '.join(cfg.optim.trainable)} (the rest frozen)" if cfg.optim.trainable else "")
+                             + ("; the network's forward passes under bf16 autocast, the losses in fp32" if self.bf16 else ""),
                 "tbptt": f"{cfg.data.steps} consecutive outputs per sample, back-propagated in segments of "
                          f"{cfg.optim.tbptt}" + (f", from a state aged by {cfg.optim.aged_passes} passes over the "
                                                  "outputs without gradients" if cfg.optim.aged_passes else "")
