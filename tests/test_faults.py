@@ -281,3 +281,45 @@ def test_a_signal_waits_until_an_output_swap_is_done() -> None:
     finally:
         signal.signal(signal.SIGHUP, previous)
         _received.clear()
+
+
+SWALLOWING_COMMAND = '''
+import os, signal, sys, time
+import click
+from rmbvideo.cli import LazyGroup
+
+
+class Dropped:
+    def __del__(self):  # Python prints and drops what is raised here, as in logging's at-fork hook
+        os.kill(os.getpid(), signal.{sig})
+        for _ in range(10000):
+            pass
+
+
+@click.command()
+def body():
+    Dropped()
+    time.sleep(0.5)
+    print("finished")
+
+
+class Group(LazyGroup):
+    def get_command(self, ctx, name):
+        return body
+
+
+Group(name="rmbvideo")(["info"])
+'''
+
+
+@pytest.mark.parametrize("sig, code, message", [("SIGINT", 130, "interrupted"), ("SIGTERM", 143, "stopped by SIGTERM")])
+def test_a_signal_that_lands_where_python_drops_exceptions_still_stops_the_command(sig: str, code: int,
+                                                                                   message: str) -> None:
+    """A signal's exception raised inside a ``__del__`` (or logging's at-fork hook, when ffmpeg starts: found by the
+    fault matrix on a loaded machine) is only printed by Python, with a traceback, and the command went on; it is
+    sent again and stops the command as any signal does."""
+    done = subprocess.run([sys.executable, "-c", SWALLOWING_COMMAND.replace("{sig}", sig)], capture_output=True,
+                          text=True, timeout=60)
+    assert done.returncode == code, done.stderr
+    assert "Traceback" not in done.stderr and "finished" not in done.stdout
+    assert done.stderr.strip().splitlines() == [f"rmbvideo: {message}; partial output removed"]

@@ -7,12 +7,14 @@ printed as one line on stderr with exit status 2, never as a traceback.
 
 from __future__ import annotations
 
+import functools
 import importlib
 import importlib.util
 import logging
 import os
 import signal
 import sys
+from collections.abc import Callable
 from typing import Any
 
 import click
@@ -62,6 +64,22 @@ def _interrupt(signum: int, frame: object) -> None:
     raise_or_defer(KeyboardInterrupt())
 
 
+def _redeliver_swallowed(unraisable: Any, default: Callable[[Any], None]) -> None:
+    """``sys.unraisablehook`` while a command runs: a signal's exception raised where Python can only print and drop
+    it (a ``__del__``, or logging's at-fork hook while a video encoder starts) is sent again a moment later, from a
+    thread, so it lands once the main thread is past that place and the command stops as for any signal, without a
+    traceback (sent at once it would land in this hook, which drops it too); anything else is reported as Python
+    reports it."""
+    import threading
+
+    exc = unraisable.exc_value
+    if isinstance(exc, KeyboardInterrupt) and _received:
+        signum = exc.signum if isinstance(exc, Terminated) else signal.SIGINT
+        threading.Timer(0.01, os.kill, (os.getpid(), signum)).start()
+        return
+    default(unraisable)
+
+
 class LazyGroup(click.Group):
     """A group whose subcommands are imported on first use."""
 
@@ -96,6 +114,7 @@ class LazyGroup(click.Group):
     def invoke(self, ctx: click.Context):
         _received.clear()  # signals of an earlier in-process run do not count for this one
         previous: dict[int, Any] = {}
+        hook = sys.unraisablehook
         # The handlers are installed and restored inside the try, so a signal that lands just after one is installed,
         # or while they are restored at the end, is reported as that signal (not as click's "Aborted!", exit 1).
         try:
@@ -104,6 +123,7 @@ class LazyGroup(click.Group):
                     previous[sig] = signal.signal(sig, _terminate)
                 if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
                     previous[signal.SIGINT] = signal.signal(signal.SIGINT, _interrupt)
+                sys.unraisablehook = functools.partial(_redeliver_swallowed, default=hook)
                 return super().invoke(ctx)
             except (RmbvideoError, KeyboardInterrupt, MemoryError):
                 raise
@@ -114,6 +134,7 @@ class LazyGroup(click.Group):
             finally:
                 for sig, handler in previous.items():
                     signal.signal(sig, handler)
+                sys.unraisablehook = hook
         except RmbvideoError as exc:
             click.echo(f"rmbvideo: error: {exc}", err=True)
             ctx.exit(2)
