@@ -7,7 +7,8 @@
 The runs are read from ``models/training/window-worth/w3`` and ``w0`` (``rmbvideo train window-worth-w3-cpu -o
 models/training/window-worth/w3``, likewise w0: 700 steps each) and ``w0-equal-time`` (``rmbvideo train
 window-worth-w0-cpu --steps 1750 -o models/training/window-worth/w0-equal-time``: w = 0 makes 2.5x the steps in w = 3's
-time); a model not there yet is left out. Each model's scores are kept in
+time); ``seed80-w3`` and ``seed80-w0`` are the pair again with other scenes, trained in bf16 (``--seed 80 --precision
+bf16``); a model not there yet is left out. Each model's scores are kept in
 ``scores/`` here and read back on the next call, so a model is scored once.
 
 Each model is run as the default reads the binned stream (its pure-M readout, the simulated cameras' response), on
@@ -36,7 +37,9 @@ MODELS = {"stage 19 (w = 3, shipped)": ("stage19", default_model_path("binned"))
           "stage 19 at w = 0, untrained": ("stage19-w0", None),
           "w = 3, fine-tuned": ("w3", RUNS / "w3" / "window-worth-w3.safetensors"),
           "w = 0, fine-tuned": ("w0", RUNS / "w0" / "window-worth-w0.safetensors"),
-          "w = 0, fine-tuned at equal time": ("w0-equal-time", RUNS / "w0-equal-time" / "window-worth-w0.safetensors")}
+          "w = 0, fine-tuned at equal time": ("w0-equal-time", RUNS / "w0-equal-time" / "window-worth-w0.safetensors"),
+          "w = 3, fine-tuned, seed 80, bf16": ("seed80-w3", RUNS / "seed80-w3" / "window-worth-w3.safetensors"),
+          "w = 0, fine-tuned, seed 80, bf16": ("seed80-w0", RUNS / "seed80-w0" / "window-worth-w0.safetensors")}
 
 
 def scored(key: str, path: Path, sequences: list, streams: list) -> tuple[dict, float, float, dict]:
@@ -78,7 +81,8 @@ def main() -> None:
         print(f"| {name} | " + " | ".join(cells) + f" | {np.mean(list(scores.values())):.2f} | "
               f"{np.mean(list(real.values()) or [float('nan')]):.2f} | {first:+.2f} / {last:+.2f} |")
     for w3, w0 in (("stage 19 (w = 3, shipped)", "stage 19 at w = 0, untrained"),
-                   ("w = 3, fine-tuned", "w = 0, fine-tuned"), ("w = 3, fine-tuned", "w = 0, fine-tuned at equal time")):
+                   ("w = 3, fine-tuned", "w = 0, fine-tuned"), ("w = 3, fine-tuned", "w = 0, fine-tuned at equal time"),
+        ("w = 3, fine-tuned, seed 80, bf16", "w = 0, fine-tuned, seed 80, bf16")):
         if w3 not in rows or w0 not in rows:
             continue
         diff = [rows[w3][0][n] - rows[w0][0][n] for n in names]
