@@ -299,7 +299,7 @@ class Dropped:
 @click.command()
 def body():
     Dropped()
-    time.sleep(0.5)
+    time.sleep(5)  # the signal, sent again, ends this at once; dropped, the command would go on to the end
     print("finished")
 
 

@@ -75,9 +75,15 @@ def _redeliver_swallowed(unraisable: Any, default: Callable[[Any], None]) -> Non
     exc = unraisable.exc_value
     if isinstance(exc, KeyboardInterrupt) and _received:
         signum = exc.signum if isinstance(exc, Terminated) else signal.SIGINT
-        threading.Timer(0.01, os.kill, (os.getpid(), signum)).start()
+        threading.Timer(0.01, _resend, (signum,)).start()
         return
     default(unraisable)
+
+
+def _resend(signum: int) -> None:
+    """The signal again, unless the command has ended meanwhile (its handlers gone, it would stop Python's exit)."""
+    if getattr(sys.unraisablehook, "func", None) is _redeliver_swallowed:
+        os.kill(os.getpid(), signum)
 
 
 class LazyGroup(click.Group):

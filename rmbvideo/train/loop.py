@@ -31,13 +31,13 @@ from rmbvideo.errors import InputError
 from rmbvideo.net.decoder import DecoderState
 from rmbvideo.net.model import RmbNet, priming_frames, window_indices, window_reach, window_valid
 from rmbvideo.net.weights import ModelCard, default_model_path, load_model, save_model, widen_model, without_window
+from rmbvideo.recon.precision import uses_bf16
 from rmbvideo.scenes.random_scenes import (
     EVAL_SEED_START,
     HELD_OUT_PANORAMA,
     TRAIN_PANORAMAS,
 )
 from rmbvideo.sensor.effects import REALISTIC_EFFECTS
-from rmbvideo.recon.precision import uses_bf16
 from rmbvideo.threads import default_threads
 from rmbvideo.train.checkpoint import (
     CheckpointState,

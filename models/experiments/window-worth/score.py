@@ -61,9 +61,10 @@ def main() -> None:
     sequences = load_heldout(False) + load_video_heldout(False)
     streams = find_streams(REAL) if REAL.is_dir() else []
     rows = {}
+    made = tempfile.TemporaryDirectory()
     for name, (key, path) in MODELS.items():
         if path is None:  # stage 19 without its window, as the w = 0 run starts
-            path = Path(tempfile.mkdtemp()) / "stage19-w0.safetensors"
+            path = Path(made.name) / "stage19-w0.safetensors"
             save_model(path, without_window(load_model(default_model_path("binned"))[0]), ModelCard(name="stage19-w0"))
         if not path.is_file():
             print(f"{name}: {path} not trained yet")
