@@ -78,6 +78,25 @@ def test_absurd_dimensions_are_one_line_errors(tmp_path: Path, args: tuple[str, 
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("width, height, method", [(16, 3, "rmbnet"), (8, 9, "rmbnet"), (16, 16, "mg20"),
+                                                   (16, 16, "rmbnet --align dis"), (400, 24, "rmbnet")])
+def test_a_tiny_capture_is_reconstructed(tmp_path: Path, width: int, height: int, method: str) -> None:
+    """A capture whose binned frames OpenCV's DIS flow refuses (an 8x1 or 4x4 binned stream: a traceback) or
+    crashes on (a 400x24 strip, 200x12 binned: a segmentation fault, no message) is reconstructed; the default's
+    aligned means, MG20 and --align read flows."""
+    rng = np.random.default_rng(3)
+    dat = tmp_path / "tiny.dat"
+    write_dat(dat, (rng.random((200, height, width)) < 0.3).astype(np.uint8), DatGeometry(width, height))
+    name, *options = method.split()
+    proc = cli("reconstruct", dat, "-o", tmp_path / "out", "--width", width, "--height", height, "--method", name,
+               *options, "--format", "exr", "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    from rmbvideo.io.exr import read_exr
+
+    images = [read_exr(p)[0] for p in sorted((tmp_path / "out").glob("*.exr"))]
+    assert images and all(np.isfinite(i).all() and (i >= 0).all() for i in images)
+
+
 def test_batch_reports_every_kind_of_broken_capture(tmp_path: Path) -> None:
     good = capture(tmp_path / "in" / "good.dat")
     (tmp_path / "in" / "empty.dat").write_bytes(b"")

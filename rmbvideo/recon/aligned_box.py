@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from rmbvideo.net.blend import BIN_TRIALS
+from rmbvideo.recon.flow import dis_flow
 
 #: OpenCV DIS presets by name.
 DIS_PRESETS = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
@@ -171,7 +172,7 @@ class AlignedBox:
             scale = 255.0 / max(self._whites[a], self._whites[b], 1e-3)
             a8 = np.clip(ia * scale + 0.5, 0, 255).astype(np.uint8)
             b8 = np.clip(ib * scale + 0.5, 0, 255).astype(np.uint8)
-            flow = np.nan_to_num(self._dis().calc(a8, b8, None), nan=0.0, posinf=0.0, neginf=0.0)
+            flow = np.nan_to_num(dis_flow(self._dis(), a8, b8), nan=0.0, posinf=0.0, neginf=0.0)
             with self._lock:
                 self._flows[(a, b)] = flow
         return self._flows[(a, b)]

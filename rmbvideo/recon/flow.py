@@ -32,6 +32,10 @@ from rmbvideo.recon.prelim import ReadoutBuffer
 log = logging.getLogger(__name__)
 
 FLOW_METHODS = ("dis", "farneback", "tvl1")
+#: The smallest image side given to OpenCV's DIS: it refuses images under 12 a side, and OpenCV 5.0's crashes
+#: (a segmentation fault, no exception) on strips 8-15 rows high and 40 or more wide with every preset, 16-31 high and
+#: 80 or more wide with the fast ones; from 32 a side none crashed (sides 32-128 by 32-4000, every preset, measured).
+DIS_MIN_SIZE = 32
 # Same rounding as the flow-free upsampler: sums of dense values stay exact in float64.
 _DENSE_QUANTUM = 1024.0
 
@@ -46,11 +50,23 @@ def to_flow_images(a: np.ndarray, b: np.ndarray, blur_sigma: float = 1.0) -> tup
     return tuple(np.round(255.0 * np.sqrt(np.clip(o / scale, 0.0, 1.0))).astype(np.uint8) for o in out)
 
 
+def dis_flow(dis: cv2.DISOpticalFlow, a8: np.ndarray, b8: np.ndarray) -> np.ndarray:
+    """``dis.calc(a8, b8)`` on images of any size: a side under ``DIS_MIN_SIZE`` (a tiny capture or a narrow strip,
+    binned) is padded with its edge pixels to that size and the flow cropped back, where DIS itself would refuse
+    the images or crash the process."""
+    h, w = a8.shape
+    pad_y, pad_x = max(0, DIS_MIN_SIZE - h), max(0, DIS_MIN_SIZE - w)
+    if not (pad_y or pad_x):
+        return dis.calc(a8, b8, None)
+    a8, b8 = (cv2.copyMakeBorder(img, 0, pad_y, 0, pad_x, cv2.BORDER_REPLICATE) for img in (a8, b8))
+    return np.ascontiguousarray(dis.calc(a8, b8, None)[:h, :w])
+
+
 def estimate_flow(a: np.ndarray, b: np.ndarray, method: str = "dis") -> np.ndarray:
     """Flow (H, W, 2) float32 from linear image ``a`` to ``b``: a(x) ~ b(x + F(x))."""
     a8, b8 = to_flow_images(a, b)
     if method == "dis":
-        flow = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM).calc(a8, b8, None)
+        flow = dis_flow(cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM), a8, b8)
     elif method == "farneback":
         flow = cv2.calcOpticalFlowFarneback(a8, b8, None, 0.5, 3, 15, 3, 5, 1.2, 0)
     elif method == "tvl1":

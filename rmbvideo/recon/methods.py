@@ -22,7 +22,6 @@ from typing import Any
 from rmbvideo.errors import OptionError
 
 DEFAULT_METHOD = "rmbnet"
-FLOW_MIN_SIZE = 12  # OpenCV's DIS flow needs at least 12 pixels per side
 
 
 @dataclass(frozen=True)
@@ -36,8 +35,7 @@ class Method:
     callable. ``fixed_readouts``: readouts per frame fixed by the method
     (RMB-Net's N), else the frame step is free. ``extra_options``: further factory keywords the
     command line offers (e.g. RMB-Net's ``model``); ``select_extra`` keeps only these. ``help``: one
-    line for ``--help`` and the README. ``min_size``: the fewest pixels per side of the stream it
-    reads (optical flow needs 12).
+    line for ``--help`` and the README.
     """
 
     name: str
@@ -49,7 +47,6 @@ class Method:
     window_range: tuple[int, int] = (1, 1)
     fixed_readouts: int | None = None
     extra_options: tuple[str, ...] = ()
-    min_size: int = 1
 
     def build(self, **options: Any) -> Any:
         """The reconstructor, from keyword options (see ``options``)."""
@@ -61,11 +58,6 @@ class Method:
             return factory(**options)
         except TypeError as exc:
             raise OptionError(f"method {self.name}: {exc}") from None
-
-    def needed_size(self, options: dict[str, Any]) -> int:
-        """Fewest pixels per side this method needs with ``options`` (flow-based options need 12)."""
-        flow = any(options.get(k) not in (None, "none", "interp") for k in ("align", "upsampling"))
-        return max(self.min_size, FLOW_MIN_SIZE if flow else 1)
 
     def select_extra(self, extra: dict[str, Any]) -> dict[str, Any]:
         """The entries of ``extra`` (command-line option values) that this method's factory takes."""
@@ -115,7 +107,7 @@ METHODS: dict[str, Method] = {m.name: m for m in (
            (10, 10000), extra_options=("convention",)),
     Method("mg20", "rmbvideo.recon.mg20:make_mg20", "rmb",
            "blocks aligned with DIS flow, robust merge, then the GC20 likelihood (Ma et al. 2020)", "readouts", 70,
-           (10, 10000), extra_options=("convention",), min_size=12),
+           (10, 10000), extra_options=("convention",)),
 )}
 
 

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from rmbvideo.recon.flow import dis_flow
 from rmbvideo.recon.gc20 import (BlockWindowReconstructor, JotModel, ReadingStats, Response, config_options,
                                  solve_exposure)
 
@@ -72,7 +73,7 @@ class Mg20Reconstructor(BlockWindowReconstructor):
         for k, stats in enumerate(blocks):
             if k == reference:
                 continue
-            flow = self._flow.calc(ref_image, self._alignment_image(stats, model, scale), None)
+            flow = dis_flow(self._flow, ref_image, self._alignment_image(stats, model, scale))
             map_x, map_y = grid_x + flow[..., 0], grid_y + flow[..., 1]
             warped = ReadingStats(*(
                 cv2.remap(a, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)

@@ -88,9 +88,8 @@ def prepare_run(input_path: Path, *, method: str = DEFAULT_METHOD, window: int |
     height, width = reader.shape
     if not native and spec.input_kind == "rmb":
         height, width = height // 2, width // 2  # the binned stream
-    needed = spec.needed_size(options)
-    if min(height, width) < needed:
-        raise InputError(f"{input_path}: {method} needs at least {needed}x{needed} pixels at its input; this capture "
+    if min(height, width) < 1:
+        raise InputError(f"{input_path}: {method} needs at least 1x1 pixels at its input; this capture "
                          f"gives {width}x{height} (check --width/--height/--header-cols)")
     recon = spec.build(**options)
     # A native capture was read out by its sensor already; binned data gets the chosen design.
