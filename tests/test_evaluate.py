@@ -411,3 +411,28 @@ def test_development_table_has_the_frame_to_frame_mean():
                      [Path("a"), Path("b")])
     assert "| frame to frame (temporal mu-PSNR) |" in table
     assert "| a | 31.00 | 28.00 | -1.00 / +0.50 |" in table and "| b | 30.00 | — | +0.00 / +0.00 |" in table
+
+
+def test_a_stream_unlike_its_reference_is_warned_of(tmp_path, caplog):
+    """A pair whose .dat is not laid out as its PNG says (the spikes read as garbage) scores near nothing; the
+    evaluation says so, naming the capture and the layout, where a right pair is scored without a word."""
+    import cv2
+
+    from rmbvideo.evaluate.real_video import RAW_STEP, RealRow, find_streams, score_stream
+    from rmbvideo.evaluate.texture_pans import TEXTURE_PANS, write_texture_pan
+    from rmbvideo.io.dat import DatGeometry
+
+    rows = [RealRow("TFP-41 (raw, 2x2-avg)", "tfp", {"window": 41, "step": RAW_STEP}, raw=True)]
+    write_texture_pan(TEXTURE_PANS[-1], tmp_path, DatGeometry(64, 40))
+    (stream,) = find_streams(tmp_path)
+    with caplog.at_level("WARNING", logger="rmbvideo.evaluate.real_video"):
+        right = score_stream(stream, rows)
+    assert not caplog.records and right[rows[0].name].ssim > 0.5
+    png = cv2.imread(str(stream.reference), cv2.IMREAD_GRAYSCALE)
+    cv2.imwrite(str(stream.reference), cv2.resize(png, (80, 32)))  # the same pixels a plane, laid out 80x32
+    (wrong,) = find_streams(tmp_path)
+    with caplog.at_level("WARNING", logger="rmbvideo.evaluate.real_video"):
+        scores = score_stream(wrong, rows)
+    assert scores[rows[0].name].ssim < 0.3
+    (record,) = caplog.records
+    assert wrong.capture.name in record.getMessage() and "80x32" in record.getMessage()

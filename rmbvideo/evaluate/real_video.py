@@ -52,6 +52,9 @@ TFP_WINDOWS = (20, 41, 80, 140)
 BEST_RAW = "best classical on the raw capture"
 #: The spikezoo format's streams are simulated in its rate convention (``rmbvideo.sensor.conventions``).
 CONVENTION = "spikezoo"
+#: Below this SSIM for every row, no method's frame looks like the reference: the stream is not what its PNG shows
+#: (the spikes of a 400x250 stream read as a 100x100 PNG says score 0.04-0.14; the real streams 0.9-0.98).
+UNLIKE_SSIM = 0.3
 _KEY = re.compile(r"key_id(\d+)")
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -245,6 +248,12 @@ def score_stream(stream: RealStream, rows: Iterable[RealRow]) -> dict[str, RealS
     if raw_names:
         best = max(raw_names, key=lambda name: scores[name].psnr)
         scores[BEST_RAW] = scores[best]
+    likeness = max((score.ssim for score in scores.values()), default=1.0)
+    if likeness < UNLIKE_SSIM:
+        geometry = stream.geometry
+        log.warning("%s: no method's frame looks like %s (best SSIM %.2f): is the capture laid out as %dx%d? "
+                    "(`rmbvideo info %s --guess-geometry`)", stream.capture, stream.reference.name, likeness,
+                    geometry.image_width, geometry.height, stream.capture)
     return scores
 
 
