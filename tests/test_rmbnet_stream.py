@@ -326,11 +326,13 @@ def test_aligned_model_stream_equals_forward_sequence_with_the_aligned_means(rad
         plain = model.forward_sequence(torch.from_numpy(np.stack([p.i_s for p in pframes]))[None],
                                        torch.from_numpy(i_m)[None], i_a=torch.from_numpy(
                                            np.ascontiguousarray(i_a[:, ::-1]) if i_a.ndim == 4 else i_m)[None])[0][0]
-    assert not np.allclose(reference.numpy(), plain.numpy())
+    assert not np.allclose(reference.numpy(), plain.numpy(), rtol=3e-4, atol=1e-6 * float(reference.max()))
     for size in (7, 95):
         images = np.stack([f.image for f in stream(model, split(data, size))[0]])
         assert np.isfinite(images).all()
-        np.testing.assert_allclose(images, reference.numpy(), rtol=1e-4, atol=1e-6 * float(reference.max()))
+        # rtol: float rounding of the engine's folded, channels-last network, grown ~8x by the mu-law's inverse at the
+        # brightest pixels (1.1e-4 at one of 2,340 with the flows of padded 20x13 frames); a wrong mean is off by far more
+        np.testing.assert_allclose(images, reference.numpy(), rtol=3e-4, atol=1e-6 * float(reference.max()))
     with pytest.raises(ValueError, match="aligned window mean"):
         model.forward_sequence(torch.from_numpy(np.stack([p.i_s for p in pframes]))[None], torch.from_numpy(i_m)[None])
 

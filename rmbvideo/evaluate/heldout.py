@@ -28,7 +28,7 @@ import json
 import logging
 import os
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -291,14 +291,16 @@ def simulate_video_sequence(seed: int, kind: VideoHeldout, config: HeldoutConfig
 
 
 def load_video_heldout(quick: bool, cache: Path | None = None, per_kind: int = 1, first: int = 0,
-                       reset: str = "zero") -> list[Sequence]:
-    """``per_kind`` held-out video sequences of every ``VIDEO_KINDS`` entry (``QUICK``/``FULL`` size),
-    seeds from ``first`` on within each kind's range, simulated once and then read from ``cache``; ``reset``: the
-    cameras' pixel (``HeldoutConfig``; spikezoo's kind has none)."""
+                       reset: str = "zero", kinds: Collection[str] | None = None) -> list[Sequence]:
+    """``per_kind`` held-out video sequences of every ``VIDEO_KINDS`` entry (``QUICK``/``FULL`` size; of those named
+    in ``kinds`` only, when given), seeds from ``first`` on within each kind's range, simulated once and then read
+    from ``cache``; ``reset``: the cameras' pixel (``HeldoutConfig``; spikezoo's kind has none)."""
     config = replace(QUICK if quick else FULL, reset=reset)
     cache = Path(cache) if cache is not None else default_cache_dir()
     sequences = []
     for k, kind in enumerate(VIDEO_KINDS):
+        if kinds is not None and kind.name not in kinds:
+            continue
         for j in range(first, first + per_kind):
             seed = VIDEO_SEED_START + 100 * k + j
             digest = hashlib.sha256(repr(kind).encode()).hexdigest()[:8]  # any change of the kind is a new file
