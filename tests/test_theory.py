@@ -191,6 +191,48 @@ def test_cli_text_table_shows_paper_difference():
     assert "13.91" in result.output and "42.35" in result.output
 
 
+def test_cli_refuses_a_threshold_beyond_reach_at_once():
+    """--q-r 1e9 grew the exact law's tables until the kernel killed the process (73 s, no message); above the bound
+    it is a usage error naming the range, before any work."""
+    result = CliRunner().invoke(main, ["dynamic-range", "--q-r", "1e9"])
+    assert result.exit_code == 2 and "--q-r" in result.output and "10000" in result.output
+
+
+@pytest.mark.parametrize("quiet", [False, True])
+def test_cli_shows_a_progress_bar_on_a_terminal(quiet: bool):
+    """Minutes of work at a large Q_r: a bar per level on a terminal (stderr a pty), none with --quiet."""
+    import fcntl
+    import os
+    import pty
+    import select
+    import struct
+    import subprocess
+    import sys
+    import termios
+
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 120, 0, 0))
+    proc = subprocess.Popen([sys.executable, "-m", "rmbvideo", "dynamic-range", "--L", "1,3", "--N", "10",
+                             *(["--quiet"] if quiet else [])], stdout=subprocess.PIPE, stderr=slave)
+    os.close(slave)
+    terminal = b""
+    while True:
+        ready, _, _ = select.select([master], [], [], 1.0)
+        if ready:
+            try:
+                data = os.read(master, 4096)
+            except OSError:  # the command closed the terminal
+                break
+            if not data:
+                break
+            terminal += data
+        elif proc.poll() is not None:
+            break
+    os.close(master)
+    assert proc.wait() == 0 and b"22.98" in proc.stdout.read()
+    assert (b"2/2" in terminal and b"level" in terminal) != quiet, terminal
+
+
 def test_pixel_spread_vanishes_without_threshold_noise():
     from rmbvideo.sensor.theory import pixel_spread
 

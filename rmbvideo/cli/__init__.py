@@ -152,8 +152,8 @@ class LazyGroup(click.Group):
             ctx.exit(130)
         except MemoryError:
             command = ctx.invoked_subcommand or "rmbvideo"
-            click.echo(f"rmbvideo: error: {command}: out of memory for this geometry and these options (or the "
-                       "process's memory limit); partial output removed", err=True)
+            click.echo(f"rmbvideo: error: {command}: out of memory with these options (a capture's size, a sensor's "
+                       "parameters, or the process's memory limit); partial output removed", err=True)
             ctx.exit(2)
 
 

@@ -9,10 +9,16 @@ from pathlib import Path
 
 import click
 
-from rmbvideo.cli import verbose_option
+from tqdm import tqdm
+
+from rmbvideo.cli import progress_enabled, verbose_option
 from rmbvideo.cli.options import AliasOption
 from rmbvideo.errors import InputError
 from rmbvideo.sensor.params import SensorParams
+
+#: The largest nominal threshold (electrons) the exact law is computed for: its tables and the loops over the
+#: threshold's values both grow with Q_r (1.9 s for one level at 105, 26 s at 800 on one core; 1e9 was killed for memory).
+MAX_Q_R = 10_000.0
 
 
 def _int_list(ctx: click.Context, param: click.Parameter, value: str) -> list[int]:
@@ -31,8 +37,10 @@ def _int_list(ctx: click.Context, param: click.Parameter, value: str) -> list[in
               help="Quantisation levels L = 2^B - 1, comma separated.")
 @click.option("--readouts", "--N", "n_values", cls=AliasOption, aliases=("--N",), default="1,10,30,70,1000,10000,20000", show_default=True,
               callback=_int_list, help="Numbers of summed readouts N, comma separated.")
-@click.option("--q-r", type=click.FloatRange(min=1.0), default=None,
-              help="Nominal threshold Q_r = C*V in electrons (C kept, V = Q_r/C) [default: 105].")
+@click.option("--q-r", type=click.FloatRange(min=1.0, max=MAX_Q_R), default=None,
+              help="Nominal threshold Q_r = C*V in electrons (C kept, V = Q_r/C) [default: 105]. The exact law's work "
+                   f"grows about as Q_r^2 (a level takes seconds at 105, about half a minute at 800), so at most "
+                   f"{MAX_Q_R:g}.")
 @click.option("--dark-mean", type=click.FloatRange(min=0.0), default=None,
               help="Mean dark electrons per readout mu_d [default: 0.05].")
 @click.option("--noise-var", type=click.FloatRange(min=0.0), default=None,
@@ -43,9 +51,10 @@ def _int_list(ctx: click.Context, param: click.Parameter, value: str) -> list[in
 @click.option("--plots", "plots_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Write fig2_expectation_std.png and fig3_snr.png into this folder.")
 @click.option("--json", "as_json", is_flag=True, help="Print {\"table\": [...]} on stdout.")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
 def dynamic_range(levels: list[int], n_values: list[int], q_r: float | None, dark_mean: float | None,
                   noise_var: float | None, variance: str, plots_dir: Path | None,
-                  as_json: bool) -> None:
+                  as_json: bool, quiet: bool) -> None:
     """Print the dynamic range (dB) of S_N^L for each L (rows) and N (columns)."""
     from rmbvideo.sensor.theory import PAPER_TABLE1, PAPER_TABLE1_N
     from rmbvideo.sensor.theory import dynamic_range as compute
@@ -63,9 +72,11 @@ def dynamic_range(levels: list[int], n_values: list[int], q_r: float | None, dar
     defaults = q_r is None and dark_mean is None and noise_var is None and variance == "independent"
 
     table = {}
-    for level in levels:
-        for res in compute(replace(params, level=level), n_values, exact=variance == "exact"):
-            table[(level, res.n)] = res.dr_db
+    with tqdm(levels, unit="level", desc="dynamic range", disable=not progress_enabled(quiet)) as bar:
+        for level in bar:
+            bar.set_postfix_str(f"L = {level}")
+            for res in compute(replace(params, level=level), n_values, exact=variance == "exact"):
+                table[(level, res.n)] = res.dr_db
 
     if plots_dir is not None:
         from rmbvideo.sensor.plots import plot_expectation_std, plot_snr
