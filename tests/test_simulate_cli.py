@@ -128,6 +128,20 @@ def test_bad_scene_is_a_one_line_error(tmp_path: Path) -> None:
     assert not (tmp_path / "x.dat").exists()
 
 
+def test_a_scene_shorter_than_one_readout_names_the_scene_not_an_option(tmp_path: Path) -> None:
+    """A scene whose duration_s holds no readout at its rate_hz was reported as "--duration None s", an option the
+    user never gave; it names the scene file and both fields, and --duration names itself."""
+    scene = write_scene(tmp_path, "binned")
+    scene.write_text(scene.read_text().replace("duration_s = 0.004", "duration_s = 1e-9"))
+    result = CliRunner().invoke(main, ["simulate", str(scene), "-o", str(tmp_path / "x.dat")])
+    assert result.exit_code == 2 and "None" not in result.output, result.output
+    assert "binned.toml" in result.output and "duration_s = 1e-09" in result.output and "rate_hz = 20000" in result.output
+    result = CliRunner().invoke(main, ["simulate", str(write_scene(tmp_path, "binned")), "-o", str(tmp_path / "x.dat"),
+                                       "--duration", "1e-6"])
+    assert result.exit_code == 2 and "--duration 1e-06 s" in result.output
+    assert not (tmp_path / "x.dat").exists()
+
+
 def test_a_simulated_capture_is_read_by_its_cameras_response_and_a_real_one_by_the_closed_form(tmp_path: Path) -> None:
     """``reconstruct --response auto`` (the default): the sidecar ``rmbvideo simulate`` writes names the effects that
     shape the emission model's response, so RMB-Net's box candidates read that capture by its table; a capture

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from rmbvideo.chunks import RmbChunk, SpikeChunk
-from rmbvideo.errors import OptionError, OutputError
+from rmbvideo.errors import InputError, OptionError, OutputError
 from rmbvideo.io.dat import DatGeometry, DatWriter
 from rmbvideo.io.rmbfile import RmbFileWriter
 from rmbvideo.scenes.render import SceneRenderer
@@ -176,7 +176,10 @@ def simulate_capture(scene: Scene, output: Path, *, duration_s: float | None = N
              scene.height, scene.rate_hz, simulator.total_readouts, readout.kind,
              ", ".join(scene.effects) or "none (deterministic)")
     if simulator.total_readouts == 0:
-        raise OptionError(f"--duration {duration_s} s is shorter than one readout")
+        if duration_s is not None:
+            raise OptionError(f"--duration {duration_s:g} s is shorter than one readout ({1 / scene.rate_hz:g} s)")
+        raise InputError(f"{scene.source or scene.name}: duration_s = {scene.duration_s:g} s is shorter than one readout at "
+                         f"rate_hz = {scene.rate_hz:g} ({1 / scene.rate_hz:g} s)")
     check_free_space(Path(output), capture_bytes(scene, simulator.total_readouts))
     chunk_readouts = max(1, min(chunk_readouts, CHUNK_PIXEL_READOUTS // (scene.width * scene.height)))
     with ExitStack() as stack:
