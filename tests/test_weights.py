@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import pickle
+from pathlib import Path
 
 import pytest
 import torch
@@ -177,3 +178,21 @@ def test_without_the_window_a_model_computes_what_it_does_on_a_lone_frame_where_
             model.decoder.head[0][0].weight[:, features + 4] += 1.0
         assert not torch.allclose(without_window(model).forward_sequence(i_s, i_m, i_c=i_c, i_a=i_a, convention=1.0)[0],
                                   expected)
+
+
+def test_a_recipes_init_path_is_found_from_any_folder(tmp_path, monkeypatch):
+    """Bundled recipes name their init weights from the repository root ("models/training/..."); run from another
+    folder, `rmbvideo train RECIPE` said "model file not found". A relative path that does not exist here is looked
+    for beside the shipped models' folder; one that exists here, an absolute one and a missing one stay as given."""
+    from rmbvideo.net.weights import MODELS_DIR, bundled_path
+
+    monkeypatch.chdir(tmp_path)
+    shipped = Path("models") / "rmbnet-binned.safetensors"
+    assert not shipped.exists()
+    found = bundled_path(shipped)
+    assert found.is_file() and found.resolve() == (MODELS_DIR / "rmbnet-binned.safetensors").resolve()
+    (tmp_path / "models").mkdir()
+    (tmp_path / shipped).write_bytes(b"mine")
+    assert bundled_path(shipped) == shipped  # the user's own file, here, wins
+    missing = Path("models") / "no-such.safetensors"
+    assert bundled_path(missing) == missing and bundled_path(tmp_path / "x") == tmp_path / "x"

@@ -52,6 +52,17 @@ DEFAULT_DETAIL = "detail-binned"
 DEFAULT_RAW_GATE = "raw-gate"
 
 
+def bundled_path(path: Path) -> Path:
+    """``path`` as given, or where a relative one does not exist from the current folder, the same path beside the
+    shipped models' folder (the repository root): a bundled recipe names its ``init`` weights from there
+    ("models/training/..."), so it runs from any folder."""
+    path = Path(path)
+    if path.is_absolute() or path.exists():
+        return path
+    beside = MODELS_DIR.resolve().parent / path
+    return beside if beside.exists() else path
+
+
 def default_detail_path() -> Path:
     """Where the shipped detail stage lives (it may be absent: then full resolution is classical)."""
     return MODELS_DIR / f"{DEFAULT_DETAIL}.safetensors"

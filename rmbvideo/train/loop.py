@@ -30,7 +30,8 @@ from tqdm import tqdm
 from rmbvideo.errors import InputError
 from rmbvideo.net.decoder import DecoderState
 from rmbvideo.net.model import RmbNet, priming_frames, window_indices, window_reach, window_valid
-from rmbvideo.net.weights import ModelCard, default_model_path, load_model, save_model, widen_model, without_window
+from rmbvideo.net.weights import (ModelCard, bundled_path, default_model_path, load_model, save_model, widen_model,
+                                   without_window)
 from rmbvideo.recon.precision import uses_bf16
 from rmbvideo.scenes.random_scenes import (
     EVAL_SEED_START,
@@ -318,7 +319,7 @@ class Trainer:
         """The weights of model ``source`` (a file or a shipped model's name) as this recipe's network, widened where
         it gained inputs or candidates (``widen_model``; new blend logits at the recipe's ``init_new_logit``), and
         without its window (``without_window``) for a recipe at w = 0."""
-        path = Path(source)
+        path = bundled_path(Path(source))
         if not path.suffix:
             path = default_model_path(self.config.model.input_mode).with_name(f"{source}.safetensors")
         old, _card = load_model(path)
