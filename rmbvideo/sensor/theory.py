@@ -205,13 +205,15 @@ def _conditional(lam: np.ndarray, q_values: np.ndarray, k: int, level: int
         c = np.arange(t1)
         # need[h, c] = electrons X must supply from carried charge c to reach T_h
         need = th[:, None] - c[None, :] - k            # (L, t1)
-        # P(X >= need) = sf_Y(need-1); derivative = pmf_Y(need-1)
-        reach = tab.take("sf", need - 1, 1.0)          # (n, L, t1)
-        dreach = tab.take("pmf", need - 1, 0.0)
-        counts = np.einsum("nc,nhc->nh", gc, reach)    # expected firings with level >= h per cycle
-        dcounts = np.einsum("nc,nhc->nh", dgc, reach) + np.einsum("nc,nhc->nh", gc, dreach)
-        counts[:, 0] = 1.0                             # a cycle always ends in exactly one firing
-        dcounts[:, 0] = 0.0
+        # expected firings with level >= h per cycle: a cycle always ends in exactly one firing (h = 1); for
+        # h >= 2, P(X >= need) = sf_Y(need-1), derivative pmf_Y(need-1) (h = 1's would be computed and unused)
+        counts = np.ones((n, level))
+        dcounts = np.zeros((n, level))
+        if level > 1:
+            reach = tab.take("sf", need[1:] - 1, 1.0)      # (n, L - 1, t1)
+            dreach = tab.take("pmf", need[1:] - 1, 0.0)
+            counts[:, 1:] = np.einsum("nc,nhc->nh", gc, reach)
+            dcounts[:, 1:] = np.einsum("nc,nhc->nh", dgc, reach) + np.einsum("nc,nhc->nh", gc, dreach)
         p_ge = counts / cycle[:, None]                 # P(S >= h), h = 1..L
         dmean[i] = (dcounts.sum(axis=1) - counts.sum(axis=1) * dcycle / cycle) / cycle
         # non-negative per-level probabilities
@@ -219,13 +221,16 @@ def _conditional(lam: np.ndarray, q_values: np.ndarray, k: int, level: int
         pmf[i, :, 0] = np.einsum("nc,nc->n", gc, below) / cycle
         pmf[i, :, level] = p_ge[:, -1]
         for h in range(1, level):
-            width = int(th[h] - th[h - 1])
-            if width == 0:
+            if th[h] == th[h - 1]:
                 continue
-            w = np.arange(width)
-            jj = need[h - 1][:, None] + w[None, :]         # (t1, width)
-            terms = tab.take("pmf", jj, 0.0)           # (n, t1, width)
-            pmf[i, :, h] = np.einsum("nc,ncw->n", gc, terms) / cycle
+            # P(need_h-1 <= X - k < need_h) from the nearer tail: cdf(hi) - cdf(lo) where cdf(hi) <= 1/2, else
+            # sf(lo) - sf(hi), so neither difference loses the small ones (the sum of the pmf over the range,
+            # width T_{h+1} - T_h terms a pixel, costs that factor more)
+            lo, hi = need[h - 1] - 1, need[h] - 1
+            cdf_hi = tab.take("cdf", hi, 0.0)
+            terms = np.where(cdf_hi <= 0.5, cdf_hi - tab.take("cdf", lo, 0.0),
+                             tab.take("sf", lo, 1.0) - tab.take("sf", hi, 1.0))
+            pmf[i, :, h] = np.einsum("nc,nc->n", gc, np.maximum(terms, 0.0)) / cycle
         mean[i] = p_ge.sum(axis=1)
         deficit[i] = pmf[i] @ (level - hs)
     return pmf, mean, deficit, dmean
@@ -418,7 +423,8 @@ class RangeSearch:
     lam_hi: float = 1e6
     per_decade: int = 48          # initial log grid
     refine_rounds: int = 6        # adaptive subdivision rounds around extrema and steep parts
-    bisect_steps: int = 24        # bisection steps on each bracketed crossing (in log lam)
+    bisect_steps: int = 24        # at most this many bisection steps on each bracketed crossing (in log lam) ...
+    bisect_tolerance: float = 1e-6  # ... stopping once every bracket is narrower (in log lam: 1e-5 dB of range)
 
 
 def dynamic_range(params: SensorParams, n_values: list[int], exact: bool = False,
@@ -488,6 +494,8 @@ def _pieces_above(grid: np.ndarray, func, cuts: list[float], search: RangeSearch
     cut, who, rising = np.concatenate(cut_l), np.concatenate(owner), np.concatenate(rising_l)
     if lo.size:
         for _ in range(search.bisect_steps):
+            if float(np.max(hi - lo)) < search.bisect_tolerance:
+                break
             mid = 0.5 * (lo + hi)
             up = func(np.exp(mid)) >= cut
             go_right = up != rising
