@@ -163,6 +163,31 @@ def test_exact_variance_matches_brute_force_markov_chain(level, lam):
         assert var[0] == pytest.approx(_brute_force_sum_variance(lam, 6, level, n), rel=1e-9)
 
 
+@pytest.mark.parametrize("lam", [0.005, 0.05, 40.0])
+def test_level_probabilities_match_the_chain_down_to_the_smallest(lam):
+    """P(S = h) of a noise-free L = 3 pixel against its Markov chain's stationary law summed term by term: every level
+    to 1e-9 relative, where they span 1e-10 to 1 (a level's probability is a difference of Poisson tails in the
+    law, read from the nearer tail so that the small ones keep their digits)."""
+    from scipy.stats import poisson
+
+    q, level = 6, 3
+    th = level_thresholds(q, level)
+    px = poisson.pmf(np.arange(400), lam)
+    charges = np.arange(int(th[0]))[:, None] + np.arange(400)[None, :]   # carried charge c plus arrivals x
+    h_of = (charges[..., None] >= th).sum(axis=-1)
+    nxt = np.where(h_of > 0, 0, charges)
+    pi = np.zeros(int(th[0]))
+    pi[0] = 1.0
+    for _ in range(5000):
+        new = np.zeros_like(pi)
+        np.add.at(new, nxt[nxt < th[0]], (pi[:, None] * px[None, :])[nxt < th[0]])
+        pi = new / new.sum()
+    chain = np.array([(pi[:, None] * px[None, :] * (h_of == h)).sum() for h in range(level + 1)])
+    law = spike_law(np.array([lam]), replace(NOISE_FREE, voltage=float(q), level=level))
+    assert chain.min() < 1e-6  # the small probabilities are there to check
+    np.testing.assert_allclose(law.pmf[0], chain, rtol=1e-9)
+
+
 def test_threshold_law_matches_supplement_noise_scale():
     law = threshold_law(SensorParams())
     mean = float(law.values @ law.probs)
