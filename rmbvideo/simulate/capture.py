@@ -172,15 +172,16 @@ def simulate_capture(scene: Scene, output: Path, *, duration_s: float | None = N
 
     simulator = CaptureSimulator(scene, duration_s)
     readout = scene.readout
-    log.info("scene %s: %dx%d at %g Hz, %d readouts, %s readout, effects: %s", scene.name, scene.width,
-             scene.height, scene.rate_hz, simulator.total_readouts, readout.kind,
+    size = capture_bytes(scene, simulator.total_readouts)
+    log.info("scene %s: %dx%d at %g Hz, %d readouts (%.3g GB), %s readout, effects: %s", scene.name, scene.width,
+             scene.height, scene.rate_hz, simulator.total_readouts, size / 1e9, readout.kind,
              ", ".join(scene.effects) or "none (deterministic)")
     if simulator.total_readouts == 0:
         if duration_s is not None:
             raise OptionError(f"--duration {duration_s:g} s is shorter than one readout ({1 / scene.rate_hz:g} s)")
         raise InputError(f"{scene.source or scene.name}: duration_s = {scene.duration_s:g} s is shorter than one readout at "
                          f"rate_hz = {scene.rate_hz:g} ({1 / scene.rate_hz:g} s)")
-    check_free_space(Path(output), capture_bytes(scene, simulator.total_readouts))
+    check_free_space(Path(output), size)
     chunk_readouts = max(1, min(chunk_readouts, CHUNK_PIXEL_READOUTS // (scene.width * scene.height)))
     with ExitStack() as stack:
         # Ground truth first, into a staging folder committed last: a failure anywhere leaves neither a
