@@ -17,8 +17,8 @@ from rmbvideo.errors import InputError
 from rmbvideo.sensor.params import SensorParams
 
 #: The largest nominal threshold (electrons) the exact law is computed for: its tables and the loops over the
-#: threshold's values both grow with Q_r (on one core: the default table 3.6 s at 105; a level 21-43 s at 800, 3-5 minutes
-#: at 2,000; 1e9 was killed for memory).
+#: threshold's values both grow with Q_r (on one core: the default table 3.3-3.6 s at 105; a level 20-45 s at 800,
+#: 3-5 minutes at 2,000; 1e9 was killed for memory; ``models/experiments/dynamic-range-speed/measure.py scaling``).
 MAX_Q_R = 10_000.0
 
 

@@ -34,7 +34,8 @@ log = logging.getLogger(__name__)
 FLOW_METHODS = ("dis", "farneback", "tvl1")
 #: The smallest image side given to OpenCV's DIS: it refuses images under 12 a side, and OpenCV 5.0's crashes
 #: (a segmentation fault, no exception) on strips 8-15 rows high and 40 or more wide with every preset, 16-31 high and
-#: 80 or more wide with the fast ones; from 32 a side none crashed (sides 32-128 by 32-4000, every preset, measured).
+#: 80 or more wide with the fast ones; from 32 a side none crashed (sides 32-128 by 32-4000, every preset:
+#: ``python models/experiments/dis-sizes/scan.py``).
 DIS_MIN_SIZE = 32
 # Same rounding as the flow-free upsampler: sums of dense values stay exact in float64.
 _DENSE_QUANTUM = 1024.0
