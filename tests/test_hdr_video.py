@@ -11,7 +11,8 @@ import pytest
 
 from rmbvideo.chunks import Frame
 from rmbvideo.io.hdr_video import DECODE, ENCODE, auto_nits_per_unit, hlg_decode, pq_decode, pq_encode
-from rmbvideo.io.sinks import write_frames
+from rmbvideo.errors import OutputError
+from rmbvideo.io.sinks import PLAYBACK_FPS_RANGE, write_frames
 
 
 def test_transfer_functions_invert_and_are_monotone():
@@ -64,3 +65,32 @@ def test_played_back_frames_decode_to_the_light_they_were_given(tmp_path, fmt, t
     assert f"color_primaries:bt2020 color_trc:{trc}" in probe and "Main 10" in probe
     if fmt == "hdr10":
         assert "Mastering display metadata" in probe and "MaxCLL=800" in probe
+
+
+@pytest.mark.parametrize("fmt", ["hdr10", "hlg"])
+def test_a_frame_too_small_for_hevc_fails_at_its_first_frame_with_the_size_named(tmp_path, fmt):
+    frames = iter([Frame(i, i / 1000, np.full((250, 13), 0.1, np.float32)) for i in range(3)])
+    with pytest.raises(OutputError, match=r"frames.mp4: HEVC \(%s\) needs frames at least 15x15 pixels; these "
+                       r"are 13x250" % fmt):
+        write_frames(frames, tmp_path / "out", fmt=fmt, nits_per_unit=100.0)
+    assert next(frames).index == 1  # refused at the first frame, not after the whole capture
+    assert not list((tmp_path / "out").iterdir())
+    # 15 pixels is padded to 16, which x265 takes
+    assert write_frames([Frame(0, 0.0, np.full((15, 15), 0.1, np.float32))], tmp_path / "ok", fmt=fmt) == 1
+
+
+@pytest.mark.parametrize("fps", [0.0099, 10001.0])
+def test_playback_rates_the_muxer_cannot_write_are_refused(tmp_path, fps):
+    with pytest.raises(ValueError, match="fps must be between 0.01 and 10000"):
+        write_frames([Frame(0, 0.0, np.ones((16, 16), np.float32))], tmp_path, fmt="hdr10", fps=fps)
+
+
+@pytest.mark.parametrize("fmt", ["mp4", "hdr10"])
+@pytest.mark.parametrize("fps", PLAYBACK_FPS_RANGE)
+def test_the_extreme_playback_rates_give_videos_of_the_right_length(tmp_path, fmt, fps):
+    frames = [Frame(i, i / 1000, np.full((16, 16), 0.1 * (1 + i), np.float32)) for i in range(50)]
+    assert write_frames(frames, tmp_path, fmt=fmt, fps=fps) == 50
+    count, seconds = imageio_ffmpeg.count_frames_and_secs(str(tmp_path / "frames.mp4"))
+    assert count == 50
+    if fps < 1:
+        assert seconds == pytest.approx(50 / fps, rel=1e-3)

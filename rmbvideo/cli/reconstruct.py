@@ -9,7 +9,7 @@ import click
 
 from rmbvideo.cli import progress_enabled, quiet_option, verbose_option
 from rmbvideo.cli.options import capture_options
-from rmbvideo.io.sinks import SINK_FORMATS
+from rmbvideo.io.sinks import PLAYBACK_FPS_RANGE, SINK_FORMATS
 from rmbvideo.io.tonemap import TONE_METHODS
 from rmbvideo.recon.full_resolution import DETAIL_KINDS, RAW_GATE_KINDS
 from rmbvideo.recon.methods import DEFAULT_METHOD, METHODS
@@ -94,7 +94,7 @@ def rmbnet_options(func):
 @click.option("--format", "fmt", type=click.Choice(SINK_FORMATS), default="mp4", show_default=True,
               help="mp4 (tone-mapped SDR H.264, BT.709), hdr10 (HEVC Main10, BT.2020, PQ), hlg (HEVC Main10, "
                    "BT.2020, HLG), exr (linear HDR frames), png (tone-mapped 8-bit), null (timing).")
-@click.option("--fps", type=click.FloatRange(min=0, min_open=True), default=30.0, show_default=True,
+@click.option("--fps", type=click.FloatRange(*PLAYBACK_FPS_RANGE), default=30.0, show_default=True,
               help="Video playback frame rate.")
 @click.option("--nits-per-unit", type=click.FloatRange(min=0, min_open=True), default=None,
               help="HDR video (hdr10, hlg): display light (cd/m^2) of one linear unit [default: chosen from the "

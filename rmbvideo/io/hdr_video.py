@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rmbvideo.errors import OutputError
 from rmbvideo.io.sinks import Mp4Sink
 from rmbvideo.io.tonemap import ToneMapConfig
 
@@ -30,6 +31,8 @@ MID_NITS = 20.0
 NITS_PER_UNIT_RANGE = (200.0, 10000.0)
 LUMA_BLACK, LUMA_SPAN, CHROMA_NEUTRAL = 64, 876, 512  # 10-bit limited ("tv") range
 PREPARE_FRAMES = 8  # frames buffered to choose the exposure before encoding starts
+#: x265 refuses pictures under 16 pixels a side ("Image size is too small"), after the odd-size padding.
+HEVC_MIN_SIDE = 16
 _X265_CRF = 18
 # SMPTE ST 2084 constants
 _M1, _M2 = 2610 / 16384, 2523 / 4096 * 128
@@ -126,6 +129,8 @@ class HdrVideoSink(Mp4Sink):
         return self.pixel_format, self.pixel_format, "libx265", params
 
     def _write(self, frame, image: np.ndarray) -> None:
+        if self.frames_written == 0 and not self._pending:
+            self._check_size(image.shape)
         if self.nits_per_unit is None:  # hold the first frames until the exposure is chosen
             self._pending.append((frame, image))
             if len(self._pending) < PREPARE_FRAMES:
@@ -135,6 +140,15 @@ class HdrVideoSink(Mp4Sink):
         if self._encoder is None and not self._mean_nits:
             self._mean_nits = float(np.mean(image)) * self.nits_per_unit
         super()._write(frame, image)
+
+    def _check_size(self, shape: tuple[int, ...]) -> None:
+        """Refuse, at the first frame, a size x265 would refuse only when the whole capture has run."""
+        height, width = shape[:2]
+        if min(height + height % 2, width + width % 2) < HEVC_MIN_SIDE:
+            fmt = "hdr10" if self.transfer == "pq" else "hlg"
+            raise OutputError(
+                f"{self.path}: HEVC ({fmt}) needs frames at least {HEVC_MIN_SIDE - 1}x{HEVC_MIN_SIDE - 1} "
+                f"pixels; these are {width}x{height}: use --format mp4, png or exr")
 
     def _choose_exposure(self) -> None:
         images = [image for _, image in self._pending]

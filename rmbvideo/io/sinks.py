@@ -56,6 +56,9 @@ BT709_TAGS = ("-colorspace", "bt709", "-color_primaries", "bt709", "-color_trc",
               "-x264-params", "colorprim=bt709:transfer=bt709:colormatrix=bt709")
 # x264 constant-rate factor: 18 is visually lossless for 8-bit tone-mapped video.
 _X264_CRF = 18
+#: Playback rates the MP4 muxer and both encoders write correctly (scanned with this project's ffmpeg:
+#: 1e-5 fps is refused at the muxer, 1e6 by x265, and durations past 1e4 fps round to nothing).
+PLAYBACK_FPS_RANGE = (0.01, 10000.0)
 
 
 def frame_file_name(index: int, ext: str) -> str:
@@ -460,8 +463,9 @@ def make_sink(fmt: SinkFormat, outdir: Path, *, tonemap: ToneMapConfig | None = 
     settings = SinkOptions(tonemap=tonemap or ToneMapConfig(), **options)
     if fmt == "null":
         return SINKS[fmt](Path(outdir), settings)
-    if not settings.fps > 0:
-        raise ValueError(f"fps must be positive, got {settings.fps}")
+    low, high = PLAYBACK_FPS_RANGE
+    if not low <= settings.fps <= high:
+        raise ValueError(f"fps must be between {low:g} and {high:g}, got {settings.fps}")
     if settings.mp4_pixel_format not in ("auto", "yuv420p", "yuv444p"):
         raise ValueError(f"MP4 pixel format must be auto, yuv420p or yuv444p, got {settings.mp4_pixel_format!r}")
     outdir = Path(outdir)
