@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 from click.testing import CliRunner
 
 from rmbvideo.cli import main
@@ -166,3 +167,34 @@ def test_a_simulated_capture_is_read_by_its_cameras_response_and_a_real_one_by_t
     assert not tabulated(out) and tabulated(out, response="emission-model")
     sidecar.write_text(json.dumps({k: v for k, v in data.items() if k != "effects"}))  # a camera's sidecar
     assert simulated_camera(out) is None and not tabulated(out)
+
+
+def test_a_view_past_the_panoramas_top_or_bottom_is_warned_of_with_how_far(tmp_path: Path, caplog) -> None:
+    """The panorama is mirrored beyond its top and bottom: a scene whose view reaches there is simulated, with a
+    warning that says how far, which a view inside the panorama does not get."""
+    scene = write_scene(tmp_path, "binned")
+    result = CliRunner().invoke(main, ["simulate", str(scene), "-o", str(tmp_path / "in.dat")])
+    assert result.exit_code == 0 and "mirrored" not in result.output, result.output
+    scene.write_text(scene.read_text().replace("velocity = [800, 0]", "center = [512, 10]\nvelocity = [800, -1000]"))
+    result = CliRunner().invoke(main, ["simulate", str(scene), "-o", str(tmp_path / "out.dat")])
+    # rows 10 - 24 at t = 0 and 10 - 4 - 24 at the end (4 ms at -1000 px/s): 18 rows above, none below
+    assert result.exit_code == 0 and "binned.toml: the view reaches 18 panorama rows above the top and 0 below the " \
+                                     "bottom of studio" in result.output, result.output
+
+
+def test_rows_past_the_panorama_are_the_extremes_over_the_whole_scene(tmp_path: Path) -> None:
+    """A zooming, tilting camera: the reach found from the ends equals the densely sampled one."""
+    from rmbvideo.scenes.render import SceneRenderer
+
+    path = tmp_path / "tilt.toml"
+    path.write_text(SCENE.format(readout="binned").replace(
+        "velocity = [800, 0]", "center = [512, 30]\nvelocity = [0, 120000]\nzoom = 0.5\nzoom_rate = 300"))
+    scene = load_scene(path)
+    renderer = SceneRenderer(scene)
+    t = np.linspace(0, 0.004, 4001)
+    _, cy, zoom = renderer.camera(t)
+    half = scene.height / 2 / zoom
+    above, below = renderer.rows_past_panorama(0.004)
+    assert above == pytest.approx(max(0.0, (half - cy).max()))
+    assert below == pytest.approx(max(0.0, (cy + half - renderer.pano.shape[0]).max()))
+    assert above > 0 and below > 0

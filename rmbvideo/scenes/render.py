@@ -175,6 +175,16 @@ class SceneRenderer:
         self.x = np.arange(self.width, dtype=np.float64)[None, :] + 0.5
         self.y = np.arange(self.height, dtype=np.float64)[:, None] + 0.5
 
+    def rows_past_panorama(self, t_end: float) -> tuple[float, float]:
+        """Panorama rows the view reaches above the top and below the bottom over [0, t_end], where
+        the panorama is mirrored (the extremes lie at the ends: the view's edges are monotone or convex in t)."""
+        above = below = 0.0
+        for t in (0.0, t_end):
+            _, cy, zoom = self.camera(t)
+            half = self.height / 2 / zoom
+            above, below = max(above, half - cy), max(below, cy + half - self.pano.shape[0])
+        return above, below
+
     def camera(self, t: np.ndarray | float) -> tuple:
         """Panorama centre (x, y) and zoom at time(s) ``t``."""
         b = self.background

@@ -181,6 +181,12 @@ def simulate_capture(scene: Scene, output: Path, *, duration_s: float | None = N
             raise OptionError(f"--duration {duration_s:g} s is shorter than one readout ({1 / scene.rate_hz:g} s)")
         raise InputError(f"{scene.source or scene.name}: duration_s = {scene.duration_s:g} s is shorter than one readout at "
                          f"rate_hz = {scene.rate_hz:g} ({1 / scene.rate_hz:g} s)")
+    above, below = simulator.renderer.rows_past_panorama(simulator.total_readouts / scene.rate_hz)
+    if max(above, below) >= 1:
+        log.warning("%s: the view reaches %.0f panorama rows above the top and %.0f below the bottom of %s (%d rows), "
+                    "which show it mirrored; a smaller height, a larger zoom or another centre keeps it inside",
+                    scene.source or scene.name, above, below, scene.background.panorama,
+                    simulator.renderer.pano.shape[0])
     check_free_space(Path(output), size)
     chunk_readouts = max(1, min(chunk_readouts, CHUNK_PIXEL_READOUTS // (scene.width * scene.height)))
     with ExitStack() as stack:
