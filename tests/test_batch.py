@@ -123,6 +123,25 @@ def test_rerun_skips_complete_outputs_untouched_and_redoes_changed_options(tmp_p
     assert entries["b.dat"]["status"] == "skipped"
 
 
+def test_a_captures_folder_holding_the_users_files_is_not_replaced(tmp_path: Path) -> None:
+    """A batch replaces a capture's stale output folder as a whole; one that holds a file no run writes (here the
+    user's notes in the folder the capture's output is named after) fails with the file named and is left alone,
+    while the earlier outputs of another capture are replaced as before."""
+    capture(tmp_path / "in" / "a.dat")
+    capture(tmp_path / "in" / "b.dat", seed=1)
+    out = tmp_path / "out"
+    assert run("batch", tmp_path / "in", "-o", out, *GEOM, *EXR, "--method", "tfp", "--jobs", "1", "-q").exit_code == 0
+    (out / "a" / "notes.txt").write_text("mine")
+    result = run("batch", tmp_path / "in", "-o", out, *GEOM, *EXR, "--method", "tfp", "--step", "30", "--jobs", "1",
+                 "-q")
+    assert result.exit_code == 1
+    entries = report(out)
+    assert entries["a.dat"]["status"] == "failed"
+    assert "holds files this command does not write (notes.txt)" in entries["a.dat"]["error"]
+    assert (out / "a" / "notes.txt").read_text() == "mine" and len(list((out / "a").glob("*.exr"))) == 3
+    assert entries["b.dat"]["status"] == "ok" and len(list((out / "b").glob("*.exr"))) == 2
+
+
 def test_half_written_outputs_are_redone_never_taken_as_complete(tmp_path: Path) -> None:
     capture(tmp_path / "in" / "a.dat")
     capture(tmp_path / "in" / "b.dat", seed=1)

@@ -54,6 +54,36 @@ def test_rerun_is_refused_without_overwrite_and_replaces_whole_with_it(capture, 
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out.")]  # no staging left behind
 
 
+@pytest.mark.parametrize("overwrite", [[], ["--overwrite"]])
+def test_a_folder_with_the_users_own_files_is_never_replaced(capture, tmp_path, capsys, overwrite):
+    """--overwrite replaces the output folder as a whole: a folder holding anything a run does not write (a user's
+    notes, the capture itself) is refused, with or without it, and left as it was."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    (out / "c.dat").write_bytes(capture.read_bytes())
+    before = snapshot(out)
+    assert run(str(out / "c.dat"), "-o", str(out), "--method", "tfp", *overwrite, *GEOM) == 2
+    err = capsys.readouterr().err
+    assert "holds files this command does not write (c.dat, notes.txt)" in err and "Traceback" not in err
+    assert snapshot(out) == before
+
+
+def test_the_current_folder_is_refused_as_an_output_folder(capture, tmp_path, capsys, monkeypatch):
+    """``-o .`` (or a path to the current folder) would rename the folder the shell is in; it was a traceback for
+    ``.`` and, with ``--overwrite``, a path to it replaced the folder with the capture in it."""
+    here = tmp_path / "here"
+    here.mkdir()
+    monkeypatch.chdir(here)
+    for path in (".", str(here), "../here"):
+        assert run(str(capture), "-o", path, "--method", "tfp", "--overwrite", *GEOM) == 2
+        err = capsys.readouterr().err
+        assert f"{path}: is the current folder" in err and "Traceback" not in err, err
+    assert not list(here.iterdir()) and sorted(p.name for p in tmp_path.iterdir()) == ["c.dat", "here"]
+    assert run(str(capture), "-o", "out/.", "--method", "tfp", *GEOM) == 0  # a folder named with a dot works
+    assert sorted(p.name for p in (here / "out").iterdir()) == ["frames.csv", "frames.mp4"]
+
+
 def test_a_failing_overwrite_leaves_the_previous_output(capture, tmp_path):
     out = tmp_path / "out"
     run(str(capture), "-o", str(out), "--method", "tfp", "--format", "exr", *GEOM)

@@ -198,3 +198,16 @@ def test_rows_past_the_panorama_are_the_extremes_over_the_whole_scene(tmp_path: 
     assert above == pytest.approx(max(0.0, (half - cy).max()))
     assert below == pytest.approx(max(0.0, (cy + half - renderer.pano.shape[0]).max()))
     assert above > 0 and below > 0
+
+
+def test_ground_truth_replaces_an_earlier_ground_truth_but_not_a_folder_of_other_files(tmp_path: Path) -> None:
+    scene = str(write_scene(tmp_path, "binned"))
+    gt = tmp_path / "gt"
+    assert run([scene, "-o", str(tmp_path / "c.dat"), "--gt", str(gt), "--duration", "0.003"]).exit_code == 0
+    assert run([scene, "-o", str(tmp_path / "c.dat"), "--gt", str(gt), "--duration", "0.002"]).exit_code == 0
+    assert sorted(p.name for p in gt.iterdir()) == ["flow_000000.npy", "flow_000001.npy", "gt_000000.exr",
+                                                    "gt_000001.exr", "index.csv"]
+    (gt / "notes.txt").write_text("mine")
+    result = CliRunner().invoke(main, ["simulate", scene, "-o", str(tmp_path / "d.dat"), "--gt", str(gt)])
+    assert result.exit_code == 2 and "holds files this command does not write (notes.txt)" in result.output
+    assert len(list(gt.iterdir())) == 6 and not (tmp_path / "d.dat").exists()

@@ -11,7 +11,7 @@ import shutil
 import time
 from pathlib import Path
 
-from rmbvideo.batch.jobs import CaptureJob, CaptureResult
+from rmbvideo.batch.jobs import MARKER_NAME, CaptureJob, CaptureResult
 from rmbvideo.batch.markers import (
     fingerprint_digest,
     output_fingerprint,
@@ -19,7 +19,8 @@ from rmbvideo.batch.markers import (
     write_marker,
 )
 from rmbvideo.errors import OutputError, RmbvideoError
-from rmbvideo.io.atomic import signals_deferred
+from rmbvideo.io.atomic import check_replaceable, signals_deferred
+from rmbvideo.io.sinks import is_sink_output
 
 log = logging.getLogger(__name__)
 _OUTPUT_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS}
@@ -46,6 +47,7 @@ def run_capture_job(job: CaptureJob) -> CaptureResult:
             log.info("%s: complete in %s, skipped", job.input_path, job.output_dir)
             result.status, result.frames = "skipped", marker.get("frames")
             return result
+        check_replaceable(job.output_dir, _is_capture_output, overwrite=True)
         work = job.batch_dir / f".{job.name}.partial-{os.getpid()}-{secrets.token_hex(4)}"
         try:
             summary = run_reconstruction(job.input_path, work, **{**job.options, "progress": False})
@@ -103,6 +105,11 @@ def make_dir(path: Path) -> None:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError(f"{path}: cannot create folder: {exc.strerror or exc}") from exc
+
+
+def _is_capture_output(name: str) -> bool:
+    """A file an earlier run of a capture left in its folder: the sinks' outputs and the completion marker."""
+    return is_sink_output(name) or name == MARKER_NAME
 
 
 def _install(work: Path, final: Path) -> None:

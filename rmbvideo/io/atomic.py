@@ -10,7 +10,7 @@ from __future__ import annotations
 import errno
 import os
 import secrets
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -171,20 +171,42 @@ def raise_or_defer(exc: BaseException) -> None:
     raise exc
 
 
-@contextmanager
-def staged_folder(final: Path, overwrite: bool = False) -> Iterator[Path]:
-    """A fresh hidden folder beside ``final`` to write a whole output into; when the block ends
-    without error it replaces ``final`` (its previous content is removed only once the new one is in
-    place), otherwise it is deleted. At any moment ``final`` is absent, the previous complete output,
-    or the new complete output. An existing non-empty ``final`` is an ``OutputError`` unless
-    ``overwrite``. Stale staging folders of killed runs are removed first."""
-    import shutil
-
+def check_replaceable(final: Path, is_output: Callable[[str], bool], overwrite: bool) -> None:
+    """Refuse to replace ``final`` as a whole unless it is absent, empty, or (with ``overwrite``) holds
+    nothing but files ``is_output`` recognises by name: a user's own files, or the capture itself, are
+    never removed with it. The current folder is refused too (it would be renamed under the shell)."""
     final = Path(final)
     if final.exists() and not final.is_dir():
         raise OutputError(f"{final}: exists and is not a folder")
-    if final.is_dir() and any(final.iterdir()) and not overwrite:
+    if final.resolve() == Path.cwd().resolve():
+        raise OutputError(f"{final}: is the current folder; a run's outputs go into a folder of their own "
+                          "(replaced as a whole), e.g. -o out")
+    if not final.is_dir():
+        return
+    names = sorted(entry.name for entry in final.iterdir())
+    if not names:
+        return
+    foreign = [name for name in names if not is_output(name)]
+    if foreign:
+        shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
+        raise OutputError(f"{final}: holds files this command does not write ({shown}); the folder is replaced "
+                          "as a whole, so give a new or empty one")
+    if not overwrite:
         raise OutputError(f"{final}: holds earlier outputs; use --overwrite to replace them")
+
+
+@contextmanager
+def staged_folder(final: Path, is_output: Callable[[str], bool], overwrite: bool = False) -> Iterator[Path]:
+    """A fresh hidden folder beside ``final`` to write a whole output into; when the block ends
+    without error it replaces ``final`` (its previous content is removed only once the new one is in
+    place), otherwise it is deleted. At any moment ``final`` is absent, the previous complete output,
+    or the new complete output. ``final`` must pass ``check_replaceable`` (``is_output`` names the files
+    an earlier output may hold). Stale staging folders of killed runs are removed first."""
+    import shutil
+
+    shown = Path(final)
+    check_replaceable(shown, is_output, overwrite)
+    final = Path(os.path.abspath(shown))  # ".." and "a/." have no name to stage beside
     try:
         final.parent.mkdir(parents=True, exist_ok=True)
         remove_stale_staging(final)
@@ -192,7 +214,7 @@ def staged_folder(final: Path, overwrite: bool = False) -> Iterator[Path]:
         staging = final.with_name(f".{final.name}.partial-{token}")
         staging.mkdir()
     except OSError as exc:
-        raise output_error(final, exc) from exc
+        raise output_error(shown, exc) from exc
     try:
         yield staging
         old = final.with_name(f".{final.name}.old-{token}")
@@ -204,7 +226,7 @@ def staged_folder(final: Path, overwrite: bool = False) -> Iterator[Path]:
     except BaseException as exc:
         shutil.rmtree(staging, ignore_errors=True)
         if isinstance(exc, OSError) and is_environment_error(exc):
-            raise output_error(final, exc) from exc
+            raise output_error(shown, exc) from exc
         if isinstance(exc, OutputError) and str(staging) in str(exc):  # name the folder the user gave
-            raise OutputError(str(exc).replace(str(staging), str(final))) from exc
+            raise OutputError(str(exc).replace(str(staging), str(shown))) from exc
         raise

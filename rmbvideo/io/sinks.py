@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import struct
 import zlib
 from abc import ABC, abstractmethod
@@ -64,6 +65,15 @@ PLAYBACK_FPS_RANGE = (0.01, 10000.0)
 def frame_file_name(index: int, ext: str) -> str:
     """The file name of frame ``index`` in a per-frame sequence (``frame_000042.exr``)."""
     return f"frame_{index:06d}.{ext}"
+
+
+_SINK_OUTPUT = re.compile(r"frames\.(mp4|csv)|frame_\d{6,}\.(exr|png)")
+
+
+def is_sink_output(name: str) -> bool:
+    """Whether a file of this name is one a sink writes (``frames.mp4``, ``frames.csv``, ``frame_NNNNNN.exr``
+    or ``.png``): what an earlier run's folder may hold and ``--overwrite`` may replace."""
+    return _SINK_OUTPUT.fullmatch(name) is not None
 
 
 class FrameIndex:

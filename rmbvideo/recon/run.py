@@ -17,7 +17,7 @@ from rmbvideo.io.capture import capture_convention, open_capture
 from rmbvideo.io.dat import DatReader
 from rmbvideo.io.rmbfile import RmbFileReader
 from rmbvideo.io.sidecar import simulated_camera
-from rmbvideo.io.sinks import make_sink
+from rmbvideo.io.sinks import is_sink_output, make_sink
 from rmbvideo.io.tonemap import ToneMapConfig
 from rmbvideo.recon.full_resolution import FullResolution, detail_stage, raw_gate_stage
 from rmbvideo.recon.methods import DEFAULT_METHOD, get_method
@@ -180,5 +180,5 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
 
     if fmt == "null":
         return run_into(Path(outdir))
-    with staged_folder(Path(outdir), overwrite=overwrite) as staging:
+    with staged_folder(Path(outdir), is_sink_output, overwrite=overwrite) as staging:
         return run_into(staging)

@@ -168,7 +168,7 @@ def simulate_capture(scene: Scene, output: Path, *, duration_s: float | None = N
 
     from rmbvideo.io.atomic import staged_folder
     from rmbvideo.io.sidecar import CaptureInfo, write_sidecar
-    from rmbvideo.simulate.ground_truth import write_ground_truth
+    from rmbvideo.simulate.ground_truth import is_ground_truth_file, write_ground_truth
 
     simulator = CaptureSimulator(scene, duration_s)
     readout = scene.readout
@@ -195,7 +195,7 @@ def simulate_capture(scene: Scene, output: Path, *, duration_s: float | None = N
         gt_staging = None
         if gt_dir is not None:
             gt_dir = Path(gt_dir)
-            gt_staging = stack.enter_context(staged_folder(gt_dir, overwrite=(gt_dir / "index.csv").is_file()))
+            gt_staging = stack.enter_context(staged_folder(gt_dir, is_ground_truth_file, overwrite=True))
             try:
                 frames = write_ground_truth(simulator, gt_staging, gt_step)
             except OutputError as exc:  # name the folder the user gave, not the staging folder

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import io
+import re
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +22,14 @@ from rmbvideo.io.atomic import atomic_path, atomic_write_text
 from rmbvideo.io.exr import write_exr
 from rmbvideo.scenes.render import ground_truth, ground_truth_flow
 from rmbvideo.simulate.capture import CaptureSimulator
+
+
+_GROUND_TRUTH_FILE = re.compile(r"gt_\d{6,}\.exr|flow_\d{6,}\.npy|index\.csv")
+
+
+def is_ground_truth_file(name: str) -> bool:
+    """Whether a file of this name is one ``write_ground_truth`` writes (an earlier run's, replaceable)."""
+    return _GROUND_TRUTH_FILE.fullmatch(name) is not None
 
 
 def write_ground_truth(simulator: CaptureSimulator, gt_dir: Path, step: int) -> int:
