@@ -286,6 +286,8 @@ import os, signal, sys, time
 import click
 from rmbvideo.cli import LazyGroup
 
+signal.signal(signal.SIGINT, signal.default_int_handler)  # as on a terminal, also when the tests run in the background
+
 
 class Dropped:
     def __del__(self):  # Python prints and drops what is raised here, as in logging's at-fork hook

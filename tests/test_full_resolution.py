@@ -434,6 +434,7 @@ def test_detail_training_writes_a_loadable_stage_and_resumes(tmp_path: Path) -> 
 
     from rmbvideo.net.detail import DetailConfig
     from rmbvideo.net.weights import load_detail_model
+    from rmbvideo.errors import OutputError
     from rmbvideo.train.detail import DetailTrainConfig, train_detail
 
     from dataclasses import replace
@@ -449,6 +450,10 @@ def test_detail_training_writes_a_loadable_stage_and_resumes(tmp_path: Path) -> 
     resumed, card = load_detail_model(path)
     assert card.training["steps_done"] == 5
     assert any(not torch.equal(a, b) for a, b in zip(model.state_dict().values(), resumed.state_dict().values()))
+    with pytest.raises(OutputError, match="holds the checkpoint of an earlier run at step 5"):
+        train_detail(config, tmp_path)  # without resume, the checkpoint is not replaced
+    assert load_detail_model(train_detail(replace(config, steps=1), tmp_path, overwrite=True))[1].training[
+        "steps_done"] == 1
 
 
 def test_train_detail_cli_refuses_to_resume_a_checkpoint_of_another_width(tmp_path: Path) -> None:

@@ -346,6 +346,24 @@ def test_time_budget_stops_cleanly_and_still_saves(tmp_path):
     assert result.weights.is_file() and np.isfinite(result.metrics["val_mu_psnr"])
 
 
+def test_a_run_without_resume_is_refused_over_an_earlier_checkpoint(tmp_path):
+    """A forgotten --resume replaced the checkpoint (and the days of training it held) at its first save; now it is
+    refused with the step named, and --overwrite starts afresh over it."""
+    recipe = tmp_path / "tiny.toml"
+    recipe.write_text(TINY_RECIPE.format(steps=2))
+    out, cache = tmp_path / "out", tmp_path / "cache"
+    args = ["train", str(recipe), "--out", str(out), "--cache", str(cache), "-q"]
+    assert CliRunner().invoke(main, args).exit_code == 0
+    kept = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 2 and f"{out}: holds the checkpoint of an earlier run at step 2" in result.output
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == kept
+    assert CliRunner().invoke(main, [*args, "--resume", "--overwrite"]).exit_code == 2
+    recipe.write_text(TINY_RECIPE.format(steps=1))
+    assert CliRunner().invoke(main, [*args, "--overwrite"]).exit_code == 0
+    assert _csv_steps(out / "loss.csv") == [1]
+
+
 def test_resume_without_checkpoint_is_an_input_error(tmp_path):
     recipe = tmp_path / "tiny.toml"
     recipe.write_text(TINY_RECIPE.format(steps=1))

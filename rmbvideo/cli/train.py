@@ -26,6 +26,8 @@ from rmbvideo.cli.options import DEVICE_CHOICE, AliasOption
 @click.option("--cache", "cache_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Folder of cached training samples, shareable between runs (default: OUT/cache).")
 @click.option("--resume", is_flag=True, help="Continue from the checkpoint in --out.")
+@click.option("--overwrite", is_flag=True,
+              help="Start afresh in a folder that holds an earlier run's checkpoint (refused without it or --resume).")
 @click.option("--minutes", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Override the recipe's wall-time budget.")
 @click.option("--steps", type=click.IntRange(min=1), default=None,
@@ -43,7 +45,7 @@ from rmbvideo.cli.options import DEVICE_CHOICE, AliasOption
 @quiet_option
 @verbose_option
 def train(recipe: str | None, list_recipes: bool, out_dir: Path | None, cache_dir: Path | None, resume: bool,
-          minutes: float | None, steps: int | None, seed: int | None, workers: int | None, device: str,
+          overwrite: bool, minutes: float | None, steps: int | None, seed: int | None, workers: int | None, device: str,
           precision: str | None, quiet: bool) -> None:
     """Train RMB-Net from RECIPE (a .toml file or a bundled recipe name; --list shows the bundled ones)."""
     from rmbvideo.errors import InputError
@@ -77,7 +79,9 @@ def train(recipe: str | None, list_recipes: bool, out_dir: Path | None, cache_di
     elif device == "cuda" and not torch.cuda.is_available():
         raise InputError(f"--device {device}: no CUDA device is available")
     out_dir = out_dir if out_dir is not None else Path(f"train-{config.name}")
-    result = Trainer(config, out_dir, cache_dir=cache_dir, resume=resume,
+    if resume and overwrite:
+        raise click.UsageError("--resume and --overwrite exclude each other")
+    result = Trainer(config, out_dir, cache_dir=cache_dir, resume=resume, overwrite=overwrite,
                      progress=progress_enabled(quiet), device=device).run()
     click.echo(f"{result.weights}: {result.steps} steps in {result.elapsed_s / 60:.1f} min "
                f"(stopped by {result.stopped_by}); held-out mu-law PSNR {result.metrics['val_mu_psnr']:.2f} dB, "
@@ -90,6 +94,8 @@ def train(recipe: str | None, list_recipes: bool, out_dir: Path | None, cache_di
 @click.option("--minutes", type=click.FloatRange(min=0, min_open=True), default=25.0, show_default=True,
               help="Wall-time budget (with --resume: the whole run's, including the time already spent).")
 @click.option("--resume", is_flag=True, help="Continue from the checkpoint in --output.")
+@click.option("--overwrite", is_flag=True,
+              help="Start afresh in a folder that holds an earlier run's checkpoint (refused without it or --resume).")
 @click.option("--channels", type=click.IntRange(min=1), default=None,
               help="Width of the stage's 3x3 convolutions [default: DetailConfig's, 16]; the same when resuming.")
 @click.option("--layers", type=click.IntRange(min=2), default=None,
@@ -108,7 +114,7 @@ def train(recipe: str | None, list_recipes: bool, out_dir: Path | None, cache_di
                    "weights for them.")
 @quiet_option
 @verbose_option
-def train_detail(out_dir: Path, minutes: float, resume: bool, channels: int | None, layers: int | None,
+def train_detail(out_dir: Path, minutes: float, resume: bool, overwrite: bool, channels: int | None, layers: int | None,
                  init: Path | None, lr: float | None, mismatch: tuple[float, float] | None,
                  interval_windows: tuple[int, ...], quiet: bool) -> None:
     """Train the learned detail stage of --resolution full on simulated video scenes (CPU, one thread)."""
@@ -132,8 +138,10 @@ def train_detail(out_dir: Path, minutes: float, resume: bool, channels: int | No
         raise click.BadParameter(f"LOW {mismatch[0]} is above HIGH {mismatch[1]}", param_hint="--mismatch")
     options = {**({"lr": lr, "lr_final": lr / 10} if lr is not None else {}),
                **({"mismatch": tuple(mismatch)} if mismatch is not None else {})}
+    if resume and overwrite:
+        raise click.UsageError("--resume and --overwrite exclude each other")
     weights = run(DetailTrainConfig(detail=detail, minutes=minutes, **options), out_dir, resume=resume,
-                  progress=progress_enabled(quiet), init=init)
+                  overwrite=overwrite, progress=progress_enabled(quiet), init=init)
     click.echo(f"{weights}: install it as models/detail-binned.safetensors (+ .json) to use it")
 
 

@@ -16,7 +16,7 @@ import torch
 from safetensors import safe_open
 from safetensors.torch import save_file
 
-from rmbvideo.errors import InputError
+from rmbvideo.errors import InputError, OutputError
 from rmbvideo.io.atomic import atomic_path, atomic_write_text
 
 CHECKPOINT_FORMAT = "rmbvideo-train-checkpoint"
@@ -34,6 +34,21 @@ class CheckpointState:
 def checkpoint_paths(out_dir: Path) -> tuple[Path, Path]:
     """(tensors, metadata) paths of the checkpoint in ``out_dir``."""
     return out_dir / "checkpoint.safetensors", out_dir / "checkpoint.json"
+
+
+def refuse_to_restart_over(out_dir: Path) -> None:
+    """An ``OutputError`` if ``out_dir`` holds a checkpoint: a run started without --resume would replace it, and
+    with it the days of training it may hold, at its first save."""
+    tensor_path, meta_path = checkpoint_paths(out_dir)
+    if not tensor_path.exists() and not meta_path.exists():
+        return
+    try:
+        meta = json.loads(meta_path.read_text())
+        where = f" at step {int(meta['step'])}, {float(meta['elapsed_s']) / 60:.1f} min trained"
+    except (OSError, ValueError, KeyError, TypeError):
+        where = ""
+    raise OutputError(f"{out_dir}: holds the checkpoint of an earlier run{where}; --resume continues it, "
+                      "--overwrite starts afresh over it")
 
 
 def save_checkpoint(out_dir: Path, model: torch.nn.Module, optimizer: torch.optim.Adam,

@@ -37,6 +37,7 @@ from rmbvideo.train.checkpoint import (
     CheckpointState,
     checkpoint_paths,
     load_checkpoint,
+    refuse_to_restart_over,
     save_checkpoint,
 )
 from rmbvideo.train.dataset import RAW_RATE_HZ
@@ -154,12 +155,15 @@ def validate(model: DetailNet, samples: list[DetailSample], windows: tuple[int, 
 
 
 def train_detail(config: DetailTrainConfig, out_dir: Path, name: str = "detail-binned",
-                 resume: bool = False, progress: bool = False, init: Path | None = None) -> Path:
+                 resume: bool = False, progress: bool = False, init: Path | None = None, overwrite: bool = False) -> Path:
     """Train for ``config.minutes`` of wall time (a progress bar in seconds when ``progress``); write
     ``out_dir/<name>.safetensors`` + card and return it. ``init``: a detail stage's weights to start from (a fine-tune,
     with a fresh optimizer; its architecture must be ``config.detail``, or that with fewer ``interval_windows``:
-    then the new inputs start with zero weights, ``DetailNet.widened``)."""
+    then the new inputs start with zero weights, ``DetailNet.widened``). A checkpoint in ``out_dir`` is refused
+    unless ``resume`` or ``overwrite``."""
     out_dir = Path(out_dir)
+    if not resume and not overwrite:
+        refuse_to_restart_over(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(config.seed)
     model = DetailNet(config.detail)

@@ -44,6 +44,7 @@ from rmbvideo.train.checkpoint import (
     CheckpointState,
     checkpoint_paths,
     load_checkpoint,
+    refuse_to_restart_over,
     save_checkpoint,
 )
 from rmbvideo.train.batch import Batch, output_range
@@ -296,9 +297,11 @@ class Trainer:
     ``<name>.safetensors`` + ``<name>.json``. Samples are cached under ``cache_dir``."""
 
     def __init__(self, config: TrainConfig, out_dir: str | Path, cache_dir: str | Path | None = None,
-                 resume: bool = False, progress: bool = False, device: str = "cpu") -> None:
+                 resume: bool = False, progress: bool = False, device: str = "cpu", overwrite: bool = False) -> None:
         self.config = config
         self.out_dir = Path(out_dir)
+        if not resume and not overwrite:
+            refuse_to_restart_over(self.out_dir)
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self.cache = SampleCache(Path(cache_dir) if cache_dir is not None else self.out_dir / "cache",
                                  config.sample_spec())
@@ -374,7 +377,7 @@ class Trainer:
             state = load_checkpoint(self.out_dir, self.model, self.optimizer)
             log.info("resuming %s at step %d (%.1f min trained)", cfg.name, state.step, state.elapsed_s / 60)
         elif checkpoint_paths(self.out_dir)[1].exists():
-            log.info("%s: starting afresh over an existing checkpoint (use --resume to continue it)", self.out_dir)
+            log.info("%s: starting afresh over an existing checkpoint (--overwrite)", self.out_dir)
         log_writer = _LossLog(self.out_dir / "loss.csv", keep_until=state.step if self.resume else None)
         budget_s = cfg.minutes * 60.0
         step, elapsed = state.step, state.elapsed_s
