@@ -179,8 +179,8 @@ def check_replaceable(final: Path, is_output: Callable[[str], bool], overwrite: 
     if final.exists() and not final.is_dir():
         raise OutputError(f"{final}: exists and is not a folder")
     if final.resolve() == Path.cwd().resolve():
-        raise OutputError(f"{final}: is the current folder; a run's outputs go into a folder of their own "
-                          "(replaced as a whole), e.g. -o out")
+        raise OutputError(f"{final}: is the current folder; the outputs go into a folder of their own, replaced "
+                          "as a whole: name a new one")
     if not final.is_dir():
         return
     names = sorted(entry.name for entry in final.iterdir())

@@ -31,7 +31,8 @@ MID_NITS = 20.0
 NITS_PER_UNIT_RANGE = (200.0, 10000.0)
 LUMA_BLACK, LUMA_SPAN, CHROMA_NEUTRAL = 64, 876, 512  # 10-bit limited ("tv") range
 PREPARE_FRAMES = 8  # frames buffered to choose the exposure before encoding starts
-#: x265 refuses pictures under 16 pixels a side ("Image size is too small"), after the odd-size padding.
+#: x265 refuses pictures under 16 pixels a side ("Image size is too small"), after the odd-size padding
+#: (models/experiments/ffmpeg-limits/scan.py).
 HEVC_MIN_SIDE = 16
 _X265_CRF = 18
 # SMPTE ST 2084 constants

@@ -57,7 +57,7 @@ BT709_TAGS = ("-colorspace", "bt709", "-color_primaries", "bt709", "-color_trc",
               "-x264-params", "colorprim=bt709:transfer=bt709:colormatrix=bt709")
 # x264 constant-rate factor: 18 is visually lossless for 8-bit tone-mapped video.
 _X264_CRF = 18
-#: Playback rates the MP4 muxer and both encoders write correctly (scanned with this project's ffmpeg:
+#: Playback rates the MP4 muxer and both encoders write correctly (models/experiments/ffmpeg-limits/scan.py:
 #: 1e-5 fps is refused at the muxer, 1e6 by x265, and durations past 1e4 fps round to nothing).
 PLAYBACK_FPS_RANGE = (0.01, 10000.0)
 
@@ -67,13 +67,14 @@ def frame_file_name(index: int, ext: str) -> str:
     return f"frame_{index:06d}.{ext}"
 
 
-_SINK_OUTPUT = re.compile(r"frames\.(mp4|csv)|frame_\d{6,}\.(exr|png)")
+DEFAULT_STEM = "frames"
 
 
-def is_sink_output(name: str) -> bool:
-    """Whether a file of this name is one a sink writes (``frames.mp4``, ``frames.csv``, ``frame_NNNNNN.exr``
-    or ``.png``): what an earlier run's folder may hold and ``--overwrite`` may replace."""
-    return _SINK_OUTPUT.fullmatch(name) is not None
+def is_sink_output(name: str, stem: str = DEFAULT_STEM) -> bool:
+    """Whether a file of this name is one a sink writes (``<stem>.mp4``, ``<stem>.csv``, ``frame_NNNNNN.exr``
+    or ``.png``, as ``frame_file_name`` names them): what an earlier run's folder may hold and ``--overwrite``
+    may replace."""
+    return re.fullmatch(rf"{re.escape(stem)}\.(mp4|csv)|frame_\d{{6,}}\.(exr|png)", name) is not None
 
 
 class FrameIndex:
@@ -428,7 +429,7 @@ class SinkOptions:
     fps: float = 30.0
     tonemap: ToneMapConfig = field(default_factory=ToneMapConfig)
     exr_dtype: ExrDtype = "half"
-    stem: str = "frames"
+    stem: str = DEFAULT_STEM
     capture_rate_hz: float | None = None
     frame_rate_hz: float | None = None
     mp4_pixel_format: Mp4PixelFormat = "auto"

@@ -177,7 +177,8 @@ class SceneRenderer:
 
     def rows_past_panorama(self, t_end: float) -> tuple[float, float]:
         """Panorama rows the view reaches above the top and below the bottom over [0, t_end], where
-        the panorama is mirrored (the extremes lie at the ends: the view's edges are monotone or convex in t)."""
+        the panorama is mirrored. Both reaches (``h / 2 / zoom(t) -+ cy(t)`` past an edge) are convex in t, so
+        their maxima lie at the ends."""
         above = below = 0.0
         for t in (0.0, t_end):
             _, cy, zoom = self.camera(t)
