@@ -204,10 +204,34 @@ def test_ground_truth_replaces_an_earlier_ground_truth_but_not_a_folder_of_other
     scene = str(write_scene(tmp_path, "binned"))
     gt = tmp_path / "gt"
     assert run([scene, "-o", str(tmp_path / "c.dat"), "--gt", str(gt), "--duration", "0.003"]).exit_code == 0
-    assert run([scene, "-o", str(tmp_path / "c.dat"), "--gt", str(gt), "--duration", "0.002"]).exit_code == 0
+    again = CliRunner().invoke(main, ["simulate", scene, "-o", str(tmp_path / "e.dat"), "--gt", str(gt)])
+    assert again.exit_code == 2 and "holds earlier outputs; use --overwrite" in again.output
+    assert run([scene, "-o", str(tmp_path / "c.dat"), "--gt", str(gt), "--duration", "0.002", "--overwrite"]).exit_code == 0
     assert sorted(p.name for p in gt.iterdir()) == ["flow_000000.npy", "flow_000001.npy", "gt_000000.exr",
                                                     "gt_000001.exr", "index.csv"]
     (gt / "notes.txt").write_text("mine")
     result = CliRunner().invoke(main, ["simulate", scene, "-o", str(tmp_path / "d.dat"), "--gt", str(gt)])
     assert result.exit_code == 2 and "holds files this command does not write (notes.txt)" in result.output
     assert len(list(gt.iterdir())) == 6 and not (tmp_path / "d.dat").exists()
+
+
+def test_an_existing_capture_is_replaced_only_with_overwrite(tmp_path: Path) -> None:
+    """A real capture at -o is never replaced by a simulated one unasked (the .dat, or an RMB capture's .mbit);
+    a missing folder is named."""
+    capture = tmp_path / "real.dat"
+    capture.write_bytes(b"\x01" * 4000)
+    scene = str(write_scene(tmp_path, "binned"))
+    refused = CliRunner().invoke(main, ["simulate", scene, "-o", str(capture), "-q"])
+    assert refused.exit_code == 2 and f"{capture}: exists; use --overwrite to replace it" in refused.output
+    assert capture.read_bytes() == b"\x01" * 4000 and not capture.with_suffix(".capture.json").exists()
+    assert run([scene, "-o", str(capture), "-q", "--overwrite"]).exit_code == 0
+    assert capture.stat().st_size != 4000 and capture.with_suffix(".capture.json").exists()
+
+    rmb = str(write_scene(tmp_path, "rmb"))
+    (tmp_path / "cam.mbit").write_bytes(b"mine")
+    refused = CliRunner().invoke(main, ["simulate", rmb, "-o", str(tmp_path / "cam.dat"), "-q"])
+    assert refused.exit_code == 2 and "cam.mbit: exists; use --overwrite" in refused.output
+    assert (tmp_path / "cam.mbit").read_bytes() == b"mine" and not (tmp_path / "cam.dat").exists()
+
+    missing = CliRunner().invoke(main, ["simulate", scene, "-o", str(tmp_path / "no" / "x.dat"), "-q"])
+    assert missing.exit_code == 2 and f"folder {tmp_path / 'no'} does not exist" in missing.output

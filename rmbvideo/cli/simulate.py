@@ -33,11 +33,14 @@ log = logging.getLogger(__name__)
               help="Simulate only the first S seconds of the scene.")
 @click.option("--chunk", "chunk_readouts", type=click.IntRange(min=1), default=64, show_default=True,
               help="Readouts simulated and written per chunk (memory vs. overhead; no effect on results).")
+@click.option("--overwrite", is_flag=True,
+              help="Replace an existing capture at -o, and earlier ground truth in --gt.")
 @quiet_option
 @verbose_option
 @click.option("--list", "list_scenes", is_flag=True, help="List bundled scenes and exit.")
 def simulate(scene_name: str | None, output: Path | None, gt_dir: Path | None, gt_step: int,
-             duration_s: float | None, chunk_readouts: int, quiet: bool, list_scenes: bool) -> None:
+             duration_s: float | None, chunk_readouts: int, overwrite: bool, quiet: bool,
+             list_scenes: bool) -> None:
     """Simulate a spiking-camera capture of SCENE (a bundled name or a TOML file)."""
     from rmbvideo.scenes.scene import bundled_scenes, resolve_scene
 
@@ -52,6 +55,6 @@ def simulate(scene_name: str | None, output: Path | None, gt_dir: Path | None, g
 
     try:
         simulate_capture(resolve_scene(scene_name), output, duration_s=duration_s, gt_dir=gt_dir, gt_step=gt_step,
-                         chunk_readouts=chunk_readouts, progress=progress_enabled(quiet))
+                         chunk_readouts=chunk_readouts, progress=progress_enabled(quiet), overwrite=overwrite)
     except OptionError as exc:
         raise click.UsageError(str(exc)) from None

@@ -159,11 +159,28 @@ def check_free_space(output: Path, needed: int) -> None:
                           "free; shorten it with --duration")
 
 
+def check_capture_writable(output: Path, overwrite: bool) -> None:
+    """``OutputError`` up front when ``output``'s folder is missing, or a capture (``.dat`` or ``.mbit``) is
+    already there and ``overwrite`` is not given: a real capture is never replaced by a simulated one unasked."""
+    from rmbvideo.io.rmbfile import mbit_path
+
+    output = Path(output)
+    if output.is_dir():
+        raise OutputError(f"{output}: is a folder; name the capture file to write (e.g. {output / 'capture.dat'})")
+    if not output.parent.is_dir():
+        raise OutputError(f"{output}: cannot write: folder {output.parent} does not exist")
+    existing = [path for path in (output, mbit_path(output)) if path.exists()]
+    if existing and not overwrite:
+        raise OutputError(f"{existing[0]}: exists; use --overwrite to replace it")
+
+
 def simulate_capture(scene: Scene, output: Path, *, duration_s: float | None = None, gt_dir: Path | None = None,
-                     gt_step: int = 20, chunk_readouts: int = 64, progress: bool = False) -> CaptureSimulator:
+                     gt_step: int = 20, chunk_readouts: int = 64, progress: bool = False,
+                     overwrite: bool = False) -> CaptureSimulator:
     """Simulate ``scene`` into ``output`` (``.dat``, ``.mbit`` for multi-bit readouts, and the
     ``.capture.json`` sidecar other commands read), and its ground truth into ``gt_dir`` if given
-    (``rmbvideo.simulate.ground_truth``). Returns the simulator (its renderer gives exact frames)."""
+    (``rmbvideo.simulate.ground_truth``). Returns the simulator (its renderer gives exact frames).
+    An existing capture at ``output``, or earlier ground truth in ``gt_dir``, is replaced only with ``overwrite``."""
     from tqdm import tqdm
 
     from rmbvideo.io.atomic import staged_folder
@@ -187,6 +204,11 @@ def simulate_capture(scene: Scene, output: Path, *, duration_s: float | None = N
                     "which show it mirrored; a smaller height, a larger zoom or another centre keeps it inside",
                     scene.source or scene.name, above, below, scene.background.panorama,
                     simulator.renderer.pano.shape[0])
+    check_capture_writable(Path(output), overwrite)
+    if gt_dir is not None:
+        from rmbvideo.io.atomic import check_replaceable
+
+        check_replaceable(Path(gt_dir), is_ground_truth_file, overwrite)
     check_free_space(Path(output), size)
     chunk_readouts = max(1, min(chunk_readouts, CHUNK_PIXEL_READOUTS // (scene.width * scene.height)))
     with ExitStack() as stack:
@@ -195,7 +217,7 @@ def simulate_capture(scene: Scene, output: Path, *, duration_s: float | None = N
         gt_staging = None
         if gt_dir is not None:
             gt_dir = Path(gt_dir)
-            gt_staging = stack.enter_context(staged_folder(gt_dir, is_ground_truth_file, overwrite=True))
+            gt_staging = stack.enter_context(staged_folder(gt_dir, is_ground_truth_file, overwrite))
             try:
                 frames = write_ground_truth(simulator, gt_staging, gt_step)
             except OutputError as exc:  # name the folder the user gave, not the staging folder
