@@ -45,7 +45,8 @@ def bench_simulate(scene_name: str = "demo", duration_s: float = 0.02, repeats: 
     expected = simulator.expected_photo(0)
     times: dict[str, list[float]] = {"simulator": [], "reference": []}
     with tempfile.TemporaryDirectory(prefix="rmbvideo-bench-sim-") as folder:
-        work = {"simulator": lambda: simulate_capture(scene, Path(folder) / "capture.dat", duration_s=duration_s),
+        work = {"simulator": lambda: simulate_capture(scene, Path(folder) / "capture.dat", duration_s=duration_s,
+                                                      overwrite=True),
                 "reference": lambda: reference_emission(expected, readouts, scene.sensor.q_r)}
         for rep in range(repeats):
             for name in (list(work) if rep % 2 == 0 else list(work)[::-1]):
