@@ -205,10 +205,6 @@ def simulate_capture(scene: Scene, output: Path, *, duration_s: float | None = N
                     scene.source or scene.name, above, below, scene.background.panorama,
                     simulator.renderer.pano.shape[0])
     check_capture_writable(Path(output), overwrite)
-    if gt_dir is not None:
-        from rmbvideo.io.atomic import check_replaceable
-
-        check_replaceable(Path(gt_dir), is_ground_truth_file, overwrite)
     check_free_space(Path(output), size)
     chunk_readouts = max(1, min(chunk_readouts, CHUNK_PIXEL_READOUTS // (scene.width * scene.height)))
     with ExitStack() as stack:
