@@ -235,3 +235,8 @@ def test_an_existing_capture_is_replaced_only_with_overwrite(tmp_path: Path) -> 
 
     missing = CliRunner().invoke(main, ["simulate", scene, "-o", str(tmp_path / "no" / "x.dat"), "-q"])
     assert missing.exit_code == 2 and f"folder {tmp_path / 'no'} does not exist" in missing.output
+    from rmbvideo.errors import OutputError
+    from rmbvideo.simulate.capture import simulate_capture
+
+    with pytest.raises(OutputError, match="is a folder; name the capture file"):  # the library's callers: no click check
+        simulate_capture(load_scene(Path(scene)), tmp_path, duration_s=0.001)
