@@ -224,3 +224,9 @@ def test_bench_profile_writes_the_engine_profile_of_a_real_run(tmp_path) -> None
     assert "end to end, unprofiled" in result.output
     bad = CliRunner().invoke(main, ["bench", "profile", "--size", "33x32"])
     assert bad.exit_code != 0 and "even raw size" in bad.output
+    again = CliRunner().invoke(main, ["bench", "profile", "--size", "32x32", "-o", str(out)])  # refused up front
+    assert again.exit_code == 2 and "exists; use --overwrite" in again.output and out.read_text() == text
+    capture = tmp_path / "cap.dat"
+    capture.write_bytes(b"\x01" * 64)
+    wrong = CliRunner().invoke(main, ["bench", "profile", "--size", "32x32", "-o", str(capture), "--overwrite"])
+    assert wrong.exit_code == 2 and "writes .md" in wrong.output and capture.read_bytes() == b"\x01" * 64

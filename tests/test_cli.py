@@ -107,6 +107,25 @@ def test_info_json_and_preview(tmp_path: Path) -> None:
     assert sheet.shape == (2 * 48, 3 * 64)
 
 
+def test_preview_never_writes_over_a_capture_or_an_earlier_file_unasked(tmp_path: Path) -> None:
+    """``-o`` must name a .png: naming the capture itself (or any other file) is refused before anything is read,
+    the file kept byte for byte; an existing preview is replaced only with --overwrite."""
+    dat = small_capture(tmp_path / "cap.dat", planes=50)
+    before = dat.read_bytes()
+    result = run("preview", dat, "-o", dat, *GEOM)
+    assert result.exit_code == 2 and "writes .png" in result.output and dat.read_bytes() == before
+    result = run("preview", dat, "-o", tmp_path / "sheet.jpg", *GEOM)
+    assert result.exit_code == 2 and not (tmp_path / "sheet.jpg").exists()
+    png = tmp_path / "Sheet.PNG"
+    png.write_bytes(b"mine")
+    result = run("preview", dat, "-o", png, *GEOM)
+    assert result.exit_code == 2 and "exists; use --overwrite" in result.output and png.read_bytes() == b"mine"
+    assert run("preview", dat, "-o", png, *GEOM, "--overwrite").exit_code == 0
+    assert iio.imread(png).shape == (2 * 48, 3 * 64)
+    result = run("preview", dat, "-o", tmp_path / "missing" / "sheet.png", *GEOM)
+    assert result.exit_code == 2 and "folder" in result.output and "does not exist" in result.output
+
+
 def test_info_counts_the_pixels_that_fire_every_plane(tmp_path: Path) -> None:
     """A lamp that fires every plane (an eighth of the frame) is reported as saturated; pixels bright enough to fire
     in 90 % of the planes are not; a capture too short to tell says so."""

@@ -9,6 +9,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from rmbvideo.errors import OutputError
 from rmbvideo.evaluate.heldout import HeldoutConfig, simulate_sequence
 from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.model import RmbNet
@@ -173,6 +174,11 @@ def test_fitting_writes_a_gate_that_loads_and_refuses_evaluation_seeds(tmp_path:
     weights = fit_raw_gate(recipe, tmp_path / "gate.safetensors", model=_tiny_model(tmp_path / "m.safetensors"))
     gate, card = load_raw_gate(weights)
     assert gate.config == recipe.gate and len(card.data["captures"]) == 1 and "TFI-8" in card.description
+    with pytest.raises(OutputError, match="exists; use --overwrite"):  # refused before the fit: no model is opened
+        fit_raw_gate(recipe, weights, model=tmp_path / "absent.safetensors")
+    (tmp_path / "other.json").write_text("{}")  # a card alone is somebody's too
+    with pytest.raises(OutputError, match="other.json: exists"):
+        fit_raw_gate(recipe, tmp_path / "other", model=tmp_path / "absent.safetensors")
     assert np.isfinite([card.metrics["fit_mse"], card.metrics["fit_mse_without_gate"]]).all()
     with pytest.raises(ValueError, match="evaluation seed"):
         simulate_sequence(EVAL_SEED_START, TINY, training=True)

@@ -239,18 +239,20 @@ def sizes(device: str, sizes: tuple[str, ...], frames: int, frame_batches: tuple
                    "targets count), full adds the raw stream's detail.")
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("profile.md"), show_default=True,
               help="Markdown file for the summary and the tables.")
+@click.option("--overwrite", is_flag=True, help="Replace an existing file at -o.")
 def profile(device: str, size: str, frames: int, precision: str, threads: int | None, resolution: str,
-            output: Path) -> None:
+            output: Path, overwrite: bool) -> None:
     """Where an end-to-end RMB-Net run's time goes, by operation (torch.profiler; on a GPU kernels and copies too),
     and the main thread's Python (cProfile)."""
     import torch
 
     from rmbvideo.bench.profile import profile_engine
     from rmbvideo.errors import InputError
-    from rmbvideo.io.atomic import atomic_write_text
+    from rmbvideo.io.atomic import atomic_write_text, check_file_writable
 
     if device == "cuda" and not torch.cuda.is_available():
         raise InputError("--device cuda: no CUDA device is available")
+    check_file_writable(output, overwrite, suffixes=(".md",))
     width, height = _size(size)
     result = profile_engine(device, width, height, frames=frames, precision=precision, threads=threads,
                             resolution=resolution)

@@ -149,6 +149,7 @@ def train_detail(out_dir: Path, minutes: float, resume: bool, overwrite: bool, c
 @click.option("-o", "--output", "out", type=click.Path(dir_okay=False, path_type=Path),
               default=Path("raw-gate.safetensors"), show_default=True,
               help="Weights to write (+ .json card beside them).")
+@click.option("--overwrite", is_flag=True, help="Replace existing weights (and card) at -o.")
 @click.option("--model", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="The binned RMB-Net the gate is fitted to (default: the shipped one).")
 @click.option("--steps", type=click.IntRange(min=1), default=None, help="Adam steps [default: the recipe's, 32000].")
@@ -185,7 +186,7 @@ def train_detail(out_dir: Path, minutes: float, resume: bool, overwrite: bool, c
               help="Crops a step for a gate with --kernel above 1 [default: the recipe's, 16].")
 @quiet_option
 @verbose_option
-def train_raw_gate(out: Path, model: Path | None, steps: int | None, seed: int | None, loss: str | None,
+def train_raw_gate(out: Path, overwrite: bool, model: Path | None, steps: int | None, seed: int | None, loss: str | None,
                    display_videos: int | None, display_scenes: int | None, still_scenes: int | None,
                    tfi_window: int | None, long_window: int | None, frame_features: bool | None, pixels: int | None,
                    restarts: int | None, kernel: int | None, lr: float | None, batch: int | None, quiet: bool) -> None:
@@ -208,5 +209,5 @@ def train_raw_gate(out: Path, model: Path | None, steps: int | None, seed: int |
     except ValueError as error:
         hint = "--kernel" if "kernel" in str(error) else "--long-window"
         raise click.BadParameter(str(error), param_hint=hint) from None
-    weights = fit_raw_gate(recipe, out, model=model, progress=progress_enabled(quiet))
+    weights = fit_raw_gate(recipe, out, model=model, progress=progress_enabled(quiet), overwrite=overwrite)
     click.echo(f"{weights}: install it as models/raw-gate.safetensors (+ .json) to use it")

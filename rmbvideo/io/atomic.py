@@ -171,6 +171,22 @@ def raise_or_defer(exc: BaseException) -> None:
     raise exc
 
 
+def check_file_writable(path: Path, overwrite: bool, suffixes: tuple[str, ...] = ()) -> None:
+    """``OutputError`` up front, before any long work, when ``path`` cannot be the one file a command writes: a
+    folder, a missing folder, a name not ending in one of ``suffixes`` (any case), or an existing file when
+    ``overwrite`` is not given (a capture named by mistake is never replaced by a picture or a report)."""
+    path = Path(path)
+    if path.is_dir():
+        example = path / f"output{suffixes[0] if suffixes else ''}"
+        raise OutputError(f"{path}: is a folder; name the file to write (e.g. {example})")
+    if suffixes and not path.name.lower().endswith(tuple(suffix.lower() for suffix in suffixes)):
+        raise OutputError(f"{path}: this command writes {' or '.join(suffixes)}; name the file so")
+    if not path.parent.is_dir():
+        raise OutputError(f"{path}: cannot write: folder {path.parent} does not exist")
+    if path.exists() and not overwrite:
+        raise OutputError(f"{path}: exists; use --overwrite to replace it")
+
+
 def check_replaceable(final: Path, is_output: Callable[[str], bool], overwrite: bool) -> None:
     """Refuse to replace ``final`` as a whole unless it is absent, empty, or (with ``overwrite``) holds
     nothing but files ``is_output`` recognises by name: a user's own files, or the capture itself, are

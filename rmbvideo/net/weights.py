@@ -132,7 +132,8 @@ class ModelCard:
     code_version: str = __version__
 
 
-def _paths(path: str | os.PathLike[str]) -> tuple[Path, Path]:
+def model_paths(path: str | os.PathLike[str]) -> tuple[Path, Path]:
+    """The weights file (``.safetensors`` added if missing) and the JSON card beside it that ``path`` names."""
     weights = Path(path)
     if weights.suffix != ".safetensors":
         weights = weights.with_name(weights.name + ".safetensors")
@@ -141,7 +142,7 @@ def _paths(path: str | os.PathLike[str]) -> tuple[Path, Path]:
 
 def save_model(path: str | os.PathLike[str], model: RmbNet | DetailNet | RawGate, card: ModelCard) -> Path:
     """Write ``path`` (.safetensors added if missing) and its JSON card; returns the weights path."""
-    weights, card_path = _paths(path)
+    weights, card_path = model_paths(path)
     tensors = {k: v.detach().to("cpu").contiguous() for k, v in model.state_dict().items()}
     card_format = next(name for name, (_, _, kind) in _KINDS.items() if isinstance(model, kind))
     document = {
@@ -331,7 +332,7 @@ def load_raw_gate(path: str | os.PathLike[str], device: str | torch.device = "cp
 
 def _load(path: str | os.PathLike[str], card_format: str, device: str | torch.device,
           expect_input_mode: str | None = None) -> tuple[Any, ModelCard]:
-    weights, card_path = _paths(path)
+    weights, card_path = model_paths(path)
     if not weights.is_file():
         raise ModelError(f"{weights}: model file not found")
     if not card_path.is_file():

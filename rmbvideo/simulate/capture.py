@@ -162,16 +162,14 @@ def check_free_space(output: Path, needed: int) -> None:
 def check_capture_writable(output: Path, overwrite: bool) -> None:
     """``OutputError`` up front when ``output``'s folder is missing, or a capture (``.dat`` or ``.mbit``) is
     already there and ``overwrite`` is not given: a real capture is never replaced by a simulated one unasked."""
+    from rmbvideo.io.atomic import check_file_writable
     from rmbvideo.io.rmbfile import mbit_path
 
     output = Path(output)
-    if output.is_dir():
-        raise OutputError(f"{output}: is a folder; name the capture file to write (e.g. {output / 'capture.dat'})")
-    if not output.parent.is_dir():
-        raise OutputError(f"{output}: cannot write: folder {output.parent} does not exist")
-    existing = [path for path in (output, mbit_path(output)) if path.exists()]
-    if existing and not overwrite:
-        raise OutputError(f"{existing[0]}: exists; use --overwrite to replace it")
+    check_file_writable(output, overwrite)
+    mbit = mbit_path(output)
+    if mbit.exists() and not overwrite:
+        raise OutputError(f"{mbit}: exists; use --overwrite to replace it")
 
 
 def simulate_capture(scene: Scene, output: Path, *, duration_s: float | None = None, gt_dir: Path | None = None,

@@ -29,9 +29,10 @@ from rmbvideo.evaluate.harness import SATURATION, MethodSpec, run_frames, sequen
 from rmbvideo.evaluate.heldout import (FULL, VIDEO_KINDS, HeldoutConfig, Sequence, VideoHeldout, simulate_sequence,
                                        simulate_video_sequence)
 from rmbvideo.evaluate.metrics import robust_scale
+from rmbvideo.io.atomic import check_file_writable
 from rmbvideo.mulaw import mu_law
 from rmbvideo.net.raw_gate import RawGate, RawGateConfig, gate_features
-from rmbvideo.net.weights import ModelCard, default_model_path, model_readout, save_model
+from rmbvideo.net.weights import ModelCard, default_model_path, model_paths, model_readout, save_model
 from rmbvideo.scenes.video import VideoSceneRanges
 
 log = logging.getLogger(__name__)
@@ -306,9 +307,13 @@ def fit_gate(samples: GateSamples, recipe: RawGateRecipe, progress: bool = False
     return gate, metrics
 
 
-def fit_raw_gate(recipe: RawGateRecipe, out: Path, model: Path | None = None, progress: bool = False) -> Path:
+def fit_raw_gate(recipe: RawGateRecipe, out: Path, model: Path | None = None, progress: bool = False,
+                 overwrite: bool = False) -> Path:
     """Simulate the recipe's captures, fit the gate to ``model`` (the shipped binned RMB-Net when None) and save it
-    as ``out`` (.safetensors + card); returns the weights path."""
+    as ``out`` (.safetensors + card); returns the weights path. Existing weights or card at ``out`` are refused
+    before the fit unless ``overwrite``."""
+    for path in model_paths(out):
+        check_file_writable(path, overwrite)
     model = model or default_model_path("binned")
     began = time.perf_counter()
     samples = gather_samples(recipe, model, progress)
