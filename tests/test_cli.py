@@ -235,6 +235,13 @@ def test_native_rmb_capture_reconstructs_without_binning(tmp_path: Path) -> None
     assert len(rows) == 80 // 10  # one frame per N = 10 native readouts, full resolution
     image, _ = read_exr(out / rows[3]["file"])
     assert image.shape == (32, 48) and np.isfinite(image).all() and image.max() > 0
+    record = json.loads(run("info", dat, "--json").stdout)  # info says what the .mbit holds
+    assert record["multi_bit"] == {"file": str(tmp_path / "native.mbit"), "bits": 3, "level": 7, "band_rows": 4,
+                                   "band_shift": 2}
+    assert json.loads(run("info", small_capture(tmp_path / "plain.dat"), *GEOM, "--json").stdout)["multi_bit"] is None
+    proc = subprocess.run([sys.executable, "-m", "rmbvideo", "info", str(dat), "--width", "64", "--height", "32"],
+                          capture_output=True, text=True)  # the header fixes the geometry: a given one is not used
+    assert proc.returncode == 0 and "--width ignored" in proc.stderr and "48x32" in proc.stdout
 
 
 def test_rmbnet_window_selects_a_shipped_model_or_refuses(tmp_path: Path) -> None:

@@ -10,6 +10,8 @@ import click
 from rmbvideo.cli import verbose_option
 from rmbvideo.cli.options import capture_options
 from rmbvideo.io.capture import capture_convention, open_capture
+from rmbvideo.io.dat import DatReader
+from rmbvideo.io.rmbfile import RmbFileReader
 
 
 #: What ``capture_convention`` says of a capture's pixel (its sidecar's record, or the pile-up test), in words.
@@ -49,6 +51,7 @@ def info(input_path: Path, width, height, flip, header_cols, rate_hz, as_json: b
         "saturated_fraction": reader.saturated_fraction(),
         "trailing_bytes": reader.trailing_bytes,
         "pixel": capture_convention(reader, input_path),  # what `reconstruct --convention auto` reads it as
+        "multi_bit": multi_bit_record(reader),
     }
     if as_json:
         click.echo(json.dumps(record))
@@ -65,6 +68,21 @@ def info(input_path: Path, width, height, flip, header_cols, rate_hz, as_json: b
                                      f"{100 * saturated:.1f} % of pixels fire every plane (light there is clipped)"))
     click.echo(f"trailing bytes  {record['trailing_bytes']}")
     click.echo(f"pixel           {PIXEL_WORDS[record['pixel']]}")
+    multi_bit = record["multi_bit"]
+    if multi_bit is not None:
+        rows = ("every row" if multi_bit["band_rows"] is None else
+                f"a band of {multi_bit['band_rows']} rows moving {multi_bit['band_shift']} a readout")
+        click.echo(f"multi-bit       {multi_bit['file']}: {multi_bit['bits']}-bit values (up to {multi_bit['level']}) "
+                   f"of {rows}; reconstruct reads the pair natively (full resolution; by default RMB-Net's native model)")
+
+
+def multi_bit_record(reader: DatReader | RmbFileReader) -> dict | None:
+    """What a native multi-bit capture's ``.mbit`` holds (None for a 1-bit capture)."""
+    if not isinstance(reader, RmbFileReader):
+        return None
+    band = reader.readout
+    return {"file": str(reader.mbit), "bits": reader.bits, "level": reader.level,
+            "band_rows": None if band is None else band.band, "band_shift": None if band is None else band.shift}
 
 
 def show_geometry_guesses(input_path: Path, as_json: bool) -> None:

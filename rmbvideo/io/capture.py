@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -12,6 +13,8 @@ from rmbvideo.io.dat import DatGeometry, DatReader
 from rmbvideo.io.rmbfile import RmbFileReader, mbit_path
 from rmbvideo.io.sidecar import read_sidecar, simulated_camera
 from rmbvideo.sensor.conventions import PILE_UP_WINDOW, PILE_UP_WINDOWS, convention_from_spikes
+
+log = logging.getLogger(__name__)
 
 DEFAULT_WIDTH, DEFAULT_HEIGHT, DEFAULT_RATE_HZ = 400, 250, 20000.0
 
@@ -24,7 +27,14 @@ def open_capture(path: Path, width: int | None = None, height: int | None = None
     ``rmbvideo.io.rmbfile``) opens as an ``RmbFileReader``, whose header fixes its geometry.
     """
     if Path(path).is_file() and mbit_path(Path(path)).is_file():
-        return RmbFileReader(Path(path))
+        reader = RmbFileReader(Path(path))
+        given = {"--width": (width, reader.width), "--height": (height, reader.height), "--flip": (flip, reader.flip),
+                 "--header-cols": (header_cols, 0), "--rate": (rate_hz, reader.rate_hz)}
+        ignored = [name for name, (option, fixed) in given.items() if option is not None and option != fixed]
+        if ignored:
+            log.warning("%s: %s ignored: the header of %s fixes the capture's geometry and rate (%dx%d at %g Hz)",
+                        path, ", ".join(ignored), reader.mbit.name, reader.width, reader.height, reader.rate_hz)
+        return reader
 
     info = read_sidecar(Path(path)).override(width=width, height=height, flip=flip,
                                              header_cols=header_cols, rate_hz=rate_hz)
