@@ -51,12 +51,36 @@ def die_with_parent() -> None:
         pass
 
 
+#: Whether this worker process is running a capture now (set by ``run_in_worker``).
+_capture_running = False
+
+
+def _worker_interrupted(signum: int, frame: Any) -> None:
+    """SIGINT in a worker (a terminal's Ctrl-C reaches the whole process group): a running capture is interrupted
+    and cleans up as in the batch's own process; an idle worker leaves quietly, not with a traceback."""
+    if _capture_running:
+        raise KeyboardInterrupt
+    raise SystemExit(128 + signum)
+
+
 def start_worker(threads: int) -> None:
-    """Initialiser of a batch worker process: dies with the batch, uses ``threads`` threads and the allocator policy
-    of every command."""
+    """Initialiser of a batch worker process: dies with the batch, is interrupted as above, uses ``threads``
+    threads and the allocator policy of every command."""
     die_with_parent()
+    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:  # a batch started with Ctrl-C ignored keeps it so
+        signal.signal(signal.SIGINT, _worker_interrupted)
     limit_threads(threads)
     keep_freed_memory()
+
+
+def run_in_worker(job: CaptureJob) -> CaptureResult:
+    """``run_capture_job`` in a worker process, marked as running for its SIGINT handler."""
+    global _capture_running
+    _capture_running = True
+    try:
+        return run_capture_job(job)
+    finally:
+        _capture_running = False
 
 
 def limit_threads(threads: int) -> None:
@@ -163,7 +187,7 @@ def _run_in_processes(jobs: Sequence[CaptureJob], workers: int,
                     if crashes[pending[0]] and running:
                         break
                     i = pending.popleft()
-                    running[pool.submit(run_capture_job, jobs[i])] = i
+                    running[pool.submit(run_in_worker, jobs[i])] = i
                 done, _ = wait(running, return_when=FIRST_COMPLETED)
                 for future in done:
                     i = running.pop(future)
