@@ -238,5 +238,5 @@ def test_an_existing_capture_is_replaced_only_with_overwrite(tmp_path: Path) -> 
     from rmbvideo.errors import OutputError
     from rmbvideo.simulate.capture import simulate_capture
 
-    with pytest.raises(OutputError, match="is a folder; name the file to write"):  # the library's callers: no click check
+    with pytest.raises(OutputError, match=r"is a folder; name the file to write \(e.g. .*capture\.dat\)"):  # the library's callers: no click check
         simulate_capture(load_scene(Path(scene)), tmp_path, duration_s=0.001)

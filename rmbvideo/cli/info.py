@@ -73,7 +73,8 @@ def info(input_path: Path, width, height, flip, header_cols, rate_hz, as_json: b
         rows = ("every row" if multi_bit["band_rows"] is None else
                 f"a band of {multi_bit['band_rows']} rows moving {multi_bit['band_shift']} a readout")
         click.echo(f"multi-bit       {multi_bit['file']}: {multi_bit['bits']}-bit values (up to {multi_bit['level']}) "
-                   f"of {rows}; reconstruct reads the pair natively (full resolution; by default RMB-Net's native model)")
+                   f"of {rows}; reconstruct reads the pair natively "
+                   f"(full resolution; by default RMB-Net's native model)")
 
 
 def multi_bit_record(reader: DatReader | RmbFileReader) -> dict | None:

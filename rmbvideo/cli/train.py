@@ -186,7 +186,8 @@ def train_detail(out_dir: Path, minutes: float, resume: bool, overwrite: bool, c
               help="Crops a step for a gate with --kernel above 1 [default: the recipe's, 16].")
 @quiet_option
 @verbose_option
-def train_raw_gate(out: Path, overwrite: bool, model: Path | None, steps: int | None, seed: int | None, loss: str | None,
+def train_raw_gate(out: Path, overwrite: bool, model: Path | None, steps: int | None, seed: int | None,
+                   loss: str | None,
                    display_videos: int | None, display_scenes: int | None, still_scenes: int | None,
                    tfi_window: int | None, long_window: int | None, frame_features: bool | None, pixels: int | None,
                    restarts: int | None, kernel: int | None, lr: float | None, batch: int | None, quiet: bool) -> None:

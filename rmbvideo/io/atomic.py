@@ -171,14 +171,15 @@ def raise_or_defer(exc: BaseException) -> None:
     raise exc
 
 
-def check_file_writable(path: Path, overwrite: bool, suffixes: tuple[str, ...] = ()) -> None:
+def check_file_writable(path: Path, overwrite: bool, suffixes: tuple[str, ...] = (), example: str = "output") -> None:
     """``OutputError`` up front, before any long work, when ``path`` cannot be the one file a command writes: a
     folder, a missing folder, a name not ending in one of ``suffixes`` (any case), or an existing file when
-    ``overwrite`` is not given (a capture named by mistake is never replaced by a picture or a report)."""
+    ``overwrite`` is not given (a capture named by mistake is never replaced by a picture or a report);
+    ``example`` names the file suggested in the folder's message."""
     path = Path(path)
     if path.is_dir():
-        example = path / f"output{suffixes[0] if suffixes else ''}"
-        raise OutputError(f"{path}: is a folder; name the file to write (e.g. {example})")
+        name = example + (suffixes[0] if suffixes else "")
+        raise OutputError(f"{path}: is a folder; name the file to write (e.g. {path / name})")
     if suffixes and not path.name.lower().endswith(tuple(suffix.lower() for suffix in suffixes)):
         raise OutputError(f"{path}: this command writes {' or '.join(suffixes)}; name the file so")
     if not path.parent.is_dir():

@@ -166,7 +166,7 @@ def check_capture_writable(output: Path, overwrite: bool) -> None:
     from rmbvideo.io.rmbfile import mbit_path
 
     output = Path(output)
-    check_file_writable(output, overwrite)
+    check_file_writable(output, overwrite, example="capture.dat")
     mbit = mbit_path(output)
     if mbit.exists() and not overwrite:
         raise OutputError(f"{mbit}: exists; use --overwrite to replace it")
