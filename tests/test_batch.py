@@ -239,12 +239,15 @@ def test_scheduler_runs_the_batch_on_a_dask_cluster(tmp_path: Path) -> None:
     assert len(list((out / "b").glob("*.exr"))) == 3
 
 
-def test_ctrl_c_of_the_whole_process_group_leaves_quietly_with_idle_workers(tmp_path: Path) -> None:
-    """A terminal's Ctrl-C reaches the batch and every worker: one line, exit 130, no worker traceback, no partials."""
+@pytest.mark.parametrize("stop", ["ctrl-c", "ctrl-c twice", "sigterm to the batch alone"])
+def test_a_stopped_batch_leaves_promptly_and_cleanly_with_idle_workers(tmp_path: Path, stop: str) -> None:
+    """A terminal's Ctrl-C reaches the batch and every worker, a second one can follow at once, and a plain ``kill``
+    reaches the batch alone: each time one line, the signal's exit code, no worker traceback, no partial folder, and
+    the capture in flight stopped rather than run to its end."""
     big = tmp_path / "in" / "big.dat"
     big.parent.mkdir()
     rng = np.random.default_rng(0)
-    write_dat(big, (rng.random((6000, 16, 16)) < 0.3).astype(np.uint8), DatGeometry(16, 16))
+    write_dat(big, (rng.random((20000, 16, 16)) < 0.3).astype(np.uint8), DatGeometry(16, 16))
     write_dat(tmp_path / "in" / "small.dat", (rng.random((40, 16, 16)) < 0.3).astype(np.uint8), DatGeometry(16, 16))
     out = tmp_path / "out"
     command = [sys.executable, "-m", "rmbvideo", "batch", str(tmp_path / "in"), "-o", str(out), "--width", "16",
@@ -255,13 +258,19 @@ def test_ctrl_c_of_the_whole_process_group_leaves_quietly_with_idle_workers(tmp_
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline and proc.poll() is None:
             if (out / "small").exists() and [p for p in out.glob(".big.partial-*")
-                                             if len(list(p.glob("*.exr"))) > 20]:
-                break  # one worker is idle, the other is mid-capture
+                                             if len(list(p.glob("*.exr"))) > 400]:
+                break  # one worker is idle, the other is mid-capture with hundreds of files to clean up
             time.sleep(0.05)
         else:
             proc.kill()
             pytest.skip("the run ended before it could be interrupted")
-        os.killpg(proc.pid, signal.SIGINT)
+        if stop == "sigterm to the batch alone":
+            proc.terminate()
+        else:
+            os.killpg(proc.pid, signal.SIGINT)
+            if stop == "ctrl-c twice":
+                time.sleep(0.02)
+                os.killpg(proc.pid, signal.SIGINT)
         _, stderr = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
@@ -269,8 +278,9 @@ def test_ctrl_c_of_the_whole_process_group_leaves_quietly_with_idle_workers(tmp_
             proc.wait()
     if proc.returncode == 0:  # on a loaded machine it can finish between the look and the signal
         pytest.skip("the run ended before the signal reached it")
-    assert proc.returncode == 130, stderr
+    assert proc.returncode == (143 if stop.startswith("sigterm") else 130), stderr
     assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
-    assert "interrupted" in stderr
+    assert ("stopped by SIGTERM" if stop.startswith("sigterm") else "interrupted") in stderr
     assert not list(out.glob(".big.*"))
+    assert not (out / "big").exists()
     assert len(list((out / "small").glob("*.exr"))) == 20

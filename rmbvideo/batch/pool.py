@@ -28,11 +28,14 @@ from rmbvideo.batch.jobs import (
 from rmbvideo.batch.report import write_report
 from rmbvideo.batch.runner import finished_result, make_dir, run_capture_job
 from rmbvideo.errors import OutputError
+from rmbvideo.io.atomic import signals_deferred
 from rmbvideo.threads import available_cores
 
 log = logging.getLogger(__name__)
 #: A Dask batch polls its tasks this often, and fails what is left after this long with no live worker.
 DASK_POLL_S, DASK_NO_WORKER_S = 2.0, 60.0
+#: After a stop, the captures in flight have this long to remove their partial output before their workers are killed.
+WORKER_CLEANUP_S = 30.0
 
 def default_workers() -> int:
     """One worker process per core available to this process."""
@@ -40,35 +43,43 @@ def default_workers() -> int:
 
 
 def die_with_parent() -> None:
-    """Linux: this process gets SIGTERM when its parent dies (even by kill -9), so a worker never
-    goes on writing after the batch that started it is gone; elsewhere nothing happens."""
+    """Linux: this process is killed when its parent dies (even by kill -9), so a worker never goes on
+    writing after the batch that started it is gone (the next run removes its partial folder); elsewhere
+    nothing happens. SIGKILL, not SIGTERM: SIGTERM is how the batch asks a worker to stop and clean up."""
     try:
         import ctypes
 
         libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, int(signal.SIGTERM), 0, 0, 0)  # PR_SET_PDEATHSIG
+        libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # PR_SET_PDEATHSIG
     except (OSError, AttributeError):
         pass
 
 
-#: Whether this worker process is running a capture now (set by ``run_in_worker``).
+#: Whether this worker process is running a capture now (set by ``run_in_worker``), and whether it was told to stop.
 _capture_running = False
+_interrupted = False
 
 
-def _worker_interrupted(signum: int, frame: Any) -> None:
-    """SIGINT in a worker (a terminal's Ctrl-C reaches the whole process group): a running capture is interrupted
-    and cleans up as in the batch's own process; an idle worker leaves quietly, not with a traceback."""
+def _worker_stopped(signum: int, frame: Any) -> None:
+    """SIGINT (a terminal's Ctrl-C reaches the whole process group) or SIGTERM (the batch stopping its workers) in a
+    worker: a running capture is interrupted, once, and cleans up as in the batch's own process. An idle worker stays
+    until the batch shuts the pool down: a worker that left by itself would break the pool, which then kills the
+    other workers mid-cleanup."""
+    global _interrupted
+    if _interrupted:
+        return  # a second signal must not cut the first one's cleanup short
+    _interrupted = True
     if _capture_running:
         raise KeyboardInterrupt
-    raise SystemExit(128 + signum)
 
 
 def start_worker(threads: int) -> None:
-    """Initialiser of a batch worker process: dies with the batch, is interrupted as above, uses ``threads``
-    threads and the allocator policy of every command."""
+    """Initialiser of a batch worker process: dies with the batch, stops as above, uses ``threads`` threads and
+    the allocator policy of every command."""
     die_with_parent()
+    signal.signal(signal.SIGTERM, _worker_stopped)
     if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:  # a batch started with Ctrl-C ignored keeps it so
-        signal.signal(signal.SIGINT, _worker_interrupted)
+        signal.signal(signal.SIGINT, _worker_stopped)
     limit_threads(threads)
     keep_freed_memory()
 
@@ -76,6 +87,8 @@ def start_worker(threads: int) -> None:
 def run_in_worker(job: CaptureJob) -> CaptureResult:
     """``run_capture_job`` in a worker process, marked as running for its SIGINT handler."""
     global _capture_running
+    if _interrupted:  # the stop came while this job was on its way to the worker
+        raise KeyboardInterrupt
     _capture_running = True
     try:
         return run_capture_job(job)
@@ -182,22 +195,47 @@ def _run_in_processes(jobs: Sequence[CaptureJob], workers: int,
                                  initializer=start_worker, initargs=(threads,)) as pool:
             running: dict[Future[CaptureResult], int] = {}
             broken = False
-            while (pending or running) and not broken:
-                while pending and len(running) < workers and not any(crashes[i] for i in running.values()):
-                    if crashes[pending[0]] and running:
-                        break
-                    i = pending.popleft()
-                    running[pool.submit(run_in_worker, jobs[i])] = i
-                done, _ = wait(running, return_when=FIRST_COMPLETED)
-                for future in done:
-                    i = running.pop(future)
-                    try:
-                        record(i, future.result())
-                    except BrokenProcessPool:
-                        broken = True
-                        worker_died(i)
+            try:
+                while (pending or running) and not broken:
+                    while pending and len(running) < workers and not any(crashes[i] for i in running.values()):
+                        if crashes[pending[0]] and running:
+                            break
+                        i = pending.popleft()
+                        running[pool.submit(run_in_worker, jobs[i])] = i
+                    done, _ = wait(running, return_when=FIRST_COMPLETED)
+                    for future in done:
+                        i = running.pop(future)
+                        try:
+                            record(i, future.result())
+                        except BrokenProcessPool:
+                            broken = True
+                            worker_died(i)
+            except KeyboardInterrupt:  # Ctrl-C, SIGTERM or SIGHUP: every capture in flight cleans up first
+                with signals_deferred():
+                    _stop_workers(pool, {future: jobs[i].input_path for future, i in running.items()})
+                raise
             for i in running.values():  # every job still in a broken pool went down with it
                 worker_died(i)
+
+
+def _stop_workers(pool: ProcessPoolExecutor, running: dict[Future[CaptureResult], Path]) -> None:
+    """Ask every worker to stop (SIGTERM: a signal to the batch alone reaches none of them), give the captures in
+    flight ``WORKER_CLEANUP_S`` to remove their partial output, kill the ones still running, and shut the pool down.
+    Run with signals held back: a second Ctrl-C cutting this short would leave partial folders and a pool that
+    never exits."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    for process in processes:
+        try:
+            os.kill(process.pid, signal.SIGTERM)
+        except ProcessLookupError:  # gone already
+            pass
+    _, late = wait(running, timeout=WORKER_CLEANUP_S)
+    if late:
+        log.warning("%s: still running %g s after the stop; killed (the next run removes its partial output)",
+                    ", ".join(sorted(str(running[future]) for future in late)), WORKER_CLEANUP_S)
+        for process in processes:
+            process.kill()
+    pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _run_on_dask(jobs: Sequence[CaptureJob], address: str, record: Callable[[int, CaptureResult], None]) -> None:
