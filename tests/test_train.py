@@ -4,6 +4,11 @@ from __future__ import annotations
 
 import csv
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +20,7 @@ from rmbvideo.cli import main
 from rmbvideo.errors import InputError
 from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.model import RmbNet
-from rmbvideo.train.checkpoint import load_checkpoint
+from rmbvideo.train.checkpoint import checkpoint_paths, load_checkpoint
 from rmbvideo.train.config import RECIPES_DIR, load_recipe
 from rmbvideo.train.dataset import SampleCache, SampleSpec, simulate_sample
 from rmbvideo.train.batch import Batch
@@ -253,6 +258,37 @@ def test_aged_passes_start_the_supervised_run_from_a_state_run_over_the_outputs_
 def _csv_steps(path: Path) -> list[int]:
     with path.open(newline="") as fh:
         return [int(r["step"]) for r in csv.DictReader(fh)]
+
+
+def test_ctrl_c_of_a_training_run_with_simulation_workers_ends_in_one_line(tmp_path):
+    """A terminal's Ctrl-C reaches the prefetching workers too: the run still ends in one line, exit 130, no worker
+    traceback, with its checkpoint kept for --resume."""
+    recipe = tmp_path / "tiny.toml"
+    recipe.write_text(TINY_RECIPE.format(steps=100000).replace('mode = "binned"', 'mode = "binned"\nscenes = "video"')
+                      .replace("val_every = 2", "val_every = 100000"))
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "rmbvideo", "train", str(recipe), "--out", str(out),
+                             "--workers", "2", "-q"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        deadline = time.monotonic() + 180
+        while time.monotonic() < deadline and proc.poll() is None and len(_lines(out / "loss.csv")) < 4:
+            time.sleep(0.1)
+        assert proc.poll() is None, proc.communicate()[1]
+        os.killpg(proc.pid, signal.SIGINT)
+        _, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
+    assert stderr.strip().splitlines()[-1] == "rmbvideo: interrupted; partial output removed"
+    assert all(path.is_file() for path in checkpoint_paths(out))
+
+
+def _lines(path: Path) -> list[str]:
+    return path.read_text().splitlines() if path.exists() else []
 
 
 def test_cli_train_resume_and_card(tmp_path):

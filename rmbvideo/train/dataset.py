@@ -19,9 +19,10 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import multiprocessing
+import signal
 import zipfile
 from dataclasses import asdict, dataclass, field
-import multiprocessing
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
@@ -245,7 +246,10 @@ def _simulate_video_sample(spec: SampleSpec, seed: int) -> Sample:
 
 
 def _worker_init() -> None:
-    """One thread per simulation process: the processes already fill the cores."""
+    """One thread per simulation process (the processes already fill the cores); a terminal's Ctrl-C, which reaches
+    every process of the group, is left to the training process, which stops its workers itself (a worker it reached
+    would print a traceback)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     cv2.setNumThreads(1)
     torch.set_num_threads(1)
 
@@ -277,7 +281,10 @@ class SamplePrefetcher:
         return samples
 
     def close(self) -> None:
-        self._pool.shutdown(wait=False, cancel_futures=True)
+        """Stop the workers now: the samples they are simulating are not needed any more, and they write nothing."""
+        for process in list((getattr(self._pool, "_processes", None) or {}).values()):
+            process.terminate()
+        self._pool.shutdown(wait=True, cancel_futures=True)
 
 
 class SampleCache:
