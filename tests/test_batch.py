@@ -263,7 +263,7 @@ def test_a_stopped_batch_leaves_promptly_and_cleanly_with_idle_workers(tmp_path:
             time.sleep(0.05)
         else:
             proc.kill()
-            pytest.skip("the run ended before it could be interrupted")
+            pytest.skip(f"the run ended before it could be interrupted: {proc.communicate()[1][-300:]!r}")
         if stop == "sigterm to the batch alone":
             proc.terminate()
         else:

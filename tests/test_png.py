@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from rmbvideo.errors import OutputError
-from rmbvideo.io.png import encode_png, write_png
+from rmbvideo.io.png import encode_png, write_figure, write_png
 
 
 def test_a_figure_reads_back_exactly_and_smaller_than_at_opencvs_default(tmp_path: Path) -> None:
@@ -29,3 +29,29 @@ def test_a_figure_into_a_missing_folder_is_one_line_naming_it(tmp_path: Path) ->
     with pytest.raises(OutputError) as info:
         write_png(target, np.zeros((4, 4), np.uint8))
     assert str(target) in str(info.value) and "\n" not in str(info.value)
+
+
+def test_a_figure_interrupted_while_it_renders_leaves_the_earlier_file_and_no_temporary(tmp_path: Path) -> None:
+    """``write_figure`` renders into a temporary file: Ctrl-C mid-render keeps the earlier PNG, leaves nothing else."""
+    matplotlib = pytest.importorskip("matplotlib")
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.artist import Artist
+
+    class Interrupting(Artist):
+        def draw(self, renderer) -> None:
+            raise KeyboardInterrupt
+
+    path = tmp_path / "checks.png"
+    fig, ax = plt.subplots()
+    ax.plot([0, 1], [0, 1])
+    write_figure(fig, path)
+    first = path.read_bytes()
+    assert first[:8] == b"\x89PNG\r\n\x1a\n" and not plt.get_fignums()
+    fig, ax = plt.subplots()
+    ax.add_artist(Interrupting())
+    with pytest.raises(KeyboardInterrupt):
+        write_figure(fig, path)
+    assert path.read_bytes() == first
+    assert [p.name for p in tmp_path.iterdir()] == ["checks.png"]
+    assert not plt.get_fignums()  # closed either way

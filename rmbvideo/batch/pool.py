@@ -26,9 +26,9 @@ from rmbvideo.batch.jobs import (
     SchedulerError,
 )
 from rmbvideo.batch.report import write_report
-from rmbvideo.batch.runner import finished_result, make_dir, run_capture_job
+from rmbvideo.batch.runner import finished_result, run_capture_job
 from rmbvideo.errors import OutputError
-from rmbvideo.io.atomic import signals_deferred
+from rmbvideo.io.atomic import make_dir, signals_deferred
 from rmbvideo.threads import available_cores
 
 log = logging.getLogger(__name__)

@@ -19,7 +19,7 @@ from rmbvideo.batch.markers import (
     write_marker,
 )
 from rmbvideo.errors import OutputError, RmbvideoError
-from rmbvideo.io.atomic import check_replaceable, signals_deferred
+from rmbvideo.io.atomic import check_replaceable, make_dir, signals_deferred
 from rmbvideo.io.sinks import is_sink_output
 
 log = logging.getLogger(__name__)
@@ -98,13 +98,6 @@ def _remove_leftovers(job: CaptureJob) -> None:
         if leftover.name.startswith((f".{job.name}.partial-", f".{job.name}.old-")):
             log.info("removing %s left by an interrupted run", leftover)
             shutil.rmtree(leftover, ignore_errors=True)
-
-
-def make_dir(path: Path) -> None:
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputError(f"{path}: cannot create folder: {exc.strerror or exc}") from exc
 
 
 def _is_capture_output(name: str) -> bool:

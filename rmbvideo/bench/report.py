@@ -13,7 +13,8 @@ import numpy as np
 
 from rmbvideo.bench.pareto import pareto_front
 from rmbvideo.bench.runner import BenchRecord
-from rmbvideo.io.atomic import atomic_path, atomic_write_text
+from rmbvideo.io.atomic import atomic_write_text
+from rmbvideo.io.png import write_figure, write_png
 
 NA = "n/a"
 
@@ -84,10 +85,7 @@ def write_plot(records: Sequence[BenchRecord], path: Path) -> Path:
     ax.set_ylabel("μ-law PSNR (dB)")
     ax.set_title("rmbvideo bench: accuracy against time")
     ax.grid(True, which="both", alpha=0.3)
-    with atomic_path(path) as temp:
-        fig.savefig(temp, format="png")
-    plt.close(fig)
-    return path
+    return write_figure(fig, path)
 
 
 def _write_plot_opencv(points: list[tuple[float, float, str, bool]], path: Path) -> Path:
@@ -117,6 +115,5 @@ def _write_plot_opencv(points: list[tuple[float, float, str, bool]], path: Path)
             cv2.putText(canvas, name, pixel(x, y), cv2.FONT_HERSHEY_SIMPLEX, 0.3, (0, 0, 0), 1)
     cv2.putText(canvas, "PSNR (dB) vs log ms/frame; red: Pareto front", (margin, height - 20),
                 cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1)
-    from rmbvideo.io.png import write_png
 
     return write_png(path, canvas)

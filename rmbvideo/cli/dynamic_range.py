@@ -80,10 +80,13 @@ def dynamic_range(levels: list[int], n_values: list[int], q_r: float | None, dar
                 table[(level, res.n)] = res.dr_db
 
     if plots_dir is not None:
-        from rmbvideo.sensor.plots import plot_expectation_std, plot_snr
+        from rmbvideo.io.atomic import make_dir
+        from rmbvideo.io.png import write_figure
+        from rmbvideo.sensor.plots import expectation_std_figure, snr_figure
 
-        plot_expectation_std(params, plots_dir / "fig2_expectation_std.png")
-        plot_snr(params, plots_dir / "fig3_snr.png", exact=variance == "exact")
+        make_dir(plots_dir)
+        write_figure(expectation_std_figure(params), plots_dir / "fig2_expectation_std.png", dpi=120)
+        write_figure(snr_figure(params, exact=variance == "exact"), plots_dir / "fig3_snr.png", dpi=120)
 
     if as_json:
         rows = [{"L": lv, "N": n, "dr_db": round(table[(lv, n)], 2)} for lv in levels for n in n_values]

@@ -236,6 +236,7 @@ def write_checks(out_dir, method: str, options: dict, sequences: Seq[Sequence], 
     """Run the three checks for ``method`` and write ``checks.md`` (and ``checks.png`` when
     matplotlib is installed) into ``out_dir``; returns the paths written."""
     from rmbvideo.io.atomic import atomic_write_text
+    from rmbvideo.io.png import write_figure
 
     out_dir = Path(out_dir)
     lines = ["# Video checks: clip edges, rolling-band oscillation, dark end", "",
@@ -329,7 +330,4 @@ def write_checks(out_dir, method: str, options: dict, sequences: Seq[Sequence], 
     axes[2].axhspan(-5, 5, color="green", alpha=0.15)
     axes[2].set(xlabel="level", ylabel="relative bias (%)", title="dark end: bias on a flat field")
     fig.tight_layout()
-    png = out_dir / "checks.png"
-    fig.savefig(png, dpi=110)
-    plt.close(fig)
-    return written + [png]
+    return written + [write_figure(fig, out_dir / "checks.png", dpi=110)]

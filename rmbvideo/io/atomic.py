@@ -171,6 +171,14 @@ def raise_or_defer(exc: BaseException) -> None:
     raise exc
 
 
+def make_dir(path: Path) -> None:
+    """Create folder ``path`` and its parents if missing; ``OutputError`` naming it if that fails."""
+    try:
+        Path(path).mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot create folder: {exc.strerror or exc}") from exc
+
+
 def check_file_writable(path: Path, overwrite: bool, suffixes: tuple[str, ...] = (), example: str = "output") -> None:
     """``OutputError`` up front, before any long work, when ``path`` cannot be the one file a command writes: a
     folder, a missing folder, a name not ending in one of ``suffixes`` (any case), or an existing file when

@@ -8,12 +8,13 @@ own, faster, setting: they write a file per frame.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 
 from rmbvideo.errors import OutputError
-from rmbvideo.io.atomic import atomic_write_bytes
+from rmbvideo.io.atomic import atomic_path, atomic_write_bytes
 
 #: zlib level 9: the smallest files; a figure is encoded once
 FIGURE_COMPRESSION = 9
@@ -30,4 +31,17 @@ def encode_png(image: np.ndarray, what: str) -> bytes:
 def write_png(path: Path, image: np.ndarray) -> Path:
     """Encode ``image`` as PNG and write it atomically to ``path``."""
     atomic_write_bytes(Path(path), encode_png(image, str(path)))
+    return Path(path)
+
+
+def write_figure(fig: Any, path: Path, dpi: float | None = None) -> Path:
+    """Render the matplotlib figure ``fig`` as PNG atomically to ``path`` and close it (an interrupted or failed
+    render leaves neither a half-written ``path`` nor a temporary file)."""
+    import matplotlib.pyplot as plt
+
+    try:
+        with atomic_path(Path(path)) as temp:
+            fig.savefig(temp, format="png", **({} if dpi is None else {"dpi": dpi}))
+    finally:
+        plt.close(fig)
     return Path(path)

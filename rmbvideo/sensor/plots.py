@@ -1,4 +1,4 @@
-"""PNG figures of the dynamic-range theory: paper Fig. 2 (mean and std of S^L/L) and Fig. 3 (SNR).
+"""Figures of the dynamic-range theory: paper Fig. 2 (mean and std of S^L/L) and Fig. 3 (SNR).
 
 matplotlib is imported inside the functions so the rest of rmbvideo works without it.
 Exposure is in photo-electrons per readout interval (alpha = 1); the paper's Fig. 3 axis is
@@ -7,14 +7,11 @@ photons/(um^2 s), a constant factor that shifts the curves but not the dynamic r
 
 from __future__ import annotations
 
-import os
-import tempfile
 from dataclasses import replace
-from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from rmbvideo.errors import OutputError
 from rmbvideo.sensor.params import SensorParams
 from rmbvideo.sensor.theory import snr, spike_law
 
@@ -28,25 +25,8 @@ def _figure_module():
     return plt
 
 
-def _save(fig, path: Path) -> None:
-    """Write ``fig`` to ``path`` through a temporary file in the same folder."""
-    path = Path(path)
-    tmp = None
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png", dir=path.parent)
-        os.close(fd)
-        fig.savefig(tmp, dpi=120)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except OSError as exc:
-        if tmp is not None and os.path.exists(tmp):
-            os.unlink(tmp)
-        raise OutputError(f"{path}: cannot write figure ({exc.strerror or exc})") from exc
-
-
-def plot_expectation_std(params: SensorParams, path: Path, levels: tuple[int, ...] = (1, 3, 7),
-                         lam: np.ndarray | None = None) -> None:
+def expectation_std_figure(params: SensorParams, levels: tuple[int, ...] = (1, 3, 7),
+                           lam: np.ndarray | None = None) -> Any:
     """Paper Fig. 2: E and std of the normalised spike S^L/L versus exposure (N = 1)."""
     plt = _figure_module()
     lam = np.linspace(1.0, 300.0, 300) if lam is None else lam
@@ -63,13 +43,12 @@ def plot_expectation_std(params: SensorParams, path: Path, levels: tuple[int, ..
         ax.legend()
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    _save(fig, path)
-    plt.close(fig)
+    return fig
 
 
-def plot_snr(params: SensorParams, path: Path, levels: tuple[int, ...] = (1, 3, 7),
-             n_fixed: int = 10, n_values: tuple[int, ...] = (10, 30, 70), level_fixed: int = 1,
-             exact: bool = False, lam: np.ndarray | None = None) -> None:
+def snr_figure(params: SensorParams, levels: tuple[int, ...] = (1, 3, 7),
+               n_fixed: int = 10, n_values: tuple[int, ...] = (10, 30, 70), level_fixed: int = 1,
+               exact: bool = False, lam: np.ndarray | None = None) -> Any:
     """Paper Fig. 3: SNR of S_N^L vs exposure, (a) N fixed and L varied, (b) L fixed and N varied."""
     plt = _figure_module()
     lam = np.logspace(-2, 3, 300) if lam is None else lam
@@ -93,5 +72,4 @@ def plot_snr(params: SensorParams, path: Path, levels: tuple[int, ...] = (1, 3, 
         ax.legend()
         ax.grid(alpha=0.3, which="both")
     fig.tight_layout()
-    _save(fig, path)
-    plt.close(fig)
+    return fig

@@ -17,8 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rmbvideo.errors import OutputError
-from rmbvideo.io.atomic import atomic_path, atomic_write_text
+from rmbvideo.io.atomic import atomic_path, atomic_write_text, make_dir
 from rmbvideo.io.exr import write_exr
 from rmbvideo.scenes.render import ground_truth, ground_truth_flow
 from rmbvideo.simulate.capture import CaptureSimulator
@@ -34,10 +33,7 @@ def is_ground_truth_file(name: str) -> bool:
 
 def write_ground_truth(simulator: CaptureSimulator, gt_dir: Path, step: int) -> int:
     """Write GT frames, flows and ``index.csv`` for ``simulator``'s capture; returns the frame count."""
-    try:
-        gt_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputError(f"{gt_dir}: cannot create folder: {exc.strerror or exc}") from None
+    make_dir(gt_dir)
     rate = simulator.scene.rate_hz
     count = simulator.total_readouts // step
     table = io.StringIO()
