@@ -287,7 +287,7 @@ def test_candidate_needs_development(models_dir, tmp_path):
 def test_a_users_own_streams_alone(tmp_path):
     """`evaluate --no-heldout --real-video DIR` scores only that folder's pairs (RMB-Net alone and with the raw gate
     among the rows) and writes no held-out table; a wrong folder fails at once, and --no-heldout with nothing else to
-    score is a usage error."""
+    score is a usage error; a rerun with other options names the earlier run's reports it left beside its own."""
     from click.testing import CliRunner
 
     from rmbvideo.cli import main
@@ -305,6 +305,11 @@ def test_a_users_own_streams_alone(tmp_path):
     assert (out / "real_video.png").is_file() and not (out / "evaluation.md").exists()
     full = (out / "full_resolution.md").read_text()  # the stream alone: no synthetic mean
     assert TEXTURE_PANS[-1].name in full and "| — |" in full and "nan" not in full
+    again = CliRunner().invoke(main, ["evaluate", "--no-heldout", "--real-video", str(tmp_path / "mine"), "-o",
+                                      str(out), "--device", "cpu", "--quiet"])  # a rerun without --full-resolution
+    assert again.exit_code == 0, again.output
+    assert "full_resolution.md, full_resolution.png are from an earlier run" in again.output
+    assert "real_video" not in again.output.split("earlier run")[0]
     result = CliRunner().invoke(main, ["evaluate", "--real-video", str(tmp_path / "nowhere"), "-o", str(out)])
     assert result.exit_code != 0 and "nowhere" in result.output and "Traceback" not in result.output
     result = CliRunner().invoke(main, ["evaluate", "--no-heldout", "-o", str(tmp_path / "none")])

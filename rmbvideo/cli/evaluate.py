@@ -25,6 +25,22 @@ if TYPE_CHECKING:  # the evaluation modules load torch: imported where a command
     from rmbvideo.evaluate.real_video import RealStream
 
 log = logging.getLogger(__name__)
+#: The files ``evaluate`` can write into its folder: those a run did not write are an earlier run's.
+REPORT_PATTERNS = ("evaluation.md", "evaluation.csv", "evaluation*.png", "checks.md", "checks.png", "real_video.*",
+                   "texture_pans.*", "full_resolution.*", "development.*", "real_comparison.png")
+
+
+def warn_of_earlier_reports(out_dir: Path, written: list[Path]) -> list[str]:
+    """Name (in a warning, and return) the reports in ``out_dir`` that this run did not write: an earlier run's, with
+    other options, which a reader would otherwise take for this run's."""
+    mine = {Path(path).name for path in written}
+    earlier = sorted({path.name for pattern in REPORT_PATTERNS for path in out_dir.glob(pattern)
+                      if path.suffix in (".md", ".csv", ".png") and path.name not in mine})
+    if earlier:
+        log.warning("%s: %s %s from an earlier run, not this one (other options); move or delete %s to avoid "
+                    "confusion", out_dir, ", ".join(earlier), "is" if len(earlier) == 1 else "are",
+                    "it" if len(earlier) == 1 else "them")
+    return earlier
 
 
 def _real_video(streams: list[RealStream], model: Path, device: str, out_dir: Path, stem: str = "real_video",
@@ -261,6 +277,7 @@ def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Pat
         paths = _development(out_dir, [models_dir / "rmbnet-binned.safetensors", *candidates], cache_dir, real_video,
                              resolved, progress_enabled(quiet))
         log.info("wrote %s", ", ".join(map(str, paths)))
+        warn_of_earlier_reports(out_dir, paths)
         return
     sequences, rows, written = [], [], []
     if heldout:
@@ -302,3 +319,4 @@ def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Pat
                               indent=2))
     for path in written:
         log.info("wrote %s", path)
+    warn_of_earlier_reports(out_dir, written)
