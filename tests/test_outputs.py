@@ -19,6 +19,7 @@ from rmbvideo.chunks import Frame
 from rmbvideo.errors import InputError, OutputError, RmbvideoError
 from rmbvideo.io.atomic import atomic_path, atomic_write_text
 from rmbvideo.io.exr import HALF_MAX, read_exr, read_exr_rgb, write_exr
+from rmbvideo.io.ffmpeg import FfmpegEncoder
 from rmbvideo.io.sinks import make_sink
 from rmbvideo.io.tonemap import ToneMapConfig, ToneMapper
 
@@ -319,6 +320,23 @@ def test_abort_removes_this_runs_partial_files_only(tmp_path: Path, fmt: str) ->
             raise RuntimeError("pipeline failed")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["frame_000099.exr", "keep.txt"]
     assert (tmp_path / "frame_000099.exr").read_bytes() == b"earlier run"
+
+
+def test_ffmpegs_failure_is_its_reason_in_one_error_and_nothing_on_the_terminal(tmp_path: Path, capfd) -> None:
+    """ffmpeg's own lines (it cannot open the file here) are kept out of stderr and its first, the cause, ends the
+    error naming the file; a later stream is read to the end of what ffmpeg said."""
+    target = tmp_path / "missing" / "v.mp4"
+    encoder = FfmpegEncoder(target, (16, 16), pix_fmt_in="gray", pix_fmt_out="yuv420p", fps=30.0, codec="libx264",
+                            output_params=["-f", "mp4"], display_path=tmp_path / "frames.mp4")
+    with pytest.raises(OutputError) as failure:
+        for _ in range(2000):  # ffmpeg exits at once; the pipe refuses frames then, or close reads its status
+            encoder.send(bytes(256))
+        encoder.close()
+    message = str(failure.value)
+    assert message.startswith(f"{tmp_path / 'frames.mp4'}: ffmpeg ") and message.endswith("No such file or directory")
+    assert "Error opening output" in message and "\n" not in message
+    assert capfd.readouterr().err == ""
+    assert not target.parent.exists()
 
 
 def test_sink_rejects_frames_of_changing_shape(tmp_path: Path) -> None:

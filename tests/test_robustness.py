@@ -230,6 +230,8 @@ def test_full_disk_fails_one_capture_and_keeps_earlier_outputs(tmp_path: Path, m
     entries = {Path(c["input"]).name: c for c in json.loads((out / REPORT_NAME).read_text())["captures"]}
     assert entries["a.dat"]["status"] == entries["c.dat"]["status"] == "ok"
     assert entries["b.dat"]["status"] == "failed" and "No space left on device" in entries["b.dat"]["error"]
+    # named as the folder the user knows, not the hidden one it was written into (removed by now)
+    assert entries["b.dat"]["error"].startswith(f"{out / 'b'}{os.sep}frame_") and ".partial-" not in result.output
     assert {p: p.read_bytes() for p in sorted((out / "b").iterdir())} == before  # earlier output intact
     assert not list(out.glob(".b.*"))
     # The old marker does not match the new options, so b is redone once the disk has room.

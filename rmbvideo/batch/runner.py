@@ -36,6 +36,7 @@ def run_capture_job(job: CaptureJob) -> CaptureResult:
 
     began = time.perf_counter()
     result = CaptureResult(input=str(job.input_path), output=str(job.output_dir), status="failed")
+    work: Path | None = None
     try:
         capture = dict(job.options.get("capture") or {})
         reader = open_capture(job.input_path, **{k: capture.get(k) for k in
@@ -58,10 +59,10 @@ def run_capture_job(job: CaptureJob) -> CaptureResult:
             shutil.rmtree(work, ignore_errors=True)
         result.status, result.frames = "ok", summary.frames
     except RmbvideoError as exc:
-        result.error = str(exc)
+        result.error = _as_output(str(exc), work, job.output_dir)
     except OSError as exc:  # a write failure (full disk, quota, read-only) is the output's, not the input's
         blamed = exc.filename or (job.output_dir if exc.errno in _OUTPUT_ERRNOS else job.input_path)
-        result.error = f"{blamed}: {exc.strerror or exc}"
+        result.error = _as_output(f"{blamed}: {exc.strerror or exc}", work, job.output_dir)
     except Exception as exc:  # a bug in one capture must not stop the batch; keep its traceback in the log
         log.exception("%s: unexpected error", job.input_path)
         result.error = f"{job.input_path}: unexpected error: {type(exc).__name__}: {exc}"
@@ -70,6 +71,12 @@ def run_capture_job(job: CaptureJob) -> CaptureResult:
     if result.status == "failed":
         log.warning("%s", result.error)
     return result
+
+
+def _as_output(message: str, work: Path | None, output_dir: Path) -> str:
+    """``message`` naming the output folder where it names the hidden folder the capture was written into (removed
+    by now): the user knows the one, never sees the other."""
+    return message.replace(str(work), str(output_dir)) if work is not None else message
 
 
 def finished_result(job: CaptureJob) -> CaptureResult | None:

@@ -44,6 +44,7 @@ from rmbvideo.io.atomic import (
     temp_path_for,
 )
 from rmbvideo.io.exr import ExrDtype, write_exr
+from rmbvideo.io.ffmpeg import FfmpegEncoder
 from rmbvideo.io.tonemap import ToneMapConfig, ToneMapper
 
 log = logging.getLogger(__name__)
@@ -331,11 +332,7 @@ class Mp4Sink(FrameSink):
             self._start_encoder(pixels.shape)
         if any(self._padding):
             pixels = np.pad(pixels, ((0, self._padding[0]), (0, self._padding[1])), mode="edge")
-        try:
-            self._encoder.send(self._frame_bytes(pixels))
-        except OSError as exc:
-            reason = str(exc).splitlines()[0]
-            raise OutputError(f"{self.path}: ffmpeg stopped accepting frames: {reason}") from exc
+        self._encoder.send(self._frame_bytes(pixels))
         self._index.add(frame.index, frame.time_s, self.path.name)
         if self._first_time is None:
             self._first_time = frame.time_s
@@ -343,8 +340,6 @@ class Mp4Sink(FrameSink):
 
     def _start_encoder(self, shape: tuple[int, int]) -> None:
         """Launch ffmpeg for frames of ``shape`` and log size and playback-speed facts."""
-        import imageio_ffmpeg
-
         height, width = shape
         if self.pixel_format == "auto":
             self.pixel_format = "yuv420p" if height % 2 == 0 and width % 2 == 0 else "yuv444p"
@@ -366,21 +361,10 @@ class Mp4Sink(FrameSink):
                 "than real time", self.path.name, self.frame_rate_hz, self.fps, self.frame_rate_hz / self.fps,
             )
         pix_fmt_in, pix_fmt_out, codec, params = self._codec_args(shape)
-        try:
-            self._encoder = imageio_ffmpeg.write_frames(
-                str(self._temp),
-                (width + self._padding[1], height + self._padding[0]),
-                pix_fmt_in=pix_fmt_in,
-                pix_fmt_out=pix_fmt_out,
-                fps=float(self.fps),
-                codec=codec,
-                macro_block_size=1,
-                ffmpeg_log_level="error",
-                output_params=[*params, "-movflags", "+faststart", "-f", "mp4"],
-            )
-            self._encoder.send(None)
-        except (RuntimeError, OSError) as exc:
-            raise OutputError(f"{self.path}: cannot start ffmpeg: {ffmpeg_reason(exc)}") from exc
+        self._encoder = FfmpegEncoder(self._temp, (width + self._padding[1], height + self._padding[0]),
+                                      pix_fmt_in=pix_fmt_in, pix_fmt_out=pix_fmt_out, fps=float(self.fps),
+                                      codec=codec, output_params=[*params, "-movflags", "+faststart", "-f", "mp4"],
+                                      display_path=self.path)
 
     def _commit(self) -> None:
         import imageio_ffmpeg
@@ -389,8 +373,8 @@ class Mp4Sink(FrameSink):
             log.warning("%s: no frames arrived; no video written", self.path)
             self._index.commit()
             return
-        self._encoder.close()
-        self._encoder = None
+        encoder, self._encoder = self._encoder, None
+        encoder.close()
         try:
             encoded, _ = imageio_ffmpeg.count_frames_and_secs(str(self._temp))
         except (RuntimeError, OSError) as exc:
@@ -410,10 +394,7 @@ class Mp4Sink(FrameSink):
 
     def _discard(self) -> None:
         if self._encoder is not None:
-            try:
-                self._encoder.close()  # stops ffmpeg
-            except Exception as exc:  # ffmpeg may already have failed; the file goes anyway
-                log.debug("%s: ffmpeg shutdown during abort: %s", self.path, exc)
+            self._encoder.kill()
             self._encoder = None
         remove_quietly(self._temp)
         self._index.discard()
