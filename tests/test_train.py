@@ -20,7 +20,7 @@ from rmbvideo.cli import main
 from rmbvideo.errors import InputError
 from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.model import RmbNet
-from rmbvideo.train.checkpoint import checkpoint_paths, load_checkpoint
+from rmbvideo.train.checkpoint import CHECKPOINT_FORMAT, checkpoint_paths, load_checkpoint
 from rmbvideo.train.config import RECIPES_DIR, load_recipe
 from rmbvideo.train.dataset import SampleCache, SampleSpec, simulate_sample
 from rmbvideo.train.batch import Batch
@@ -267,24 +267,87 @@ def test_ctrl_c_of_a_training_run_with_simulation_workers_ends_in_one_line(tmp_p
     recipe.write_text(TINY_RECIPE.format(steps=100000).replace('mode = "binned"', 'mode = "binned"\nscenes = "video"')
                       .replace("val_every = 2", "val_every = 100000"))
     out = tmp_path / "out"
-    proc = subprocess.Popen([sys.executable, "-m", "rmbvideo", "train", str(recipe), "--out", str(out),
-                             "--workers", "2", "-q"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
+    proc, stderr = _stopped_when_logged([sys.executable, "-m", "rmbvideo", "train", str(recipe), "--out", str(out),
+                                         "--workers", "2", "-q"], out / "loss.csv", 4, lambda p: os.killpg(
+                                             p.pid, signal.SIGINT))
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
+    model = RmbNet(load_recipe(recipe).model)
+    step = load_checkpoint(out, model, torch.optim.Adam(model.parameters())).step
+    assert stderr.strip().splitlines()[-1] == (f"rmbvideo: interrupted; the checkpoint of step {step} is saved in "
+                                               f"{out}; --resume continues from it")
+    assert all(path.is_file() for path in checkpoint_paths(out))
+
+
+def test_a_stopped_run_saves_the_step_it_stood_at_and_resumes_from_it(tmp_path):
+    """A SIGTERM (a scheduler's, say) between checkpoints used to lose every step since the last one; the run now
+    saves the checkpoint of its last whole step, says so in its one line, and --resume continues from that step."""
+    recipe = tmp_path / "tiny.toml"
+    text = TINY_RECIPE.replace("checkpoint_every = 1", "checkpoint_every = 100000").replace("val_every = 2",
+                                                                                          "val_every = 100000")
+    recipe.write_text(text.format(steps=100000))
+    out, cache = tmp_path / "out", tmp_path / "cache"
+    args = [sys.executable, "-m", "rmbvideo", "train", str(recipe), "--out", str(out), "--cache", str(cache), "-q"]
+    proc, stderr = _stopped_when_logged(args, out / "loss.csv", 5, lambda p: p.send_signal(signal.SIGTERM))
+    assert proc.returncode == 143, stderr
+    model = RmbNet(load_recipe(recipe).model)
+    step = load_checkpoint(out, model, torch.optim.Adam(model.parameters())).step
+    logged = _csv_steps(out / "loss.csv")
+    assert step >= 4 and step in (logged[-1], logged[-1] + 1)  # the stop may land between a step and its row
+    assert stderr.strip().splitlines() == [f"rmbvideo: stopped by SIGTERM; the checkpoint of step {step} is saved in "
+                                           f"{out}; --resume continues from it"]
+    recipe.write_text(text.format(steps=step + 1))
+    result = CliRunner().invoke(main, ["train", str(recipe), "--out", str(out), "--cache", str(cache), "--resume",
+                                       "-q"])
+    assert result.exit_code == 0, result.output
+    assert _csv_steps(out / "loss.csv")[-1] == step + 1
+    assert load_checkpoint(out, model, torch.optim.Adam(model.parameters())).step == step + 1
+
+
+def test_a_checkpoint_cut_between_its_two_writes_resumes_from_its_tensors(tmp_path):
+    """The tensors' header holds the whole state, so a stale or missing checkpoint.json (a crash between the two
+    writes) no longer makes a checkpoint unresumable; one from before the header held it still needs the JSON to
+    agree."""
+    from safetensors.torch import load_file, save_file
+
+    recipe = tmp_path / "tiny.toml"
+    recipe.write_text(TINY_RECIPE.format(steps=1))
+    out = tmp_path / "out"
+    Trainer(load_recipe(recipe), out, cache_dir=tmp_path / "cache").run()
+    tensors, meta = checkpoint_paths(out)
+    stale = json.loads(meta.read_text())
+    recipe.write_text(TINY_RECIPE.format(steps=3))
+    Trainer(load_recipe(recipe), out, cache_dir=tmp_path / "cache", resume=True).run()
+    meta.write_text(json.dumps(stale))  # the step-1 JSON beside the step-3 tensors
+    model = RmbNet(load_recipe(recipe).model)
+    optimizer = torch.optim.Adam(model.parameters())
+    assert load_checkpoint(out, model, optimizer).step == 3
+    assert all(float(s["step"]) == 3 for s in optimizer.state_dict()["state"].values())
+    meta.unlink()
+    assert load_checkpoint(out, model, torch.optim.Adam(model.parameters())).step == 3
+    save_file(load_file(str(tensors)), str(tensors), metadata={"format": CHECKPOINT_FORMAT, "step": "3"})  # older
+    meta.write_text(json.dumps(stale))
+    with pytest.raises(InputError, match="checkpoint files disagree"):
+        load_checkpoint(out, model, torch.optim.Adam(model.parameters()))
+    meta.write_text(json.dumps({**stale, "step": 3}))
+    assert load_checkpoint(out, model, torch.optim.Adam(model.parameters())).step == 3
+
+
+def _stopped_when_logged(args: list[str], log: Path, lines: int, stop) -> tuple[subprocess.Popen, str]:
+    """Run ``args`` in a session of its own, ``stop(process)`` once ``log`` has ``lines`` lines; (process, stderr)."""
+    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         deadline = time.monotonic() + 180
-        while time.monotonic() < deadline and proc.poll() is None and len(_lines(out / "loss.csv")) < 4:
-            time.sleep(0.1)
+        while time.monotonic() < deadline and proc.poll() is None and len(_lines(log)) < lines:
+            time.sleep(0.05)
         assert proc.poll() is None, proc.communicate()[1]
-        os.killpg(proc.pid, signal.SIGINT)
+        stop(proc)
         _, stderr = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    assert proc.returncode == 130, stderr
-    assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
-    assert stderr.strip().splitlines()[-1] == "rmbvideo: interrupted; partial output removed"
-    assert all(path.is_file() for path in checkpoint_paths(out))
+    return proc, stderr
 
 
 def _lines(path: Path) -> list[str]:

@@ -145,16 +145,22 @@ class LazyGroup(click.Group):
             click.echo(f"rmbvideo: error: {exc}", err=True)
             ctx.exit(2)
         except Terminated as exc:
-            click.echo(f"rmbvideo: stopped by {signal.Signals(exc.signum).name}; partial output removed", err=True)
+            click.echo(f"rmbvideo: stopped by {signal.Signals(exc.signum).name}; {_left_behind(exc)}", err=True)
             ctx.exit(128 + exc.signum)
-        except KeyboardInterrupt:
-            click.echo("rmbvideo: interrupted; partial output removed", err=True)
+        except KeyboardInterrupt as exc:
+            click.echo(f"rmbvideo: interrupted; {_left_behind(exc)}", err=True)
             ctx.exit(130)
         except MemoryError:
             command = ctx.invoked_subcommand or "rmbvideo"
             click.echo(f"rmbvideo: error: {command}: out of memory with these options (a capture's size, a sensor's "
                        "parameters, or the process's memory limit); partial output removed", err=True)
             ctx.exit(2)
+
+
+def _left_behind(stop: KeyboardInterrupt) -> str:
+    """What a stopped command leaves: in its own words where it says (training: the checkpoint it saved), else the
+    rule every output follows."""
+    return getattr(stop, "left_behind", None) or "partial output removed"
 
 
 def _spec_exists(spec: str) -> bool:

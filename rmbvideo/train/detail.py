@@ -27,6 +27,7 @@ from rmbvideo.evaluate.metrics import mu_law_psnr
 from rmbvideo.mulaw import mu_law
 from rmbvideo.net.detail import DetailConfig, DetailNet
 from rmbvideo.errors import InputError
+from rmbvideo.io.atomic import signals_deferred
 from rmbvideo.net.weights import ModelCard, load_detail_model, save_model
 from rmbvideo.recon.classical import Tfi
 from rmbvideo.recon.full_resolution import DEFAULT_DETAIL_WINDOW, relative_detail, to_block_levels, upsample
@@ -36,6 +37,7 @@ from rmbvideo.simulate.capture import capture_planes
 from rmbvideo.train.checkpoint import (
     CheckpointState,
     checkpoint_paths,
+    checkpointed_on_stop,
     load_checkpoint,
     refuse_to_restart_over,
     save_checkpoint,
@@ -197,38 +199,40 @@ def train_detail(config: DetailTrainConfig, out_dir: Path, name: str = "detail-b
     start = time.monotonic() - state.elapsed_s
     step, metrics = state.step, {}
     bar = tqdm(total=round(budget), initial=round(state.elapsed_s), disable=not progress, unit="s", desc=name)
-    try:
-        while time.monotonic() - start < budget and (config.steps is None or step < config.steps):
-            progress = min(step / config.steps if config.steps else (time.monotonic() - start) / budget, 1.0)
-            lr = config.lr_final + 0.5 * (config.lr - config.lr_final) * (1 + math.cos(math.pi * progress))
-            for group in optimizer.param_groups:
-                group["lr"] = lr
-            for _ in range(config.new_per_step):
-                pool[int(rng.integers(len(pool)))] = simulate(next(next_seed))
-            chosen = [pool[int(k)] for k in rng.choice(len(pool), config.batch, replace=False)]
-            binned, rates, gt = _batch(chosen)
-            if rng.random() < 0.5:  # flips: the same statistics, more variety
-                binned, rates, gt = binned.flip(-1), rates.flip(-1), gt.flip(-1)
-            loss = detail_loss(model(binned, rates), gt)
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            optimizer.step()
-            step += 1
-            row = [step, f"{time.monotonic() - start:.1f}", f"{lr:.3g}", f"{float(loss.detach()):.5g}", "", "", ""]
-            if step % config.val_every == 0:
-                metrics = validate(model, val, windows)
-                row[4:] = [f"{metrics[k]:.3f}" for k in ("learned", "bilinear", "classical")]
-                log.info("detail step %d: val mu-PSNR learned %.2f, bilinear %.2f, classical %.2f dB",
-                         step, metrics["learned"], metrics["bilinear"], metrics["classical"])
-            writer.writerow(row)
-            bar.update(round(time.monotonic() - start) - bar.n)
-            if step % config.checkpoint_every == 0:
-                handle.flush()
-                save_checkpoint(out_dir, model, optimizer, CheckpointState(step, time.monotonic() - start))
-    finally:
-        handle.close()
-        bar.close()
-    save_checkpoint(out_dir, model, optimizer, CheckpointState(step, time.monotonic() - start))
+    with checkpointed_on_stop(out_dir, model, optimizer, lambda: CheckpointState(step, time.monotonic() - start)):
+        try:
+            while time.monotonic() - start < budget and (config.steps is None or step < config.steps):
+                progress = min(step / config.steps if config.steps else (time.monotonic() - start) / budget, 1.0)
+                lr = config.lr_final + 0.5 * (config.lr - config.lr_final) * (1 + math.cos(math.pi * progress))
+                for group in optimizer.param_groups:
+                    group["lr"] = lr
+                for _ in range(config.new_per_step):
+                    pool[int(rng.integers(len(pool)))] = simulate(next(next_seed))
+                chosen = [pool[int(k)] for k in rng.choice(len(pool), config.batch, replace=False)]
+                binned, rates, gt = _batch(chosen)
+                if rng.random() < 0.5:  # flips: the same statistics, more variety
+                    binned, rates, gt = binned.flip(-1), rates.flip(-1), gt.flip(-1)
+                loss = detail_loss(model(binned, rates), gt)
+                optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                with signals_deferred():  # a stop lands before or after a whole step, never inside one
+                    optimizer.step()
+                    step += 1
+                row = [step, f"{time.monotonic() - start:.1f}", f"{lr:.3g}", f"{float(loss.detach()):.5g}", "", "", ""]
+                if step % config.val_every == 0:
+                    metrics = validate(model, val, windows)
+                    row[4:] = [f"{metrics[k]:.3f}" for k in ("learned", "bilinear", "classical")]
+                    log.info("detail step %d: val mu-PSNR learned %.2f, bilinear %.2f, classical %.2f dB",
+                             step, metrics["learned"], metrics["bilinear"], metrics["classical"])
+                writer.writerow(row)
+                bar.update(round(time.monotonic() - start) - bar.n)
+                if step % config.checkpoint_every == 0:
+                    handle.flush()
+                    save_checkpoint(out_dir, model, optimizer, CheckpointState(step, time.monotonic() - start))
+        finally:
+            handle.close()
+            bar.close()
+        save_checkpoint(out_dir, model, optimizer, CheckpointState(step, time.monotonic() - start))
     metrics = validate(model, val, windows)
     card = ModelCard(
         name=name,

@@ -13,6 +13,7 @@ accumulated into one Adam step per batch.
 from __future__ import annotations
 
 import csv
+import io
 import logging
 import math
 import os
@@ -28,6 +29,7 @@ from torch import nn
 from tqdm import tqdm
 
 from rmbvideo.errors import InputError
+from rmbvideo.io.atomic import atomic_write_text, signals_deferred
 from rmbvideo.net.decoder import DecoderState
 from rmbvideo.net.model import RmbNet, priming_frames, window_indices, window_reach, window_valid
 from rmbvideo.net.weights import (ModelCard, bundled_path, default_model_path, load_model, save_model, widen_model,
@@ -43,6 +45,7 @@ from rmbvideo.threads import default_threads
 from rmbvideo.train.checkpoint import (
     CheckpointState,
     checkpoint_paths,
+    checkpointed_on_stop,
     load_checkpoint,
     refuse_to_restart_over,
     save_checkpoint,
@@ -385,54 +388,59 @@ class Trainer:
         stopped_by = "steps"
         val_samples: list[Sample] | None = None
         bar = tqdm(total=cfg.optim.steps, initial=step, disable=not self.progress, unit="step", desc=cfg.name)
-        try:
-            while step < cfg.optim.steps:
-                if time.monotonic() - started >= budget_s:
-                    stopped_by = "time budget"
-                    break
-                samples = self.batch_samples(step)
-                flips = [bool(np.random.default_rng([cfg.seed, step, j, 1]).integers(2)) for j in range(len(samples))]
-                batch = Batch.from_samples(samples, self.device, flips, cfg.model.centre_windows, cfg.model.n,
-                                           cfg.model)
-                lr = learning_rate(step, time.monotonic() - started, cfg)
-                for group in self.optimizer.param_groups:
-                    group["lr"] = lr
-                self.optimizer.zero_grad(set_to_none=True)
-                edges = bool(np.random.default_rng([cfg.seed, step, 2]).random() < cfg.optim.edges)
-                losses = train_batch(self.model, batch, cfg.optim.tbptt, cfg.loss, edges, cfg.optim.aged_passes,
-                                     cfg.optim.prime, self.teacher, self.bf16)
-                if not all(math.isfinite(v) for v in losses.values()):
-                    raise FloatingPointError(f"step {step}: non-finite loss {losses} (seeds {self.step_seeds(step)})")
-                torch.nn.utils.clip_grad_norm_(self.model.parameters(), cfg.optim.grad_clip)
-                self.optimizer.step()
-                step += 1
-                elapsed = time.monotonic() - started
-                row: dict[str, float] = {"step": step, "elapsed_s": elapsed, "lr": lr, **losses}
-                if step % cfg.optim.val_every == 0:
-                    val_samples = val_samples or self.validation_samples()
-                    row.update(validate(self.model, val_samples, self.cache.spec.quanta, cfg.loss.saturation,
-                                        self.device, cfg.optim.edges > 0))
-                    log.info("step %d (%.1f min): loss %.4f, val mu-PSNR %.2f dB (TFW %.2f dB)", step,
-                             elapsed / 60, losses["loss"], row["val_mu_psnr"], row["val_tfw_mu_psnr"])
-                log_writer.write(row)
-                if step % cfg.optim.checkpoint_every == 0:
-                    save_checkpoint(self.out_dir, self.model, self.optimizer, CheckpointState(step, elapsed))
-                bar.update(1)
-                bar.set_postfix(loss=f"{losses['loss']:.4f}")
-        finally:
-            bar.close()
-            log_writer.close()
-            if self._prefetcher is not None:
-                self._prefetcher.close()
-        elapsed = time.monotonic() - started
-        save_checkpoint(self.out_dir, self.model, self.optimizer, CheckpointState(step, elapsed))
-        metrics = validate(self.model, val_samples or self.validation_samples(), self.cache.spec.quanta,
-                           cfg.loss.saturation, self.device, cfg.optim.edges > 0)
-        metrics["val_samples"] = float(cfg.data.val_count)
-        weights = save_model(self.out_dir / f"{cfg.name}.safetensors", self.model,
-                             self.card(step, elapsed, stopped_by, metrics))
-        log.debug("%s: %d steps in %.1f min (stopped by %s); held-out mu-law PSNR %.2f dB (TFW %.2f dB)",
-                 weights, step, elapsed / 60, stopped_by, metrics["val_mu_psnr"], metrics["val_tfw_mu_psnr"])
+        with checkpointed_on_stop(self.out_dir, self.model, self.optimizer,
+                                  lambda: CheckpointState(step, time.monotonic() - started)):
+            try:
+                while step < cfg.optim.steps:
+                    if time.monotonic() - started >= budget_s:
+                        stopped_by = "time budget"
+                        break
+                    samples = self.batch_samples(step)
+                    flips = [bool(np.random.default_rng([cfg.seed, step, j, 1]).integers(2))
+                             for j in range(len(samples))]
+                    batch = Batch.from_samples(samples, self.device, flips, cfg.model.centre_windows, cfg.model.n,
+                                               cfg.model)
+                    lr = learning_rate(step, time.monotonic() - started, cfg)
+                    for group in self.optimizer.param_groups:
+                        group["lr"] = lr
+                    self.optimizer.zero_grad(set_to_none=True)
+                    edges = bool(np.random.default_rng([cfg.seed, step, 2]).random() < cfg.optim.edges)
+                    losses = train_batch(self.model, batch, cfg.optim.tbptt, cfg.loss, edges, cfg.optim.aged_passes,
+                                         cfg.optim.prime, self.teacher, self.bf16)
+                    if not all(math.isfinite(v) for v in losses.values()):
+                        raise FloatingPointError(f"step {step}: non-finite loss {losses} "
+                                                 f"(seeds {self.step_seeds(step)})")
+                    with signals_deferred():  # a stop lands before or after a whole step, never inside one
+                        torch.nn.utils.clip_grad_norm_(self.model.parameters(), cfg.optim.grad_clip)
+                        self.optimizer.step()
+                        step += 1
+                    elapsed = time.monotonic() - started
+                    row: dict[str, float] = {"step": step, "elapsed_s": elapsed, "lr": lr, **losses}
+                    if step % cfg.optim.val_every == 0:
+                        val_samples = val_samples or self.validation_samples()
+                        row.update(validate(self.model, val_samples, self.cache.spec.quanta, cfg.loss.saturation,
+                                            self.device, cfg.optim.edges > 0))
+                        log.info("step %d (%.1f min): loss %.4f, val mu-PSNR %.2f dB (TFW %.2f dB)", step,
+                                 elapsed / 60, losses["loss"], row["val_mu_psnr"], row["val_tfw_mu_psnr"])
+                    log_writer.write(row)
+                    if step % cfg.optim.checkpoint_every == 0:
+                        save_checkpoint(self.out_dir, self.model, self.optimizer, CheckpointState(step, elapsed))
+                    bar.update(1)
+                    bar.set_postfix(loss=f"{losses['loss']:.4f}")
+            finally:
+                bar.close()
+                log_writer.close()
+                if self._prefetcher is not None:
+                    self._prefetcher.close()
+            elapsed = time.monotonic() - started
+            save_checkpoint(self.out_dir, self.model, self.optimizer, CheckpointState(step, elapsed))
+            metrics = validate(self.model, val_samples or self.validation_samples(), self.cache.spec.quanta,
+                               cfg.loss.saturation, self.device, cfg.optim.edges > 0)
+            metrics["val_samples"] = float(cfg.data.val_count)
+            weights = save_model(self.out_dir / f"{cfg.name}.safetensors", self.model,
+                                 self.card(step, elapsed, stopped_by, metrics))
+            log.debug("%s: %d steps in %.1f min (stopped by %s); held-out mu-law PSNR %.2f dB (TFW %.2f dB)",
+                     weights, step, elapsed / 60, stopped_by, metrics["val_mu_psnr"], metrics["val_tfw_mu_psnr"])
         return TrainResult(weights, step, elapsed, stopped_by, metrics)
 
     def card(self, steps: int, elapsed_s: float, stopped_by: str, metrics: dict[str, float]) -> ModelCard:
@@ -523,18 +531,21 @@ class Trainer:
 
 
 class _LossLog:
-    """Appends rows to ``loss.csv``; on resume, rows after the checkpoint's step are dropped."""
+    """Appends rows to ``loss.csv``; on resume, rows after the checkpoint's step are dropped (the kept rows are
+    rewritten atomically, so a stop then leaves the log as it was)."""
 
     def __init__(self, path: Path, keep_until: int | None) -> None:
         rows: list[dict[str, str]] = []
         if keep_until is not None and path.exists():
             with path.open(newline="") as fh:
                 rows = [r for r in csv.DictReader(fh) if r.get("step", "").isdigit() and int(r["step"]) <= keep_until]
-        self.handle = path.open("w", newline="")
+        kept = io.StringIO(newline="")
+        writer = csv.DictWriter(kept, fieldnames=LOG_COLUMNS, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(rows)
+        atomic_write_text(path, kept.getvalue())
+        self.handle = path.open("a", newline="")
         self.writer = csv.DictWriter(self.handle, fieldnames=LOG_COLUMNS, extrasaction="ignore")
-        self.writer.writeheader()
-        self.writer.writerows(rows)
-        self.handle.flush()
 
     def write(self, row: dict[str, float]) -> None:
         self.writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
