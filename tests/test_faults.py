@@ -7,6 +7,7 @@ as input, running out of memory (RLIMIT_AS), an interrupted batch, a Dask cluste
 from __future__ import annotations
 
 import json
+import os
 import signal
 import struct
 import subprocess
@@ -258,6 +259,15 @@ def test_reconstruct_on_a_full_disk_is_one_line_and_leaves_nothing(tmp_path: Pat
     assert ".partial-" not in proc.stderr and "ffmpeg version" not in proc.stderr
     if fmt == "mp4":  # ffmpeg, past the limit, is stopped by SIGXFSZ: said so, in that one line
         assert "ffmpeg was stopped by a signal: File size limit exceeded" in proc.stderr
+    assert list(tmp_path.iterdir()) == [tmp_path / "in"]
+
+
+def test_a_missing_ffmpeg_is_one_line_and_leaves_nothing(tmp_path: Path) -> None:
+    dat = capture(tmp_path / "in" / "cap.dat", planes=400)
+    env = {**os.environ, "IMAGEIO_FFMPEG_EXE": str(tmp_path / "no-ffmpeg")}
+    proc = subprocess.run([sys.executable, "-m", "rmbvideo", "reconstruct", str(dat), "-o", str(tmp_path / "out"),
+                           *GEOM, "--method", "tfp", "-q"], capture_output=True, text=True, env=env)
+    one_line_error(proc, str(tmp_path / "out" / "frames.mp4"), "cannot start ffmpeg")
     assert list(tmp_path.iterdir()) == [tmp_path / "in"]
 
 

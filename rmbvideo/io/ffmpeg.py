@@ -33,7 +33,11 @@ class FfmpegEncoder:
         self.path = path
         self.display_path = display_path or path
         rate = Fraction(fps).limit_denominator()
-        command = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-v", "error", "-hide_banner",
+        try:
+            executable = imageio_ffmpeg.get_ffmpeg_exe()
+        except RuntimeError as exc:  # no bundled binary for this platform and none on the PATH
+            raise OutputError(f"{self.display_path}: cannot start ffmpeg: {exc}") from exc
+        command = [executable, "-y", "-v", "error", "-hide_banner",
                    "-f", "rawvideo", "-vcodec", "rawvideo", "-s", f"{size[0]}x{size[1]}", "-pix_fmt", pix_fmt_in,
                    "-r", str(rate), "-i", "-", "-an", "-vcodec", codec, "-pix_fmt", pix_fmt_out,
                    *output_params, str(path)]
