@@ -252,3 +252,15 @@ def test_rmbnet_window_selects_a_shipped_model_or_refuses(tmp_path: Path) -> Non
                            *GEOM, "--window", "1", "-q"], capture_output=True, text=True)
     assert proc.returncode == 2 and "w = 1" in proc.stderr and "Traceback" not in proc.stderr
     assert not (tmp_path / "w1").exists()
+
+
+def test_every_command_that_logs_takes_q_and_preview_is_then_silent(tmp_path: Path) -> None:
+    """-q/--quiet means the same everywhere (bench, preview and dynamic-range refused -q, or knew only --quiet)."""
+    ctx = main.make_context("rmbvideo", ["info", "x"])
+    names = [name for name in main.list_commands(ctx) if name != "info"]  # info prints its facts and nothing else
+    for name in names:
+        assert "-q, --quiet" in run(name, "--help").output, name
+    assert "-q, --quiet" in run("bench", "sizes", "--help").output
+    dat = small_capture(tmp_path / "cap.dat")
+    result = CliRunner().invoke(main, ["preview", str(dat), "-o", str(tmp_path / "p.png"), *GEOM, "-q"])
+    assert result.exit_code == 0 and result.output == "" and (tmp_path / "p.png").is_file()

@@ -17,7 +17,7 @@ import pytest
 
 from rmbvideo.chunks import Frame
 from rmbvideo.errors import InputError, OutputError, RmbvideoError
-from rmbvideo.io.atomic import atomic_path, atomic_write_text
+from rmbvideo.io.atomic import atomic_path, atomic_write_text, outputs_together
 from rmbvideo.io.exr import HALF_MAX, read_exr, read_exr_rgb, write_exr
 from rmbvideo.io.ffmpeg import FfmpegEncoder
 from rmbvideo.io.sinks import make_sink
@@ -96,6 +96,63 @@ def test_atomic_path_into_a_missing_folder_is_an_output_error(tmp_path: Path) ->
 
 
 # ---- EXR ----------------------------------------------------------------------------------------
+
+
+def test_outputs_together_are_renamed_together_or_not_at_all(tmp_path: Path) -> None:
+    """A report set is all of one run: held at temporary names until the block ends, then renamed together; a full
+    disk at the second file, or a Ctrl-C, leaves the earlier set whole and no temporary; other files go as usual."""
+    for name in ("report.md", "report.png"):
+        (tmp_path / name).write_text("earlier run")
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    with pytest.raises(OutputError, match="report.png: cannot write: No space left on device"):
+        with outputs_together(tmp_path, ("report.*",)):
+            atomic_write_text(tmp_path / "report.md", "this run")
+            atomic_write_text(tmp_path / "notes.txt", "not a report")  # not held
+            atomic_write_text(cache / "report.md", "a cache the run reads back")  # another folder: not held
+            assert (tmp_path / "report.md").read_text() == "earlier run"
+            assert (cache / "report.md").read_text() == "a cache the run reads back"
+            with atomic_path(tmp_path / "report.png"):
+                raise OSError(errno.ENOSPC, "No space left on device")
+    assert [(tmp_path / n).read_text() for n in ("report.md", "report.png")] == ["earlier run"] * 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cache", "notes.txt", "report.md", "report.png"]
+    with pytest.raises(KeyboardInterrupt):
+        with outputs_together(tmp_path, ("report.*",)):
+            atomic_write_text(tmp_path / "report.md", "this run")
+            raise KeyboardInterrupt
+    assert (tmp_path / "report.md").read_text() == "earlier run" and len(list(tmp_path.iterdir())) == 4
+    with outputs_together(tmp_path, ("report.*",)):
+        for name in ("report.md", "report.png"):
+            atomic_write_text(tmp_path / name, "this run")
+    assert [(tmp_path / n).read_text() for n in ("report.md", "report.png")] == ["this run"] * 2
+    assert len(list(tmp_path.iterdir())) == 4
+
+
+def test_dynamic_range_figures_on_a_full_disk_keep_the_earlier_pair(tmp_path: Path) -> None:
+    """The disk fills between the two figures of a rerun (RLIMIT_FSIZE between their sizes): the earlier pair stays,
+    the same files (not replaced), where the first figure used to be replaced alone."""
+    import subprocess
+    import sys
+
+    plots = tmp_path / "plots"
+    args = [sys.executable, "-m", "rmbvideo", "dynamic-range", "--levels", "1", "--readouts", "1,10", "--plots",
+            str(plots), "--quiet"]
+    assert subprocess.run(args, capture_output=True).returncode == 0
+    first, second = plots / "fig2_expectation_std.png", plots / "fig3_snr.png"
+    inodes = {path: path.stat().st_ino for path in (first, second)}
+    limit = (first.stat().st_size + second.stat().st_size) // 2
+
+    def full_disk() -> None:
+        import resource
+        import signal
+
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    proc = subprocess.run(args, capture_output=True, text=True, preexec_fn=full_disk)
+    assert proc.returncode == 2 and "File too large" in proc.stderr, proc.stderr
+    assert {path: path.stat().st_ino for path in (first, second)} == inodes
+    assert sorted(p.name for p in plots.iterdir()) == [first.name, second.name]
 
 
 def test_atomic_outputs_get_a_plain_files_mode_whatever_wrote_them(tmp_path: Path) -> None:

@@ -222,6 +222,12 @@ def quiet_option(func):
                         help="No progress bar and no messages but warnings and errors.")(func)
 
 
+def quiet_logging_option(func):
+    """``-q/--quiet`` for commands without a progress bar: no messages but warnings and errors."""
+    return click.option("-q", "--quiet", "quiet_", is_flag=True, expose_value=False, callback=_set_quiet,
+                        help="No messages but warnings and errors.")(func)
+
+
 def verbose_option(func):
     """``-v/--verbose`` after a subcommand, as before it: debug messages."""
     return click.option("-v", "--verbose", "verbose_", is_flag=True, expose_value=False, callback=_set_verbose,

@@ -12,7 +12,7 @@ import click
 
 from rmbvideo.allocator import keep_freed_memory
 from rmbvideo.bench.configs import DEFAULT_WIDTH, precision_label
-from rmbvideo.cli import verbose_option
+from rmbvideo.cli import quiet_logging_option, verbose_option
 from rmbvideo.sensor.compiled import COMPILED
 
 log = logging.getLogger(__name__)
@@ -37,6 +37,7 @@ def _stage_table(stages: dict[str, float]) -> str:
 
 @click.group(invoke_without_command=True)
 @verbose_option
+@quiet_logging_option
 @click.option("--quick", is_flag=True, help="Small held-out set (2 scenes, 112x64), short timing captures, "
               "no TV-L1 row: a few minutes.")
 @click.option("-o", "--output", "outdir", type=click.Path(path_type=Path), default=Path("bench-results"),
@@ -85,7 +86,7 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
     from rmbvideo.bench.report import mark_pareto, markdown_table, write_csv, write_plot
     from rmbvideo.bench.runner import TIMING_RUNS, run_config
     from rmbvideo.evaluate.heldout import load_heldout
-    from rmbvideo.io.atomic import atomic_write_text
+    from rmbvideo.io.atomic import atomic_write_text, outputs_together
     from rmbvideo.net.weights import MODELS_DIR
 
     models_dir = models_dir or MODELS_DIR
@@ -136,9 +137,10 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
                      f"planes, {m['peak_anon_mib'][1]:.0f} MiB for {m['factor']}x as many ({100 * m['growth']:+.1f} %; "
                      f"total RSS with mapped file pages {m['peak_rss_mib'][0]:.0f} -> {m['peak_rss_mib'][1]:.0f} MiB)."
                      for m in memory]
-    atomic_write_text(outdir / "bench.md", "\n".join(document) + "\n")
-    write_csv(records, outdir / "bench.csv")
-    write_plot(records, outdir / "bench.png")
+    with outputs_together(outdir, ("bench.*",)):  # the three of one run, or none
+        atomic_write_text(outdir / "bench.md", "\n".join(document) + "\n")
+        write_csv(records, outdir / "bench.csv")
+        write_plot(records, outdir / "bench.png")
     if as_json:
         click.echo(json.dumps({"records": [r.to_dict() for r in records], **extras}, indent=2))
     else:
@@ -153,6 +155,7 @@ def _choice(models_dir: Path):
 
 
 @bench.command("decode")
+@quiet_logging_option
 @click.option("--planes", type=click.IntRange(min=2), default=20000, show_default=True,
               help="Raw 400x250 planes in the generated capture.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
@@ -165,6 +168,7 @@ def decode(planes: int, as_json: bool) -> None:
 
 
 @bench.command("simulate")
+@quiet_logging_option
 @click.option("--scene", "scene_name", default="demo", show_default=True, help="Bundled scene name or TOML file.")
 @click.option("--duration", "duration_s", type=click.FloatRange(min=0, min_open=True), default=0.02,
               show_default=True, help="Seconds of the scene to simulate.")
@@ -188,6 +192,7 @@ def _size(text: str) -> tuple[int, int]:
 
 
 @bench.command("sizes")
+@quiet_logging_option
 @click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True,
               help="Device of the network.")
 @click.option("--size", "sizes", multiple=True, default=("400x250", "1000x1000"), show_default=True,
@@ -224,6 +229,7 @@ def sizes(device: str, sizes: tuple[str, ...], frames: int, frame_batches: tuple
 
 
 @bench.command("profile")
+@quiet_logging_option
 @click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True,
               help="Device of the network.")
 @click.option("--size", "size", default="400x250", show_default=True,
@@ -272,6 +278,7 @@ def _run(text: str) -> tuple[int, int, int]:
 
 
 @bench.command("network")
+@quiet_logging_option
 @click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True,
               help="Device of the network.")
 @click.option("--run", "runs", multiple=True, default=("200x125x128", "500x500x16"), show_default=True,

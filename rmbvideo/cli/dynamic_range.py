@@ -11,7 +11,7 @@ import click
 
 from tqdm import tqdm
 
-from rmbvideo.cli import progress_enabled, verbose_option
+from rmbvideo.cli import progress_enabled, quiet_option, verbose_option
 from rmbvideo.cli.options import AliasOption
 from rmbvideo.errors import InputError
 from rmbvideo.sensor.params import SensorParams
@@ -52,7 +52,7 @@ def _int_list(ctx: click.Context, param: click.Parameter, value: str) -> list[in
 @click.option("--plots", "plots_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Write fig2_expectation_std.png and fig3_snr.png into this folder.")
 @click.option("--json", "as_json", is_flag=True, help="Print {\"table\": [...]} on stdout.")
-@click.option("--quiet", is_flag=True, help="No progress bar.")
+@quiet_option
 def dynamic_range(levels: list[int], n_values: list[int], q_r: float | None, dark_mean: float | None,
                   noise_var: float | None, variance: str, plots_dir: Path | None,
                   as_json: bool, quiet: bool) -> None:
@@ -80,13 +80,14 @@ def dynamic_range(levels: list[int], n_values: list[int], q_r: float | None, dar
                 table[(level, res.n)] = res.dr_db
 
     if plots_dir is not None:
-        from rmbvideo.io.atomic import make_dir
+        from rmbvideo.io.atomic import make_dir, outputs_together
         from rmbvideo.io.png import write_figure
         from rmbvideo.sensor.plots import expectation_std_figure, snr_figure
 
         make_dir(plots_dir)
-        write_figure(expectation_std_figure(params), plots_dir / "fig2_expectation_std.png", dpi=120)
-        write_figure(snr_figure(params, exact=variance == "exact"), plots_dir / "fig3_snr.png", dpi=120)
+        with outputs_together(plots_dir, ("fig*.png",)):  # both figures of one readout design, or neither
+            write_figure(expectation_std_figure(params), plots_dir / "fig2_expectation_std.png", dpi=120)
+            write_figure(snr_figure(params, exact=variance == "exact"), plots_dir / "fig3_snr.png", dpi=120)
 
     if as_json:
         rows = [{"L": lv, "N": n, "dr_db": round(table[(lv, n)], 2)} for lv in levels for n in n_values]

@@ -251,6 +251,7 @@ def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Pat
     --no-heldout, those alone); with --development, candidate models on the development sets instead."""
     from rmbvideo.errors import OutputError
 
+    from rmbvideo.io.atomic import outputs_together
     from rmbvideo.evaluate.harness import evaluate_rows, table2_specs, with_best_raw
     from rmbvideo.evaluate.heldout import load_heldout, load_video_heldout
     from rmbvideo.evaluate.table import real_capture_comparison
@@ -273,50 +274,51 @@ def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Pat
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError(f"{out_dir}: cannot create the output folder ({exc.strerror or exc})") from None
-    if development:
-        paths = _development(out_dir, [models_dir / "rmbnet-binned.safetensors", *candidates], cache_dir, real_video,
-                             resolved, progress_enabled(quiet))
-        log.info("wrote %s", ", ".join(map(str, paths)))
-        warn_of_earlier_reports(out_dir, paths)
-        return
-    sequences, rows, written = [], [], []
-    if heldout:
-        sequences = load_heldout(quick, cache_dir, reset) + load_video_heldout(quick, cache_dir, reset=reset)
-        rows = with_best_raw(evaluate_rows(table2_specs(models_dir, resolved, precision), sequences,
-                                           progress=progress_enabled(quiet)))
-        written = _heldout_outputs(rows, sequences, out_dir, quick, resolved, reset, precision)
-        from rmbvideo.evaluate.video_checks import write_checks
+    with outputs_together(out_dir, REPORT_PATTERNS):  # all of this run's reports, or none
+        if development:
+            paths = _development(out_dir, [models_dir / "rmbnet-binned.safetensors", *candidates], cache_dir, real_video,
+                                 resolved, progress_enabled(quiet))
+            log.info("wrote %s", ", ".join(map(str, paths)))
+            warn_of_earlier_reports(out_dir, paths)
+            return
+        sequences, rows, written = [], [], []
+        if heldout:
+            sequences = load_heldout(quick, cache_dir, reset) + load_video_heldout(quick, cache_dir, reset=reset)
+            rows = with_best_raw(evaluate_rows(table2_specs(models_dir, resolved, precision), sequences,
+                                               progress=progress_enabled(quiet)))
+            written = _heldout_outputs(rows, sequences, out_dir, quick, resolved, reset, precision)
+            from rmbvideo.evaluate.video_checks import write_checks
 
-        video = [seq for seq in sequences if json.loads(seq.description).get("kind")]
-        written += write_checks(out_dir, "rmbnet", {"model": models_dir / "rmbnet-binned.safetensors",
-                                                    "device": resolved, "precision": precision, "threads": 1},
-                                   video, quick)
-    if streams:
-        written += _real_video(streams, models_dir / "rmbnet-binned.safetensors", resolved, out_dir,
-                               precision=precision)
-    if texture_pans:
-        from rmbvideo.evaluate.heldout import default_cache_dir
-        from rmbvideo.evaluate.texture_pans import texture_pan_folder
+            video = [seq for seq in sequences if json.loads(seq.description).get("kind")]
+            written += write_checks(out_dir, "rmbnet", {"model": models_dir / "rmbnet-binned.safetensors",
+                                                        "device": resolved, "precision": precision, "threads": 1},
+                                       video, quick)
+        if streams:
+            written += _real_video(streams, models_dir / "rmbnet-binned.safetensors", resolved, out_dir,
+                                   precision=precision)
+        if texture_pans:
+            from rmbvideo.evaluate.heldout import default_cache_dir
+            from rmbvideo.evaluate.texture_pans import texture_pan_folder
 
-        folder = texture_pan_folder(cache_dir if cache_dir is not None else default_cache_dir())
-        written += _real_video(find_streams(folder), models_dir / "rmbnet-binned.safetensors", resolved, out_dir,
-                               "texture_pans", "Development clips: textures panned in spikezoo's convention",
-                               pictured=("c16-v14", "c16-v28"), precision=precision)
-    if full_resolution and (sequences or streams):
-        from rmbvideo.evaluate.full_resolution import write_full_resolution
+            folder = texture_pan_folder(cache_dir if cache_dir is not None else default_cache_dir())
+            written += _real_video(find_streams(folder), models_dir / "rmbnet-binned.safetensors", resolved, out_dir,
+                                   "texture_pans", "Development clips: textures panned in spikezoo's convention",
+                                   pictured=("c16-v14", "c16-v28"), precision=precision)
+        if full_resolution and (sequences or streams):
+            from rmbvideo.evaluate.full_resolution import write_full_resolution
 
-        written += write_full_resolution(out_dir, sequences, streams, models_dir / "rmbnet-binned.safetensors",
-                                         precision=precision)
-    if real_path is not None:
-        model = models_dir / "rmbnet-binned.safetensors"
-        written.append(real_capture_comparison(real_path, out_dir / "real_comparison.png", model, resolved,
-                                               precision=precision))
-    if as_json:
-        click.echo(json.dumps([{"method": r.name, "status": r.status,
-                                **{k: (getattr(r, k) if math.isfinite(getattr(r, k)) else None)
-                                   for k in ("psnr", "ssim", "pu21", "temporal", "fps", "network_fps")}}
-                               for r in rows],
-                              indent=2))
-    for path in written:
-        log.info("wrote %s", path)
-    warn_of_earlier_reports(out_dir, written)
+            written += write_full_resolution(out_dir, sequences, streams, models_dir / "rmbnet-binned.safetensors",
+                                             precision=precision)
+        if real_path is not None:
+            model = models_dir / "rmbnet-binned.safetensors"
+            written.append(real_capture_comparison(real_path, out_dir / "real_comparison.png", model, resolved,
+                                                   precision=precision))
+        if as_json:
+            click.echo(json.dumps([{"method": r.name, "status": r.status,
+                                    **{k: (getattr(r, k) if math.isfinite(getattr(r, k)) else None)
+                                       for k in ("psnr", "ssim", "pu21", "temporal", "fps", "network_fps")}}
+                                   for r in rows],
+                                  indent=2))
+        for path in written:
+            log.info("wrote %s", path)
+        warn_of_earlier_reports(out_dir, written)

@@ -8,7 +8,7 @@ import click
 import cv2
 import numpy as np
 
-from rmbvideo.cli import verbose_option
+from rmbvideo.cli import quiet_option, verbose_option
 from rmbvideo.cli.options import capture_options
 from rmbvideo.io.atomic import check_file_writable
 from rmbvideo.io.capture import open_capture
@@ -57,11 +57,13 @@ def contact_sheet(reader, count: int = 6, window: int = 41, columns: int = 3,
               help="Tone mapping, as reconstruct's for mp4/png.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing file at -o.")
 @capture_options
+@quiet_option
 def preview(input_path: Path, output: Path, count: int, window: int, tonemap: str, overwrite: bool,
-            width, height, flip, header_cols, rate_hz) -> None:
+            width, height, flip, header_cols, rate_hz, quiet: bool) -> None:
     """Write a contact sheet of a few time points of INPUT (TFP, tone-mapped as reconstruct's video)."""
     check_file_writable(output, overwrite, suffixes=(".png",))
     reader = open_capture(input_path, width, height, flip, header_cols, rate_hz)
     sheet = contact_sheet(reader, count=count, window=window, tonemap=ToneMapConfig(method=tonemap))
     write_png(output, sheet)
-    click.echo(f"wrote {output}")
+    if not quiet:
+        click.echo(f"wrote {output}")

@@ -8,6 +8,7 @@ missing folder) become :class:`~rmbvideo.errors.OutputError` naming the final pa
 from __future__ import annotations
 
 import errno
+import fnmatch
 import os
 import secrets
 from collections.abc import Callable, Iterator
@@ -80,12 +81,57 @@ def commit(temp: Path, final: Path) -> None:
         raise output_error(final, exc) from exc
 
 
+#: The folder and name patterns ``outputs_together`` holds outputs for, and the (temporary, final) pairs held so far
+_held_folder: Path | None = None
+_held_names: tuple[str, ...] = ()
+_held_outputs: list[tuple[Path, Path]] = []
+
+
+@contextmanager
+def outputs_together(folder: Path, names: tuple[str, ...]) -> Iterator[None]:
+    """Hold every atomic output written in the block into ``folder`` under a name matching one of ``names`` (glob
+    patterns) at its temporary name, and rename them all onto their names when the block succeeds (signals held
+    meanwhile); on any failure or stop none is, and the temporaries go. A command's reports are so all of one run: a
+    full disk or a Ctrl-C at its last file leaves an earlier run's set whole, never half of each. Other files (caches
+    the run reads back) are written as usual."""
+    global _held_folder, _held_names, _held_outputs
+    if _held_folder is not None:
+        raise RuntimeError("outputs_together does not nest")
+    _held_folder, _held_names, _held_outputs = Path(folder).resolve(), names, []
+    done = False
+    try:
+        yield
+        done = True
+    finally:
+        held, _held_folder, _held_outputs = _held_outputs, None, []
+        if not done:
+            for temp, _ in held:
+                remove_quietly(temp)
+    with signals_deferred():
+        for index, (temp, final) in enumerate(held):
+            try:
+                commit(temp, final)
+            except OutputError:
+                for later, _ in held[index + 1:]:
+                    remove_quietly(later)
+                raise
+
+
+def _commit_or_hold(temp: Path, final: Path) -> None:
+    if (_held_folder is not None and final.parent.resolve() == _held_folder
+            and any(fnmatch.fnmatchcase(final.name, name) for name in _held_names)):
+        _held_outputs.append((temp, final))
+    else:
+        commit(temp, final)
+
+
 @contextmanager
 def atomic_path(final: Path) -> Iterator[Path]:
     """Yield a temporary path beside ``final``; rename it onto ``final`` if the block succeeds.
 
     On any exception the temporary file is removed and ``final`` is left as it was. Disk-full and
-    permission errors raised in the block are re-raised as ``OutputError(f"{final}: ...")``.
+    permission errors raised in the block are re-raised as ``OutputError(f"{final}: ...")``. Inside
+    ``outputs_together`` the rename waits for the end of that block.
     """
     final = Path(final)
     if not final.parent.is_dir():
@@ -105,7 +151,7 @@ def atomic_path(final: Path) -> Iterator[Path]:
     except OSError as exc:
         remove_quietly(temp)
         raise output_error(final, exc) from exc
-    commit(temp, final)
+    _commit_or_hold(temp, final)
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
