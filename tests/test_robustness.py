@@ -34,6 +34,14 @@ def moving_scene(planes: int, height: int, width: int, seed: int = 0) -> np.ndar
     return np.stack(frames).astype(np.uint8)
 
 
+def block_scene(planes: int, height: int, width: int, seed: int = 0) -> np.ndarray:
+    """Spikes of a still pattern of 10x10 dark and bright blocks: the contrast of a real scene in a few planes."""
+    rng = np.random.default_rng(seed)
+    levels = np.where(rng.random((height // 10 + 1, width // 10 + 1)) < 0.5, 0.05, 0.95)
+    rate = levels.repeat(10, 0).repeat(10, 1)[:height, :width]
+    return (rng.random((planes, height, width)) < rate).astype(np.uint8)
+
+
 # --- broken captures -----------------------------------------------------------------------------
 
 
@@ -156,6 +164,29 @@ def test_a_geometry_the_data_cannot_tell_is_said_to_be_a_tie(tmp_path: Path) -> 
     write_dat(structured, moving_scene(48, 64, 96), DatGeometry(96, 64))
     assert not json.loads(cli("info", structured, "--guess-geometry", "--json").stdout)["ambiguous"]
     assert "cannot tell" not in cli("info", structured, "--guess-geometry").stdout
+
+
+def test_a_capture_read_at_the_default_size_that_fits_another_is_warned_of(tmp_path: Path) -> None:
+    """A camera turned on its side (250x400 planes: the bytes of the default 400x250) or one whose rows end in a
+    header, read with nothing giving their size: one warning names the geometry that fits, and the capture is read as
+    before; the default's own captures and random spikes are not warned of, nor a capture whose size is given."""
+    sideways = tmp_path / "sideways.dat"
+    write_dat(sideways, block_scene(12, 400, 250), DatGeometry(250, 400))
+    proc = cli("info", sideways)
+    assert proc.returncode == 0 and "400x250" in proc.stdout, proc.stderr
+    assert proc.stderr.count("look like planes of 250x400 (") == 1 and "give --width 250 --height 400 " in proc.stderr
+    header = tmp_path / "header.dat"
+    write_dat(header, block_scene(12, 250, 400), DatGeometry(416, 250, header_cols=16))
+    assert "give --width 416 --height 250 --header-cols 16 " in cli("info", header).stderr
+    upright, noise = tmp_path / "upright.dat", tmp_path / "noise.dat"
+    write_dat(upright, block_scene(12, 250, 400), DatGeometry(400, 250))
+    write_dat(noise, (np.random.default_rng(1).random((12, 250, 400)) < 0.3).astype(np.uint8), DatGeometry(400, 250))
+    for path in (upright, noise):
+        assert "look like" not in cli("info", path).stderr
+    assert "look like" not in cli("info", sideways, "--width", "400", "--height", "250").stderr
+    result = CliRunner().invoke(main, ["batch", str(sideways), "-o", str(tmp_path / "out"), "--method", "tfp",
+                                       "--jobs", "1"])
+    assert result.exit_code == 0 and result.output.count("look like planes of 250x400 (") == 1, result.output
 
 
 def test_geometry_guess_of_a_real_capture(shared_data: Path) -> None:

@@ -47,7 +47,35 @@ def open_capture(path: Path, width: int | None = None, height: int | None = None
         )
     except InputError as exc:
         raise InputError(f"{path}: {exc}") from None
-    return DatReader(Path(path), geometry, rate_hz=info.rate_hz or DEFAULT_RATE_HZ)
+    reader = DatReader(Path(path), geometry, rate_hz=info.rate_hz or DEFAULT_RATE_HZ)
+    if info.width is None and info.height is None and info.header_cols is None:
+        _warn_of_a_better_geometry(Path(path), geometry)
+    return reader
+
+
+#: The captures (path, size, modification time) already checked in this process: a warning once per capture
+_checked: set[tuple[str, int, int]] = set()
+
+
+def _warn_of_a_better_geometry(path: Path, assumed: DatGeometry) -> None:
+    """Warn, once per capture, when the default size read for a capture that says nothing of its own looks wrong and
+    another fits its data far better (a camera turned on its side, a header the default does not drop)."""
+    from rmbvideo.io.geometry_guess import better_geometry
+
+    stat = path.stat()
+    key = (str(path.resolve()), stat.st_size, stat.st_mtime_ns)
+    if key in _checked:
+        return
+    _checked.add(key)
+    found = better_geometry(path, assumed)
+    if found is not None:
+        better, mine = found
+        g = better.geometry
+        header = f" with {g.header_cols} header columns" if g.header_cols else ""
+        log.warning("%s: read as %dx%d, the default (nothing gives its size), but its data look like planes of "
+                    "%dx%d%s (score %.2f against %.2f); if so, give %s or a sidecar (`rmbvideo info --guess-geometry` "
+                    "lists more)", path, assumed.width, assumed.height, g.width, g.height, header, better.score,
+                    mine.score, better.options)
 
 
 def plane_windows(reader: DatReader, size: int, count: int, start: int = 0,
