@@ -1,8 +1,8 @@
 """One ffmpeg process that encodes raw frames from its stdin into a video file.
 
-ffmpeg's own messages are kept, not printed, so that a failure, such as a full disk while it
-writes the file's trailer, reaches the user as one line naming the file and ffmpeg's reason. It runs in a process
-group of its own, so a terminal's Ctrl-C reaches only this program, which then stops ffmpeg and removes the file.
+ffmpeg's own messages are kept, not printed, so that a failure, such as a full disk while it writes the file's
+trailer, reaches the user as one line naming the file and ffmpeg's reason. It runs in a session of its own, so a
+terminal's Ctrl-C reaches only this program, which then stops ffmpeg and removes the file.
 """
 
 from __future__ import annotations
@@ -70,7 +70,7 @@ class FfmpegEncoder:
         """Give ffmpeg one frame; a stopped ffmpeg is an ``OutputError`` with its reason."""
         try:
             self._process.stdin.write(data)
-        except (BrokenPipeError, OSError) as exc:
+        except OSError as exc:  # a broken pipe: ffmpeg has stopped
             self._process.wait()
             raise OutputError(f"{self.display_path}: ffmpeg stopped accepting frames: {self.reason()}") from exc
 
