@@ -126,6 +126,13 @@ def test_outputs_together_are_renamed_together_or_not_at_all(tmp_path: Path) -> 
             atomic_write_text(tmp_path / name, "this run")
     assert [(tmp_path / n).read_text() for n in ("report.md", "report.png")] == ["this run"] * 2
     assert len(list(tmp_path.iterdir())) == 4
+    with pytest.raises(KeyboardInterrupt):  # an inner block's files, done, still wait for the outer block's end
+        with outputs_together(tmp_path, ("report.*",)):
+            with outputs_together(tmp_path, ("report.md",)):
+                atomic_write_text(tmp_path / "report.md", "third run")
+            assert (tmp_path / "report.md").read_text() == "this run"
+            raise KeyboardInterrupt
+    assert (tmp_path / "report.md").read_text() == "this run" and len(list(tmp_path.iterdir())) == 4
 
 
 def test_dynamic_range_figures_on_a_full_disk_keep_the_earlier_pair(tmp_path: Path) -> None:

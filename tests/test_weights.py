@@ -55,6 +55,24 @@ def test_weight_files_are_as_readable_as_their_cards(tmp_path):
     assert stat.S_IMODE(path.stat().st_mode) == stat.S_IMODE((tmp_path / "m.json").stat().st_mode)
 
 
+def test_a_model_whose_card_cannot_be_written_leaves_the_earlier_pair(tmp_path, monkeypatch):
+    """Weights and card are renamed together: a full disk at the card (after the weights) used to leave new weights
+    beside the earlier model's card, which then described another training."""
+    import errno
+
+    import rmbvideo.net.weights as weights_module
+
+    earlier = {p.name: p.read_bytes() for p in (save_model(tmp_path / "m", tiny(), CARD), tmp_path / "m.json")}
+
+    def full_disk(path, text):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(weights_module, "atomic_write_text", full_disk)
+    with pytest.raises(OSError):
+        save_model(tmp_path / "m", tiny(input_mode="native"), ModelCard(name="another"))
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == earlier
+
+
 def test_mismatched_cards_are_refused(tmp_path):
     path = save_model(tmp_path / "m", tiny(), CARD)
     with pytest.raises(ModelError, match="'binned'.*'native'"):

@@ -13,6 +13,7 @@ import os
 import secrets
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from rmbvideo.errors import OutputError
@@ -81,10 +82,20 @@ def commit(temp: Path, final: Path) -> None:
         raise output_error(final, exc) from exc
 
 
-#: The folder and name patterns ``outputs_together`` holds outputs for, and the (temporary, final) pairs held so far
-_held_folder: Path | None = None
-_held_names: tuple[str, ...] = ()
-_held_outputs: list[tuple[Path, Path]] = []
+@dataclass
+class _HeldGroup:
+    """One ``outputs_together`` block: the folder and name patterns it holds, and the (temporary, final) pairs held."""
+
+    folder: Path
+    names: tuple[str, ...]
+    held: list[tuple[Path, Path]] = field(default_factory=list)
+
+    def takes(self, final: Path) -> bool:
+        return final.parent.resolve() == self.folder and any(fnmatch.fnmatchcase(final.name, n) for n in self.names)
+
+
+#: The ``outputs_together`` blocks running, innermost last
+_groups: list[_HeldGroup] = []
 
 
 @contextmanager
@@ -93,36 +104,35 @@ def outputs_together(folder: Path, names: tuple[str, ...]) -> Iterator[None]:
     patterns) at its temporary name, and rename them all onto their names when the block succeeds (signals held
     meanwhile); on any failure or stop none is, and the temporaries go. A command's reports are so all of one run: a
     full disk or a Ctrl-C at its last file leaves an earlier run's set whole, never half of each. Other files (caches
-    the run reads back) are written as usual."""
-    global _held_folder, _held_names, _held_outputs
-    if _held_folder is not None:
-        raise RuntimeError("outputs_together does not nest")
-    _held_folder, _held_names, _held_outputs = Path(folder).resolve(), names, []
+    the run reads back) are written as usual; an inner block's files go to that block alone."""
+    group = _HeldGroup(Path(folder).resolve(), names)
+    _groups.append(group)
     done = False
     try:
         yield
         done = True
     finally:
-        held, _held_folder, _held_outputs = _held_outputs, None, []
+        _groups.remove(group)
         if not done:
-            for temp, _ in held:
+            for temp, _ in group.held:
                 remove_quietly(temp)
     with signals_deferred():
-        for index, (temp, final) in enumerate(held):
+        for index, (temp, final) in enumerate(group.held):
             try:
-                commit(temp, final)
+                _commit_or_hold(temp, final)
             except OutputError:
-                for later, _ in held[index + 1:]:
+                for later, _ in group.held[index + 1:]:
                     remove_quietly(later)
                 raise
 
 
 def _commit_or_hold(temp: Path, final: Path) -> None:
-    if (_held_folder is not None and final.parent.resolve() == _held_folder
-            and any(fnmatch.fnmatchcase(final.name, name) for name in _held_names)):
-        _held_outputs.append((temp, final))
-    else:
+    """Rename ``temp`` onto ``final``, or hold it for the innermost ``outputs_together`` block that takes it."""
+    group = next((g for g in reversed(_groups) if g.takes(final)), None)
+    if group is None:
         commit(temp, final)
+    else:
+        group.held.append((temp, final))
 
 
 @contextmanager

@@ -24,7 +24,7 @@ from safetensors.torch import save_file
 
 from rmbvideo import __version__
 from rmbvideo.errors import ModelError
-from rmbvideo.io.atomic import atomic_path, atomic_write_text
+from rmbvideo.io.atomic import atomic_path, atomic_write_text, outputs_together
 from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.detail import DetailConfig, DetailNet
 from rmbvideo.net.model import RmbNet
@@ -151,9 +151,11 @@ def save_model(path: str | os.PathLike[str], model: RmbNet | DetailNet | RawGate
         "architecture": model.config.to_dict(),
         **asdict(card),
     }
-    with atomic_path(weights) as temp:
-        save_file(tensors, str(temp), metadata={"format": card_format, "architecture": _architecture_text(model.config)})
-    atomic_write_text(card_path, json.dumps(document, indent=2) + "\n")
+    with outputs_together(weights.parent, (weights.name, card_path.name)):  # a card always of its own weights
+        with atomic_path(weights) as temp:
+            save_file(tensors, str(temp), metadata={"format": card_format,
+                                                    "architecture": _architecture_text(model.config)})
+        atomic_write_text(card_path, json.dumps(document, indent=2) + "\n")
     return weights
 
 
