@@ -7,6 +7,7 @@ terminal's Ctrl-C reaches only this program, which then stops ffmpeg and removes
 
 from __future__ import annotations
 
+import logging
 import re
 import signal
 import subprocess
@@ -15,6 +16,8 @@ from fractions import Fraction
 from pathlib import Path
 
 from rmbvideo.errors import OutputError
+
+log = logging.getLogger(__name__)
 
 #: ffmpeg's first lines, kept for the error message (the first is the cause; later ones follow from it)
 _KEPT_LINES = 20
@@ -83,6 +86,9 @@ class FfmpegEncoder:
         status = self._process.wait()
         if status != 0:
             raise OutputError(f"{self.display_path}: ffmpeg could not write the video: {self.reason()}")
+        self._reader.join(timeout=5)
+        if self._lines:  # errors it recovered from: said, not swallowed
+            log.warning("%s: ffmpeg reported: %s", self.display_path, "; ".join(self._lines[:3]))
 
     def kill(self) -> None:
         """Stop ffmpeg at once (an aborted run); what it wrote is the caller's to remove."""
