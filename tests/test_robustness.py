@@ -105,6 +105,23 @@ def test_a_tiny_capture_is_reconstructed(tmp_path: Path, width: int, height: int
     assert images and all(np.isfinite(i).all() and (i >= 0).all() for i in images)
 
 
+def test_a_video_or_picture_given_as_a_capture_is_refused_by_name(tmp_path: Path) -> None:
+    """The tool's own outputs (MP4, PNG, EXR) and other formats read as planes of spikes gave noise without a word; a
+    file that starts with another format's signature is now refused as what it is, by every reader."""
+    dat = capture(tmp_path / "cap.dat", planes=200)
+    out = tmp_path / "out"
+    for fmt in ("mp4", "png", "exr"):
+        assert cli("reconstruct", dat, "-o", out / fmt, *GEOM, "--method", "tfp", "--format", fmt, "-q").returncode == 0
+    np.save(tmp_path / "array.npy", np.zeros(20000, np.uint8))
+    for path, what in ((out / "mp4" / "frames.mp4", "an MP4/MOV video"), (out / "png" / "frame_000000.png",
+                       "a PNG image"), (out / "exr" / "frame_000000.exr", "an OpenEXR image"),
+                       (tmp_path / "array.npy", "a NumPy array")):
+        one_line_error(cli("reconstruct", path, "-o", tmp_path / "again", *GEOM), str(path), f"is {what}")
+    video = out / "mp4" / "frames.mp4"
+    one_line_error(cli("info", video, "--guess-geometry"), str(video), "is an MP4/MOV video")
+    assert not (tmp_path / "again").exists()
+
+
 def test_batch_reports_every_kind_of_broken_capture(tmp_path: Path) -> None:
     good = capture(tmp_path / "in" / "good.dat")
     (tmp_path / "in" / "empty.dat").write_bytes(b"")

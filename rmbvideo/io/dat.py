@@ -130,6 +130,35 @@ def _geometry_hint(size: int) -> str:
     return f" (the size fits {', '.join(fits)})" if fits else ""
 
 
+#: (offset, bytes, what): the first bytes of files taken for a capture by mistake. A .dat has no header, so a capture
+#: would have to spell one of these (at least 4 bytes) with its first pixels; a video or picture read as planes of
+#: spikes gave frames of noise without a word.
+FOREIGN_SIGNATURES: tuple[tuple[int, bytes, str], ...] = (
+    (0, b"\x89PNG\r\n\x1a\n", "a PNG image"),
+    (4, b"ftyp", "an MP4/MOV video"),
+    (0, b"\x1a\x45\xdf\xa3", "a Matroska/WebM video"),
+    (0, b"RIFF", "a RIFF file (AVI video or WAV sound)"),
+    (0, b"\x76\x2f\x31\x01", "an OpenEXR image"),
+    (0, b"\xff\xd8\xff\xe0", "a JPEG image"),
+    (0, b"\xff\xd8\xff\xe1", "a JPEG image"),
+    (0, b"\xff\xd8\xff\xdb", "a JPEG image"),
+    (0, b"GIF8", "a GIF image"),
+    (0, b"II*\x00", "a TIFF image"),
+    (0, b"MM\x00*", "a TIFF image"),
+    (0, b"\x93NUMPY", "a NumPy array (.npy)"),
+    (0, b"PK\x03\x04", "a ZIP archive (or .npz)"),
+    (0, b"\x89HDF\r\n\x1a\n", "an HDF5 file"),
+)
+
+
+def foreign_format(path: Path) -> str | None:
+    """What ``path`` is when its first bytes are another format's signature (``FOREIGN_SIGNATURES``), else None."""
+    with open(path, "rb") as handle:
+        head = handle.read(16)
+    return next((what for offset, magic, what in FOREIGN_SIGNATURES if head[offset:offset + len(magic)] == magic),
+                None)
+
+
 #: Sampled planes below which ``saturated_fraction`` does not say: a pixel at 0.95 spikes per plane fires in all 32
 #: with probability 0.19, in all 64 with 0.04.
 MIN_SATURATION_PLANES = 32
@@ -154,6 +183,12 @@ class DatReader:
         size = regular_file_size(self.path)
         if size == 0:
             raise InputError(f"{self.path}: empty file")
+        try:
+            foreign = foreign_format(self.path)
+        except OSError as exc:
+            raise InputError(f"{self.path}: cannot read: {exc.strerror or exc}") from None
+        if foreign is not None:
+            raise InputError(f"{self.path}: is {foreign}, not a spike capture (a .dat holds raw planes of spikes)")
         plane_bytes = geometry.plane_bytes
         if size < plane_bytes:
             raise InputError(

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from rmbvideo.errors import InputError
-from rmbvideo.io.dat import COMMON_GEOMETRIES, DatGeometry
+from rmbvideo.io.dat import COMMON_GEOMETRIES, DatGeometry, foreign_format
 
 MIN_SIDE, MAX_SIDE = 64, 4096
 MAX_ASPECT = 4.0
@@ -107,6 +107,9 @@ def guess_geometry(path: str | os.PathLike[str], top: int = 5) -> list[GeometryG
         raise InputError(f"{path}: cannot read: {exc.strerror or exc}") from None
     if size == 0:
         raise InputError(f"{path}: empty file")
+    foreign = foreign_format(path)
+    if foreign is not None:
+        raise InputError(f"{path}: is {foreign}, not a spike capture: it has no plane geometry to guess")
     bits = np.unpackbits(np.frombuffer(sample, dtype=np.uint8), bitorder="little")
     screen = bits[: 8 * SCREEN_BYTES]
     candidates = [g for g in candidate_geometries(size) if g.plane_bytes <= len(sample)]
