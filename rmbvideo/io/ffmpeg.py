@@ -33,7 +33,6 @@ class FfmpegEncoder:
                  codec: str, output_params: list[str], display_path: Path | None = None) -> None:
         import imageio_ffmpeg
 
-        self.path = path
         self.display_path = display_path or path
         rate = Fraction(fps).limit_denominator()
         try:
