@@ -240,3 +240,16 @@ def test_an_existing_capture_is_replaced_only_with_overwrite(tmp_path: Path) -> 
 
     with pytest.raises(OutputError, match=r"is a folder; name the file to write \(e.g. .*capture\.dat\)"):  # the library's callers: no click check
         simulate_capture(load_scene(Path(scene)), tmp_path, duration_s=0.001)
+
+
+def test_a_capture_named_as_a_video_or_picture_is_refused(tmp_path: Path) -> None:
+    """`simulate demo -o demo.mp4` wrote spikes into a file named as a video; it is refused up front, with the name to
+    use and the command that makes the video."""
+    scene = str(write_scene(tmp_path, "binned"))
+    for name in ("demo.mp4", "demo.PNG", "demo.exr"):
+        refused = CliRunner().invoke(main, ["simulate", scene, "-o", str(tmp_path / name), "-q"])
+        dat = tmp_path / "demo.dat"
+        assert refused.exit_code == 2, refused.output
+        assert f"{tmp_path / name}: simulate writes a spike capture" in refused.output
+        assert f"name it e.g. {dat}, then `rmbvideo reconstruct {dat}`" in refused.output
+    assert not list(tmp_path.glob("demo*"))

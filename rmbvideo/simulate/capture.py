@@ -159,6 +159,11 @@ def check_free_space(output: Path, needed: int) -> None:
                           "free; shorten it with --duration")
 
 
+#: Names of pictures, videos and data a capture is never given: simulate refuses them as a slip (-o demo.mp4)
+NOT_CAPTURE_SUFFIXES = frozenset({".mp4", ".mov", ".mkv", ".webm", ".avi", ".png", ".jpg", ".jpeg", ".gif", ".tif",
+                                  ".tiff", ".exr", ".hdr", ".npy", ".npz", ".json", ".csv", ".md", ".h5"})
+
+
 def check_capture_writable(output: Path, overwrite: bool) -> None:
     """``OutputError`` up front when ``output``'s folder is missing, or a capture (``.dat`` or ``.mbit``) is
     already there and ``overwrite`` is not given: a real capture is never replaced by a simulated one unasked."""
@@ -166,6 +171,10 @@ def check_capture_writable(output: Path, overwrite: bool) -> None:
     from rmbvideo.io.rmbfile import mbit_path
 
     output = Path(output)
+    if output.suffix.lower() in NOT_CAPTURE_SUFFIXES:
+        dat = output.with_suffix(".dat")
+        raise OutputError(f"{output}: simulate writes a spike capture, not a {output.suffix.lower()} file: name it e.g. "
+                          f"{dat}, then `rmbvideo reconstruct {dat}` makes the video or pictures")
     check_file_writable(output, overwrite, example="capture.dat")
     mbit = mbit_path(output)
     if mbit.exists() and not overwrite:
