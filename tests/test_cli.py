@@ -264,3 +264,14 @@ def test_every_command_that_logs_takes_q_and_preview_is_then_silent(tmp_path: Pa
     dat = small_capture(tmp_path / "cap.dat")
     result = CliRunner().invoke(main, ["preview", str(dat), "-o", str(tmp_path / "p.png"), *GEOM, "-q"])
     assert result.exit_code == 0 and result.output == "" and (tmp_path / "p.png").is_file()
+
+
+def test_an_output_named_as_a_video_file_is_refused_not_made_a_folder(tmp_path: Path) -> None:
+    """`-o video.mp4` made a folder named video.mp4 holding frames.mp4; it is refused with the folder to give."""
+    dat = small_capture(tmp_path / "cap.dat")
+    result = CliRunner().invoke(main, ["reconstruct", str(dat), "-o", str(tmp_path / "video.mp4"), *GEOM,
+                                       "--method", "tfp"])
+    assert result.exit_code == 2
+    assert "names a .mp4 file, but the output is a folder" in result.output
+    assert f"give e.g. -o {tmp_path / 'video'}" in result.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cap.dat"]

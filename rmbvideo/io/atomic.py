@@ -252,6 +252,11 @@ def check_file_writable(path: Path, overwrite: bool, suffixes: tuple[str, ...] =
         raise OutputError(f"{path}: exists; use --overwrite to replace it")
 
 
+#: Names of videos and pictures: a file's, never an output folder's (``-o video.mp4`` made a folder of that name)
+MEDIA_SUFFIXES = frozenset({".mp4", ".mov", ".mkv", ".webm", ".avi", ".png", ".jpg", ".jpeg", ".gif", ".tif", ".tiff",
+                            ".exr", ".hdr"})
+
+
 def check_replaceable(final: Path, is_output: Callable[[str], bool], overwrite: bool) -> None:
     """Refuse to replace ``final`` as a whole unless it is absent, empty, or (with ``overwrite``) holds
     nothing but files ``is_output`` recognises by name: a user's own files, or the capture itself, are
@@ -259,6 +264,9 @@ def check_replaceable(final: Path, is_output: Callable[[str], bool], overwrite: 
     final = Path(final)
     if final.exists() and not final.is_dir():
         raise OutputError(f"{final}: exists and is not a folder")
+    if not final.exists() and final.suffix.lower() in MEDIA_SUFFIXES:
+        raise OutputError(f"{final}: names a {final.suffix.lower()} file, but the output is a folder (frames.mp4 or "
+                          f"the frames, and frames.csv, go into it): give e.g. -o {final.with_suffix('')}")
     if final.resolve() == Path.cwd().resolve():
         raise OutputError(f"{final}: is the current folder; the outputs go into a folder of their own, replaced "
                           "as a whole: name a new one")

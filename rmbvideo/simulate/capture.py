@@ -15,6 +15,7 @@ import numpy as np
 
 from rmbvideo.chunks import RmbChunk, SpikeChunk
 from rmbvideo.errors import InputError, OptionError, OutputError
+from rmbvideo.io.atomic import MEDIA_SUFFIXES
 from rmbvideo.io.dat import DatGeometry, DatWriter
 from rmbvideo.io.rmbfile import RmbFileWriter
 from rmbvideo.scenes.render import SceneRenderer
@@ -160,8 +161,7 @@ def check_free_space(output: Path, needed: int) -> None:
 
 
 #: Names of pictures, videos and data a capture is never given: simulate refuses them as a slip (-o demo.mp4)
-NOT_CAPTURE_SUFFIXES = frozenset({".mp4", ".mov", ".mkv", ".webm", ".avi", ".png", ".jpg", ".jpeg", ".gif", ".tif",
-                                  ".tiff", ".exr", ".hdr", ".npy", ".npz", ".json", ".csv", ".md", ".h5"})
+NOT_CAPTURE_SUFFIXES = MEDIA_SUFFIXES | {".npy", ".npz", ".json", ".csv", ".md", ".h5"}
 
 
 def check_capture_writable(output: Path, overwrite: bool) -> None:
