@@ -62,12 +62,15 @@ def _warn_of_a_better_geometry(path: Path, assumed: DatGeometry) -> None:
     another fits its data far better (a camera turned on its side, a header the default does not drop)."""
     from rmbvideo.io.geometry_guess import better_geometry
 
-    stat = path.stat()
-    key = (str(path.resolve()), stat.st_size, stat.st_mtime_ns)
-    if key in _checked:
+    try:
+        stat = path.stat()
+        key = (str(path.resolve()), stat.st_size, stat.st_mtime_ns)
+        if key in _checked:
+            return
+        _checked.add(key)
+        found = better_geometry(path, assumed)
+    except OSError:  # a hint only: the reading itself says what is wrong with the file
         return
-    _checked.add(key)
-    found = better_geometry(path, assumed)
     if found is not None:
         better, mine = found
         g = better.geometry
