@@ -278,7 +278,10 @@ def test_a_stopped_batch_leaves_promptly_and_cleanly_with_idle_workers(tmp_path:
             proc.wait()
     if proc.returncode == 0:  # on a loaded machine it can finish between the look and the signal
         pytest.skip("the run ended before the signal reached it")
-    assert proc.returncode == (143 if stop.startswith("sigterm") else 130), stderr
+    # a second Ctrl-C landing once the batch has said its line ends Python by SIGINT itself: the shell shows 130 for
+    # both, and nothing more is printed
+    expected = (143,) if stop.startswith("sigterm") else (130, -signal.SIGINT) if stop == "ctrl-c twice" else (130,)
+    assert proc.returncode in expected, stderr
     assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
     assert ("stopped by SIGTERM" if stop.startswith("sigterm") else "interrupted") in stderr
     assert not list(out.glob(".big.*"))

@@ -279,6 +279,23 @@ def test_ctrl_c_of_a_training_run_with_simulation_workers_ends_in_one_line(tmp_p
     assert all(path.is_file() for path in checkpoint_paths(out))
 
 
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads signal dispositions from /proc")
+def test_simulation_workers_ignore_ctrl_c_from_birth():
+    """The workers start when the prefetcher does, SIGINT already ignored while they import: a Ctrl-C then reached a
+    worker before its initializer and printed its traceback (seen in CI under load)."""
+    from rmbvideo.train.dataset import SamplePrefetcher
+
+    prefetcher = SamplePrefetcher(None, lambda step: [], workers=2)
+    try:
+        pids = list(prefetcher._pool._processes)
+        assert len(pids) == 2 and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        for pid in pids:
+            line = next(l for l in Path(f"/proc/{pid}/status").read_text().splitlines() if l.startswith("SigIgn"))
+            assert int(line.split()[1], 16) & (1 << (signal.SIGINT - 1)), line
+    finally:
+        prefetcher.close()
+
+
 def test_a_stopped_run_saves_the_step_it_stood_at_and_resumes_from_it(tmp_path):
     """A SIGTERM (a scheduler's, say) between checkpoints used to lose every step since the last one; the run now
     saves the checkpoint of its last whole step, says so in its one line, and --resume continues from that step."""

@@ -42,7 +42,7 @@ CONVINCING_SCORE = 0.2
 TIE_SCORE = 0.01
 # ``better_geometry`` names another geometry only when it scores at least this and this much above the one assumed
 # (a sideways 250x400 capture read as 400x250: 0.86 against 0.50; real 400x250 captures: their best other geometry
-# 0.18-0.62 below theirs; random spikes: every geometry ~0)
+# 0.18-0.48 below theirs; random spikes: every geometry ~0)
 BETTER_CONVINCING = 0.5
 BETTER_BY = 0.2
 

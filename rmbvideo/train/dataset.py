@@ -21,7 +21,9 @@ import json
 import logging
 import multiprocessing
 import signal
+import threading
 import zipfile
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
@@ -245,6 +247,24 @@ def _simulate_video_sample(spec: SampleSpec, seed: int) -> Sample:
     )
 
 
+@contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """SIGINT ignored in the block (on the main thread): processes started in it inherit that, and Python keeps it.
+    A Ctrl-C in the block itself is lost, so it only starts processes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _started() -> None:
+    """A worker's first task: nothing, so that submitting it starts the worker."""
+
+
 def _worker_init() -> None:
     """One thread per simulation process (the processes already fill the cores); a terminal's Ctrl-C, which reaches
     every process of the group, is left to the training process, which stops its workers itself (a worker it reached
@@ -268,6 +288,9 @@ class SamplePrefetcher:
         self.spec, self.seeds_of, self.depth = spec, seeds_of, depth
         self._pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
                                          initializer=_worker_init)
+        with _sigint_ignored():  # every worker starts now, ignoring SIGINT from birth: a Ctrl-C while one still
+            for _ in range(workers):  # imports reached it before _worker_init and printed its traceback
+                self._pool.submit(_started)
         self._pending: dict[int, Future] = {}
 
     def get(self, step: int) -> list[Sample]:
