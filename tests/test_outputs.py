@@ -146,6 +146,8 @@ def test_dynamic_range_figures_on_a_full_disk_keep_the_earlier_pair(tmp_path: Pa
             str(plots), "--quiet"]
     assert subprocess.run(args, capture_output=True).returncode == 0
     first, second = plots / "fig2_expectation_std.png", plots / "fig3_snr.png"
+    if first.stat().st_size >= second.stat().st_size:  # the disk must fill at the second: only then is it a pair
+        pytest.skip("this matplotlib draws the first figure larger than the second")
     inodes = {path: path.stat().st_ino for path in (first, second)}
     limit = (first.stat().st_size + second.stat().st_size) // 2
 

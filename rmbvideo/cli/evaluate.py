@@ -276,8 +276,8 @@ def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Pat
         raise OutputError(f"{out_dir}: cannot create the output folder ({exc.strerror or exc})") from None
     with outputs_together(out_dir, REPORT_PATTERNS):  # all of this run's reports, or none
         if development:
-            paths = _development(out_dir, [models_dir / "rmbnet-binned.safetensors", *candidates], cache_dir, real_video,
-                                 resolved, progress_enabled(quiet))
+            paths = _development(out_dir, [models_dir / "rmbnet-binned.safetensors", *candidates], cache_dir,
+                                 real_video, resolved, progress_enabled(quiet))
             log.info("wrote %s", ", ".join(map(str, paths)))
             warn_of_earlier_reports(out_dir, paths)
             return

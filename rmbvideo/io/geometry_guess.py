@@ -127,15 +127,15 @@ def guess_geometry(path: str | os.PathLike[str], top: int = 5) -> list[GeometryG
 
 def better_geometry(path: Path, assumed: DatGeometry) -> tuple[GeometryGuess, GeometryGuess] | None:
     """(a geometry that makes the start of ``path`` look far more like images than ``assumed`` does, by ``BETTER_BY``
-    and convincingly; ``assumed``'s own score), or None: the quick check (``SCREEN_BYTES``, tens of milliseconds) of a capture
-    read at the default size because nothing gave its own. The candidates are the planes of ``assumed``'s size in
-    other shapes (a camera turned on its side) and the common camera geometries."""
+    and convincingly; ``assumed``'s own score), or None: the quick check (``SCREEN_BYTES``, tens of milliseconds) of
+    a capture read at the default size because nothing gave its own. The candidates are the planes of ``assumed``'s
+    size in other shapes (a camera turned on its side) and the common camera geometries."""
     size = path.stat().st_size
     with open(path, "rb") as handle:
         sample = handle.read(SCREEN_BYTES)
-    bits = np.unpackbits(np.frombuffer(sample, dtype=np.uint8), bitorder="little")
     if len(sample) < 2 * assumed.plane_bytes:
         return None
+    bits = np.unpackbits(np.frombuffer(sample, dtype=np.uint8), bitorder="little")
     others = [g for g in candidate_geometries(size) if g != assumed and 2 * g.plane_bytes <= len(sample)
               and (g.plane_bytes == assumed.plane_bytes or g in COMMON_GEOMETRIES)]
     if not others:

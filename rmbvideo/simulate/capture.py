@@ -173,8 +173,8 @@ def check_capture_writable(output: Path, overwrite: bool) -> None:
     output = Path(output)
     if output.suffix.lower() in NOT_CAPTURE_SUFFIXES:
         dat = output.with_suffix(".dat")
-        raise OutputError(f"{output}: simulate writes a spike capture, not a {output.suffix.lower()} file: name it e.g. "
-                          f"{dat}, then `rmbvideo reconstruct {dat}` makes the video or pictures")
+        raise OutputError(f"{output}: simulate writes a spike capture, not a {output.suffix.lower()} file: name it "
+                          f"e.g. {dat}, then `rmbvideo reconstruct {dat}` makes the video or pictures")
     check_file_writable(output, overwrite, example="capture.dat")
     mbit = mbit_path(output)
     if mbit.exists() and not overwrite:
