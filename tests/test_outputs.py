@@ -17,7 +17,7 @@ import pytest
 
 from rmbvideo.chunks import Frame
 from rmbvideo.errors import InputError, OutputError, RmbvideoError
-from rmbvideo.io.atomic import atomic_path, atomic_write_text, outputs_together
+from rmbvideo.io.atomic import atomic_path, atomic_write_text, outputs_together, staged_folder
 from rmbvideo.io.exr import HALF_MAX, read_exr, read_exr_rgb, write_exr
 from rmbvideo.io.ffmpeg import FfmpegEncoder
 from rmbvideo.io.sinks import make_sink
@@ -96,6 +96,29 @@ def test_atomic_path_into_a_missing_folder_is_an_output_error(tmp_path: Path) ->
 
 
 # ---- EXR ----------------------------------------------------------------------------------------
+
+
+def test_a_folder_another_run_filled_meanwhile_is_kept_without_overwrite(tmp_path: Path) -> None:
+    """Two runs racing into one new folder: the one that finishes second, without --overwrite, fails with one
+    line and leaves the first run's complete output as it was (it used to rename it aside and replace it)."""
+    out = tmp_path / "out"
+    is_output = lambda name: name.startswith("frames.")  # noqa: E731
+    with pytest.raises(OutputError, match="another run") as caught:
+        with staged_folder(out, is_output) as staging:
+            (staging / "frames.csv").write_text("second run\n")
+            out.mkdir()  # the first run's commit, while this one was still writing
+            (out / "frames.csv").write_text("first run\n")
+    assert str(out) in str(caught.value) and "partial" not in str(caught.value)
+    assert (out / "frames.csv").read_text() == "first run\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no staging or set-aside folder left
+    with staged_folder(out, is_output, overwrite=True) as staging:  # --overwrite still replaces it
+        (staging / "frames.csv").write_text("third run\n")
+    assert (out / "frames.csv").read_text() == "third run\n"
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with staged_folder(empty, is_output) as staging:  # an empty folder is no one's output
+        (staging / "frames.csv").write_text("run\n")
+    assert (empty / "frames.csv").read_text() == "run\n"
 
 
 def test_outputs_together_are_renamed_together_or_not_at_all(tmp_path: Path) -> None:

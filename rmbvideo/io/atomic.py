@@ -308,6 +308,9 @@ def staged_folder(final: Path, is_output: Callable[[str], bool], overwrite: bool
         yield staging
         old = final.with_name(f".{final.name}.old-{token}")
         with signals_deferred():  # a signal now would leave the old output aside, or half removed
+            if not overwrite:
+                _rename_unless_filled(staging, final, shown)
+                return
             if final.exists():
                 os.rename(final, old)
             os.rename(staging, final)
@@ -319,3 +322,16 @@ def staged_folder(final: Path, is_output: Callable[[str], bool], overwrite: bool
         if isinstance(exc, OutputError) and str(staging) in str(exc):  # name the folder the user gave
             raise OutputError(str(exc).replace(str(staging), str(shown))) from exc
         raise
+
+
+def _rename_unless_filled(staging: Path, final: Path, shown: Path) -> None:
+    """Rename ``staging`` onto ``final`` only while ``final`` is absent or empty: the rename itself refuses a
+    folder another run has filled since this one started (two runs racing into one new folder), so without
+    ``--overwrite`` no complete output is ever replaced."""
+    try:
+        os.rename(staging, final)
+    except OSError as exc:
+        if exc.errno not in (errno.ENOTEMPTY, errno.EEXIST):
+            raise
+        raise OutputError(f"{shown}: was filled by another run while this one wrote its outputs; that run's "
+                          "outputs are kept (use --overwrite to replace them)") from None
