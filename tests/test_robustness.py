@@ -201,9 +201,16 @@ def test_a_capture_read_at_the_default_size_that_fits_another_is_warned_of(tmp_p
     for path in (upright, noise):
         assert "look like" not in cli("info", path).stderr
     assert "look like" not in cli("info", sideways, "--width", "400", "--height", "250").stderr
-    result = CliRunner().invoke(main, ["batch", str(sideways), "-o", str(tmp_path / "out"), "--method", "tfp",
-                                       "--jobs", "1"])
+    result = CliRunner().invoke(main, ["batch", str(sideways), str(upright), "-o", str(tmp_path / "out"),
+                                       "--method", "tfp", "--jobs", "1"])
     assert result.exit_code == 0 and result.output.count("look like planes of 250x400 (") == 1, result.output
+    proc = cli("batch", sideways, upright, "-o", tmp_path / "out2", "--method", "tfp", "--jobs", "2")
+    assert proc.returncode == 0 and proc.stderr.count("look like planes of 250x400 (") == 1, proc.stderr
+    for out in ("out", "out2"):  # the report keeps it with the capture it concerns, after the terminal has scrolled
+        entries = {Path(e["input"]).name: e for e in
+                   json.loads((tmp_path / out / "batch-report.json").read_text())["captures"]}
+        assert [w for w in entries["sideways.dat"]["warnings"] if "look like planes of 250x400 (" in w], entries
+        assert not [w for w in entries["upright.dat"]["warnings"] if "look like" in w], entries
 
 
 def test_geometry_guess_of_a_real_capture(shared_data: Path) -> None:

@@ -61,3 +61,4 @@ class CaptureResult:
     error: str | None = None
     frames: int | None = None
     seconds: float = 0.0
+    warnings: list[str] = field(default_factory=list)  # what the conversion warned of (a geometry that fits better)

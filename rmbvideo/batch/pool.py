@@ -73,10 +73,13 @@ def _worker_stopped(signum: int, frame: Any) -> None:
         raise KeyboardInterrupt
 
 
-def start_worker(threads: int) -> None:
+def start_worker(threads: int, log_level: int) -> None:
     """Initialiser of a batch worker process: dies with the batch, stops as above, uses ``threads`` threads and
-    the allocator policy of every command."""
+    the allocator policy of every command, and logs its warnings to stderr (debug messages too at ``-v``) as the
+    batch does: its per-capture information would interleave without naming the capture."""
     die_with_parent()
+    logging.basicConfig(level=logging.DEBUG if log_level <= logging.DEBUG else logging.WARNING,
+                        format="rmbvideo: %(message)s")
     signal.signal(signal.SIGTERM, _worker_stopped)
     if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:  # a batch started with Ctrl-C ignored keeps it so
         signal.signal(signal.SIGINT, _worker_stopped)
@@ -192,7 +195,8 @@ def _run_in_processes(jobs: Sequence[CaptureJob], workers: int,
 
     while pending:
         with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn"),
-                                 initializer=start_worker, initargs=(threads,)) as pool:
+                                 initializer=start_worker,
+                                 initargs=(threads, logging.getLogger().getEffectiveLevel())) as pool:
             running: dict[Future[CaptureResult], int] = {}
             broken = False
             try:

@@ -46,4 +46,8 @@ def summary_table(results: Sequence[CaptureResult]) -> str:
     totals = Counter(r.status for r in results)
     lines.append(f"{len(results)} captures: {totals['ok']} ok, {totals['skipped']} skipped, "
                  f"{totals['failed']} failed")
+    warned = sum(1 for r in results if r.warnings)
+    if warned:
+        lines.append(f"{warned} of them warned of something (a geometry that fits better, say): the warnings of each "
+                     f"are in {REPORT_NAME}")
     return "\n".join(lines)

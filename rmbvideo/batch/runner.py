@@ -9,6 +9,8 @@ import os
 import secrets
 import shutil
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from rmbvideo.batch.jobs import MARKER_NAME, CaptureJob, CaptureResult
@@ -29,8 +31,20 @@ def run_capture_job(job: CaptureJob) -> CaptureResult:
     """Convert one capture, or skip it when its output is already complete; never raises for bad input.
 
     Errors of the input or environment (and unexpected errors, logged with their traceback) become
-    a ``failed`` result; the previous outputs of this capture, if any, are left as they were.
+    a ``failed`` result; the previous outputs of this capture, if any, are left as they were. What the
+    conversion warned of is kept in the result (the report stays with the outputs; a terminal scrolls away).
     """
+    warned: list[str] = []
+    with warnings_kept(warned):
+        result = _convert_capture(job)
+    result.warnings = warned
+    if result.status == "failed":
+        log.warning("%s", result.error)
+    return result
+
+
+def _convert_capture(job: CaptureJob) -> CaptureResult:
+    """``run_capture_job`` but for its warnings."""
     from rmbvideo.io.capture import open_capture
     from rmbvideo.recon.run import run_reconstruction
 
@@ -68,9 +82,31 @@ def run_capture_job(job: CaptureJob) -> CaptureResult:
         result.error = f"{job.input_path}: unexpected error: {type(exc).__name__}: {exc}"
     finally:
         result.seconds = time.perf_counter() - began
-    if result.status == "failed":
-        log.warning("%s", result.error)
     return result
+
+
+class _WarningsKept(logging.Handler):
+    """Keeps the text of each warning (not error) logged through it."""
+
+    def __init__(self, kept: list[str]) -> None:
+        super().__init__(logging.WARNING)
+        self.kept = kept
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if record.levelno == logging.WARNING:
+            self.kept.append(record.getMessage())
+
+
+@contextmanager
+def warnings_kept(kept: list[str]) -> Iterator[None]:
+    """Append to ``kept`` what this package warns of inside the block."""
+    handler = _WarningsKept(kept)
+    package = logging.getLogger("rmbvideo")
+    package.addHandler(handler)
+    try:
+        yield
+    finally:
+        package.removeHandler(handler)
 
 
 def _as_output(message: str, work: Path | None, output_dir: Path) -> str:
