@@ -287,3 +287,61 @@ def test_a_stopped_batch_leaves_promptly_and_cleanly_with_idle_workers(tmp_path:
     assert not list(out.glob(".big.*"))
     assert not (out / "big").exists()
     assert len(list((out / "small").glob("*.exr"))) == 20
+
+
+def _worker_pids() -> list[int]:
+    """This process's spawned pool workers (not multiprocessing's resource tracker)."""
+    pids = []
+    for children in Path("/proc/self/task").glob("*/children"):
+        for pid in children.read_text().split():
+            cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ")
+            if b"spawn_main" in cmdline and b"resource_tracker" not in cmdline:
+                pids.append(int(pid))
+    return pids
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="needs Linux /proc to find the workers")
+def test_a_worker_that_does_not_stop_is_killed_and_the_next_run_clears_its_partial_output(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A worker that cannot clean up when the batch stops (here frozen with SIGSTOP mid-capture, as a hung disk
+    would) is killed after the grace period, with one warning naming its capture; the batch still ends with its
+    line and exit code, and the next run removes the partial folder the killed worker left and completes."""
+    import threading
+
+    import rmbvideo.batch.pool as pool
+
+    monkeypatch.setattr(pool, "WORKER_CLEANUP_S", 1.0)
+    rng = np.random.default_rng(0)
+    (tmp_path / "in").mkdir()
+    write_dat(tmp_path / "in" / "big.dat", (rng.random((4000, 16, 16)) < 0.3).astype(np.uint8), DatGeometry(16, 16))
+    write_dat(tmp_path / "in" / "small.dat", (rng.random((40, 16, 16)) < 0.3).astype(np.uint8), DatGeometry(16, 16))
+    out = tmp_path / "out"
+    args = ["batch", tmp_path / "in", "-o", out, "--width", "16", "--height", "16", "--method", "tfp", "--format",
+            "exr", "--step", "2", "--jobs", "2", "-q"]
+    frozen: list[int] = []
+
+    def freeze_and_stop() -> None:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            if [p for p in out.glob(".big.partial-*") if len(list(p.glob("*.exr"))) > 200]:
+                frozen.extend(_worker_pids())
+                for pid in frozen:
+                    os.kill(pid, signal.SIGSTOP)
+                os.kill(os.getpid(), signal.SIGINT)
+                return
+            time.sleep(0.02)
+
+    watcher = threading.Thread(target=freeze_and_stop, daemon=True)
+    watcher.start()
+    result = CliRunner().invoke(main, [str(a) for a in args])
+    watcher.join()
+    if not frozen:
+        pytest.skip(f"the run ended before it could be stopped: {result.output[-300:]!r}")
+    assert result.exit_code == 130, result.output
+    assert "still running 1 s after the stop; killed" in result.output and "big.dat" in result.output, result.output
+    for pid in frozen:  # killed and reaped, none left stopped
+        assert not Path(f"/proc/{pid}").exists() or "zombie" in Path(f"/proc/{pid}/status").read_text()
+    rerun = CliRunner().invoke(main, [str(a) for a in args])
+    assert rerun.exit_code == 0, rerun.output
+    assert {entry["status"] for entry in report(out).values()} <= {"ok", "skipped"}
+    assert len(list((out / "big").glob("*.exr"))) == 2000 and not list(out.glob(".big.*"))
