@@ -441,3 +441,22 @@ def test_a_stream_unlike_its_reference_is_warned_of(tmp_path, caplog):
     assert scores[rows[0].name].ssim < 0.3
     (record,) = caplog.records
     assert wrong.capture.name in record.getMessage() and "80x32" in record.getMessage()
+
+
+def test_a_users_folder_pairs_either_case_and_names_the_captures_it_leaves_out(tmp_path, caplog):
+    """A folder of a user's pairs: `.DAT`/`.PNG` pair as `.dat`/`.png` do, and a capture without a reference is named
+    in one warning rather than quietly left out of the table."""
+    from rmbvideo.evaluate.real_video import find_streams
+    from rmbvideo.evaluate.texture_pans import TEXTURE_PANS, write_texture_pan
+    from rmbvideo.io.dat import DatGeometry
+
+    write_texture_pan(TEXTURE_PANS[-1], tmp_path, DatGeometry(64, 40))
+    (stream,) = find_streams(tmp_path)
+    stream.capture.rename(tmp_path / "LOUD.DAT")
+    stream.reference.rename(tmp_path / "LOUD.PNG")
+    (tmp_path / "orphan.dat").write_bytes((tmp_path / "LOUD.DAT").read_bytes())
+    with caplog.at_level("WARNING", logger="rmbvideo.evaluate.real_video"):
+        (found,) = find_streams(tmp_path)
+    assert found.name == "LOUD" and found.reference.name == "LOUD.PNG"
+    (record,) = caplog.records
+    assert "orphan.dat" in record.getMessage() and "LOUD" not in record.getMessage()

@@ -137,15 +137,19 @@ def png_geometry(path: Path) -> DatGeometry:
 
 
 def find_streams(folder: Path, geometry: DatGeometry | None = None) -> list[RealStream]:
-    """Every ``NAME.dat`` in ``folder`` with a ``NAME.png`` beside it, sorted by name; each capture laid out as
+    """Every ``NAME.dat`` in ``folder`` with a ``NAME.png`` beside it (either suffix in either case), sorted by name, a
+    capture without one named in a warning; each capture laid out as
     ``geometry``, or when none is given, as its reference's size says (``png_geometry``: any size, one per pair)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError(f"{folder}: not a folder of .dat + .png pairs")
-    streams = []
-    for capture in sorted(folder.glob("*.dat")):
-        reference = capture.with_suffix(".png")
-        if reference.is_file():
+    streams, unpaired = [], []
+    captures = sorted(path for path in folder.iterdir() if path.suffix.lower() == ".dat" and path.is_file())
+    for capture in captures:
+        reference = _reference_of(capture)
+        if reference is None:
+            unpaired.append(capture.name)
+        else:
             layout = geometry if geometry is not None else png_geometry(reference)
             if geometry is None and regular_file_size(capture) % layout.plane_bytes:
                 raise InputError(f"{capture}: not a whole number of {layout.width}x{layout.height} planes, the size of "
@@ -154,7 +158,19 @@ def find_streams(folder: Path, geometry: DatGeometry | None = None) -> list[Real
             streams.append(RealStream(capture.stem, capture, reference, reference_plane(reference, planes), layout))
     if not streams:
         raise InputError(f"{folder}: no .dat file with a .png reference beside it")
+    if unpaired:  # a user's folder of twenty pairs with two PNGs missing must not quietly score eighteen
+        log.warning("%s: left out, no PNG of the same name beside %s: %s", folder,
+                    "it" if len(unpaired) == 1 else f"these {len(unpaired)} captures", ", ".join(unpaired))
     return streams
+
+
+def _reference_of(capture: Path) -> Path | None:
+    """The PNG named as ``capture`` (``.png`` or ``.PNG``: cameras and exports write either), or None."""
+    for suffix in (".png", ".PNG"):
+        reference = capture.with_suffix(suffix)
+        if reference.is_file():
+            return reference
+    return None
 
 
 class PlanesFrom:
