@@ -189,3 +189,34 @@ def test_the_convention_picks_the_response_unless_one_is_given() -> None:
     assert make_mg20(convention="spikezoo", response="poisson").response == "poisson"  # an explicit response wins
     with pytest.raises(ValueError, match="convention"):
         make_gc20(convention="sideways")
+
+
+def test_gc20_takes_any_step_and_window_and_mg20_names_the_ones_it_needs(tmp_path) -> None:
+    """GC20's blocks only group its sums: a step or window they do not tile (a frame a readout, a 15-readout window)
+    gets smaller blocks, with TFW's frame schedule and the same frames as blocks of one readout; MG20 aligns its
+    blocks, so there such options are one line naming the steps and windows it takes (they were a traceback)."""
+    import subprocess
+    import sys
+
+    from rmbvideo.io.dat import DatGeometry, write_dat
+    from rmbvideo.recon.classical import Tfw
+
+    rng = np.random.default_rng(8)
+    stream = draw_stream(rng.uniform(0.0, 1.0, (1, 16, 16)).repeat(57, axis=0), rng, start=13)
+    for step, window in ((1, 70), (15, 15), (10, 20)):
+        frames = run(Gc20Reconstructor(Gc20Config(step=step, window=window)), stream, 57)
+        single = run(Gc20Reconstructor(Gc20Config(step=step, window=window, block=1)), stream, 57)
+        schedule = run(Tfw(window=window, step=step), stream, 57)
+        assert [(f.index, f.time_s) for f in frames] == [(f.index, f.time_s) for f in schedule] != []
+        for a, b in zip(frames, single):
+            np.testing.assert_allclose(a.image, b.image, rtol=1e-5)
+    with pytest.raises(Exception, match="--step that is a multiple of 20"):
+        Mg20Reconstructor(Mg20Config(step=1))
+    capture = tmp_path / "c.dat"
+    write_dat(capture, (rng.random((200, 16, 16)) < 0.3).astype(np.uint8), DatGeometry(16, 16))
+    for method, extra, code in (("gc20", ["--step", "2"], 0), ("mg20", ["--window", "15"], 2)):
+        proc = subprocess.run([sys.executable, "-m", "rmbvideo", "reconstruct", str(capture), "-o",
+                               str(tmp_path / method), "--width", "16", "--height", "16", "--method", method,
+                               "--format", "null", "-q", *extra], capture_output=True, text=True)
+        assert proc.returncode == code and "Traceback" not in proc.stderr, proc.stderr
+        assert len(proc.stderr.strip().splitlines()) == code // 2, proc.stderr

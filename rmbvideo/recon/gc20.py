@@ -277,12 +277,20 @@ class BlockWindowReconstructor(ABC):
         """The linear frame from the statistics of the window's blocks (``reference``: the frame's own)."""
 
 
+def tiling_block(window: int, step: int, block: int) -> int:
+    """The largest block of at most ``block`` readouts that tiles ``step``, ``window`` and the window's start
+    (``BlockWindowReconstructor`` keeps its statistics per block)."""
+    return math.gcd(block, step, window, (step - window + 1) // 2)
+
+
 class Gc20Reconstructor(BlockWindowReconstructor):
-    """GC20: the MLE of theta from all readings of the window, pixel by pixel (no alignment)."""
+    """GC20: the MLE of theta from all readings of the window, pixel by pixel (no alignment). Its blocks only group
+    the window's sums, so a step or window they do not tile (``--step 2``: a frame a readout) gets smaller ones."""
 
     def __init__(self, config: Gc20Config | None = None) -> None:
         config = config or Gc20Config()
-        super().__init__(config.window, config.step, config.block, config.response)
+        super().__init__(config.window, config.step, tiling_block(config.window, config.step, config.block),
+                         config.response)
         self.config = config
 
     def _frame_image(self, blocks: list[ReadingStats], reference: int, model: JotModel) -> np.ndarray:

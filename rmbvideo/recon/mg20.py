@@ -24,9 +24,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from rmbvideo.errors import OptionError
 from rmbvideo.recon.flow import dis_flow
 from rmbvideo.recon.gc20 import (BlockWindowReconstructor, JotModel, ReadingStats, Response, config_options,
-                                 solve_exposure)
+                                 solve_exposure, tiling_block)
 
 
 @dataclass(frozen=True)
@@ -51,6 +52,13 @@ class Mg20Reconstructor(BlockWindowReconstructor):
         config = config or Mg20Config()
         if config.patch < 1 or config.tau <= 0 or config.align_sigma < 0:
             raise ValueError(f"patch must be >= 1, tau > 0 and align_sigma >= 0, got {config}")
+        if tiling_block(config.window, config.step, config.block) < config.block:
+            # its blocks are what it aligns and merges: smaller ones would be another method (and many more flows)
+            raise OptionError(f"mg20 aligns and merges blocks of {config.block} readouts, which must tile each frame's "
+                              f"window: --step {2 * config.step} raw planes ({config.step} readouts) with --window "
+                              f"{config.window} readouts do not; give a --step that is a multiple of "
+                              f"{2 * config.block} and a --window that differs from the step's readouts by a multiple "
+                              f"of {2 * config.block} (with the default --step 20: 30, 50, 70, ...)")
         super().__init__(config.window, config.step, config.block, config.response)
         self.config = config
         self._flow = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
