@@ -2,15 +2,12 @@
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
-import os
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-from rmbvideo import __version__
 from rmbvideo.batch.jobs import (
     MARKER_FORMAT,
     MARKER_NAME,
@@ -18,44 +15,14 @@ from rmbvideo.batch.jobs import (
     CaptureJob,
 )
 from rmbvideo.io.atomic import atomic_write_text
+from rmbvideo.recon.fingerprint import fingerprint_digest, run_fingerprint
 
 log = logging.getLogger(__name__)
 
 def output_fingerprint(job: CaptureJob, reader: Any) -> dict[str, Any]:
     """Everything that decides the output of ``job``, as JSON data (``reader``: the opened capture)."""
-    options = {k: _describe(v) for k, v in sorted(job.options.items())
-               if k not in NON_OUTPUT_OPTIONS and k != "capture"}
-    g = reader.geometry
-    stat = job.input_path.stat()
-    return {
-        "code_version": __version__,
-        "options": options,
-        "capture": {"width": g.width, "height": g.height, "header_cols": g.header_cols, "flip": g.flip,
-                    "rate_hz": reader.rate_hz},
-        "input": {"size": stat.st_size, "mtime_ns": stat.st_mtime_ns},
-    }
-
-
-def _describe(value: Any) -> Any:
-    """JSON form of an option value; a value naming an existing file also records its size and mtime."""
-    if isinstance(value, dict):
-        return {str(k): _describe(v) for k, v in sorted(value.items())}
-    if isinstance(value, (list, tuple)):
-        return [_describe(v) for v in value]
-    if isinstance(value, (str, os.PathLike)):
-        text = os.fspath(value)
-        if text and os.path.isfile(text):
-            stat = os.stat(text)
-            return {"file": text, "size": stat.st_size, "mtime_ns": stat.st_mtime_ns}
-        return text
-    if value is None or isinstance(value, (bool, int, float)):
-        return value
-    return str(value)
-
-
-def fingerprint_digest(fingerprint: dict[str, Any]) -> str:
-    """A stable hash of a fingerprint."""
-    return hashlib.sha256(json.dumps(fingerprint, sort_keys=True).encode("utf-8")).hexdigest()
+    options = {k: v for k, v in job.options.items() if k not in NON_OUTPUT_OPTIONS and k != "capture"}
+    return run_fingerprint(job.input_path, options, reader)
 
 
 def read_marker(output_dir: Path, digest: str) -> dict[str, Any] | None:

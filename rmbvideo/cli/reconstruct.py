@@ -132,6 +132,10 @@ def rmbnet_options(func):
 @rmbnet_options
 @click.option("--overwrite", is_flag=True,
               help="Replace the outputs of an earlier run in OUTDIR (kept intact until the new run is complete).")
+@click.option("--resume", is_flag=True,
+              help="For a long capture (--format exr or png): if this run is interrupted (Ctrl-C, a full disk, a "
+                   "crash) its frames are kept, and the same command with --resume again continues it from the "
+                   "first frame missing.")
 @quiet_option
 @verbose_option
 def reconstruct(input_path: Path, outdir: Path, method: str, window, step, fmt: str, fps: float,
@@ -140,7 +144,7 @@ def reconstruct(input_path: Path, outdir: Path, method: str, window, step, fmt: 
                 header_cols, rate_hz,
                 start_s: float, duration_s, chunk_planes: int, model, align: str, device: str,
                 upsampling: str, precision: str, threads, convention: str, response: str, frame_batch, prime,
-                cuda_graphs: bool, overwrite: bool,
+                cuda_graphs: bool, overwrite: bool, resume: bool,
                 nits_per_unit,
                 quiet: bool) -> None:
     """Reconstruct a .dat capture INPUT into frames in OUTDIR."""
@@ -154,7 +158,7 @@ def reconstruct(input_path: Path, outdir: Path, method: str, window, step, fmt: 
         duration_s=duration_s, chunk_planes=chunk_planes, progress=progress_enabled(quiet),
         capture=dict(width=width, height=height, flip=flip, header_cols=header_cols, rate_hz=rate_hz),
         extra_options=extra, overwrite=overwrite, nits_per_unit=nits_per_unit, resolution=resolution,
-        detail=detail, raw_gate=raw_gate,
+        detail=detail, raw_gate=raw_gate, resume=resume,
     )
     if not quiet:
         click.echo(f"{summary.frames} frames from {summary.planes} planes in {summary.seconds:.2f} s "

@@ -186,20 +186,30 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
-def remove_stale_staging(final: Path) -> None:
+def remove_stale_staging(final: Path, adopt: Callable[[Path], bool] | None = None) -> Path | None:
     """Remove what killed runs left beside ``final``: ``.name.partial-<pid>-*`` and ``.name.old-<pid>-*``
-    folders whose process is gone (a live run's folders are left alone)."""
+    folders whose process is gone (a live run's folders are left alone). With ``adopt``, the newest stale partial
+    folder it accepts is kept and returned instead (an interrupted run to continue)."""
     import shutil
 
     final = Path(final)
-    for kind in ("partial", "old"):
+    stale: dict[str, list[Path]] = {"partial": [], "old": []}
+    for kind in stale:
         for path in final.parent.glob(f".{final.name}.{kind}-*"):
             try:
                 pid = int(path.name.rsplit(f".{kind}-", 1)[1].split("-")[0])
             except ValueError:
                 continue
             if not _pid_alive(pid):
-                shutil.rmtree(path, ignore_errors=True)
+                stale[kind].append(path)
+    kept = None
+    if adopt is not None:
+        candidates = sorted((p for p in stale["partial"] if p.is_dir() and adopt(p)), key=lambda p: p.stat().st_mtime)
+        kept = candidates[-1] if candidates else None
+    for path in stale["partial"] + stale["old"]:
+        if path != kept:
+            shutil.rmtree(path, ignore_errors=True)
+    return kept
 
 
 _deferred: list[BaseException] | None = None  # exceptions of signals held back by signals_deferred
@@ -285,12 +295,16 @@ def check_replaceable(final: Path, is_output: Callable[[str], bool], overwrite: 
 
 
 @contextmanager
-def staged_folder(final: Path, is_output: Callable[[str], bool], overwrite: bool = False) -> Iterator[Path]:
+def staged_folder(final: Path, is_output: Callable[[str], bool], overwrite: bool = False, *,
+                  adopt: Callable[[Path], bool] | None = None,
+                  keep: Callable[[Path], bool] | None = None) -> Iterator[Path]:
     """A fresh hidden folder beside ``final`` to write a whole output into; when the block ends
     without error it replaces ``final`` (its previous content is removed only once the new one is in
     place), otherwise it is deleted. At any moment ``final`` is absent, the previous complete output,
     or the new complete output. ``final`` must pass ``check_replaceable`` (``is_output`` names the files
-    an earlier output may hold). Stale staging folders of killed runs are removed first."""
+    an earlier output may hold). Stale staging folders of killed runs are removed first, but for the newest that
+    ``adopt`` accepts, which becomes this run's folder (a resumed run); a failed run's folder is kept where
+    ``keep`` says so (for a run that can be resumed)."""
     import shutil
 
     shown = Path(final)
@@ -298,10 +312,13 @@ def staged_folder(final: Path, is_output: Callable[[str], bool], overwrite: bool
     final = Path(os.path.abspath(shown))  # ".." and "a/." have no name to stage beside
     try:
         final.parent.mkdir(parents=True, exist_ok=True)
-        remove_stale_staging(final)
+        adopted = remove_stale_staging(final, adopt)
         token = f"{os.getpid()}-{secrets.token_hex(4)}"
         staging = final.with_name(f".{final.name}.partial-{token}")
-        staging.mkdir()
+        if adopted is not None:  # renamed to this process's name, so no other run takes it for stale
+            os.rename(adopted, staging)
+        else:
+            staging.mkdir()
     except OSError as exc:
         raise output_error(shown, exc) from exc
     try:
@@ -316,7 +333,8 @@ def staged_folder(final: Path, is_output: Callable[[str], bool], overwrite: bool
             os.rename(staging, final)
             shutil.rmtree(old, ignore_errors=True)
     except BaseException as exc:
-        shutil.rmtree(staging, ignore_errors=True)
+        if keep is None or not keep(staging):
+            shutil.rmtree(staging, ignore_errors=True)
         if isinstance(exc, OSError) and is_environment_error(exc):
             raise output_error(shown, exc) from exc
         if isinstance(exc, OutputError) and str(staging) in str(exc):  # name the folder the user gave

@@ -25,7 +25,7 @@ import re
 import struct
 import zlib
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -188,6 +188,17 @@ class FrameSink(ABC):
         self._open = False
         self._discard()
 
+    def leave(self) -> None:
+        """Stop without committing: the frames written so far stay where a resumed run finds them, where a sink
+        can leave them (one file a frame); any other sink removes its partial output, as ``abort``."""
+        if not self._open:
+            return
+        self._open = False
+        self._leave()
+
+    def _leave(self) -> None:
+        self._discard()
+
     @abstractmethod
     def _write(self, frame: Frame, image: np.ndarray) -> None:
         """Output one validated, finite frame."""
@@ -222,9 +233,11 @@ class _SequenceSink(FrameSink):
 
     ext = ""
 
-    def __init__(self, outdir: Path, stem: str) -> None:
+    def __init__(self, outdir: Path, stem: str, prior_rows: Sequence[tuple[int, float, str]] = ()) -> None:
         super().__init__(outdir)
         self._index = FrameIndex(self.outdir / f"{stem}.csv")
+        for index, time_s, name in prior_rows:  # the frames of an interrupted run this one continues
+            self._index.add(index, time_s, name)
 
     def _write(self, frame: Frame, image: np.ndarray) -> None:
         name = frame_file_name(frame.index, self.ext)
@@ -243,14 +256,18 @@ class _SequenceSink(FrameSink):
             remove_quietly(self.outdir / name)
         self._index.discard()
 
+    def _leave(self) -> None:
+        self._index.discard()  # the frame files stay; a resumed run lists them again
+
 
 class ExrSink(_SequenceSink):
     """Linear HDR frames as ``frame_NNNNNN.exr`` (one ``Y`` channel, capture time in the header)."""
 
     ext = "exr"
 
-    def __init__(self, outdir: Path, stem: str, dtype: ExrDtype, attrs: dict[str, float | int | str]) -> None:
-        super().__init__(outdir, stem)
+    def __init__(self, outdir: Path, stem: str, dtype: ExrDtype, attrs: dict[str, float | int | str],
+                 prior_rows: Sequence[tuple[int, float, str]] = ()) -> None:
+        super().__init__(outdir, stem, prior_rows)
         self.dtype = dtype
         self.attrs = attrs
 
@@ -264,8 +281,9 @@ class PngSink(_SequenceSink):
 
     ext = "png"
 
-    def __init__(self, outdir: Path, stem: str, tonemap: ToneMapConfig) -> None:
-        super().__init__(outdir, stem)
+    def __init__(self, outdir: Path, stem: str, tonemap: ToneMapConfig,
+                 prior_rows: Sequence[tuple[int, float, str]] = ()) -> None:
+        super().__init__(outdir, stem, prior_rows)
         self._tonemapper = ToneMapper(tonemap)
 
     def _write_file(self, path: Path, frame: Frame, image: np.ndarray) -> None:
@@ -415,6 +433,8 @@ class SinkOptions:
     frame_rate_hz: float | None = None
     mp4_pixel_format: Mp4PixelFormat = "auto"
     nits_per_unit: float | None = None
+    #: (index, time_s, file) of the frames an interrupted run left, which a frame-file sink continues
+    prior_rows: tuple[tuple[int, float, str], ...] = ()
 
     def exr_attributes(self) -> dict[str, float | int | str]:
         """The rates as EXR header attributes."""
@@ -431,8 +451,8 @@ class SinkOptions:
 SINKS: dict[str, Callable[[Path, SinkOptions], FrameSink]] = {
     "mp4": lambda outdir, o: Mp4Sink(outdir, o.stem, fps=o.fps, tonemap=o.tonemap, pixel_format=o.mp4_pixel_format,
                                      capture_rate_hz=o.capture_rate_hz, frame_rate_hz=o.frame_rate_hz),
-    "exr": lambda outdir, o: ExrSink(outdir, o.stem, o.exr_dtype, o.exr_attributes()),
-    "png": lambda outdir, o: PngSink(outdir, o.stem, o.tonemap),
+    "exr": lambda outdir, o: ExrSink(outdir, o.stem, o.exr_dtype, o.exr_attributes(), o.prior_rows),
+    "png": lambda outdir, o: PngSink(outdir, o.stem, o.tonemap, o.prior_rows),
     "hdr10": lambda outdir, o: _hdr_sink("pq", outdir, o),
     "hlg": lambda outdir, o: _hdr_sink("hlg", outdir, o),
     "null": lambda outdir, o: NullSink(),

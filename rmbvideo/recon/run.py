@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 from rmbvideo.chunks import Frame
-from rmbvideo.errors import InputError, OptionError
+from rmbvideo.errors import InputError, OptionError, OutputError
 from rmbvideo.io.atomic import staged_folder
 from rmbvideo.io.capture import capture_convention, open_capture
 from rmbvideo.io.dat import DatReader
@@ -21,7 +21,18 @@ from rmbvideo.io.sinks import is_sink_output, make_sink
 from rmbvideo.io.tonemap import ToneMapConfig
 from rmbvideo.recon.full_resolution import FullResolution, detail_stage, raw_gate_stage
 from rmbvideo.recon.methods import DEFAULT_METHOD, get_method
+from rmbvideo.recon.fingerprint import fingerprint_digest, run_fingerprint
 from rmbvideo.recon.pipeline import RunSummary, iter_frames, reconstruct_stream
+from rmbvideo.recon.resume import (
+    RESUMABLE_FORMATS,
+    ResumedSink,
+    finish_record,
+    holds_frames,
+    is_resumable,
+    restart_plane,
+    start_record,
+    written_frames,
+)
 from rmbvideo.sensor.conventions import response_for
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
 
@@ -152,14 +163,21 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
                        capture: dict | None = None, extra_options: dict[str, Any] | None = None,
                        overwrite: bool = False, nits_per_unit: float | None = None,
                        resolution: str = DEFAULT_RESOLUTION, detail: str = "auto",
-                       raw_gate: str = "auto") -> RunSummary:
+                       raw_gate: str = "auto", resume: bool = False) -> RunSummary:
     """Reconstruct ``input_path`` into ``outdir`` with ``method`` (see ``prepare_run``).
 
     The input is opened and checked before anything is created. The outputs are written into a
     staging folder that replaces ``outdir`` as a whole when the run is complete (``staged_folder``):
     a failed or interrupted run leaves ``outdir`` as it was, an existing non-empty ``outdir`` is
-    refused unless ``overwrite``, and a run that produces no frame is an ``InputError``.
+    refused unless ``overwrite``, and a run that produces no frame is an ``InputError``. With ``resume``
+    (frame files only, ``RESUMABLE_FORMATS``) an interrupted run's frames are kept for a later run with the same
+    input and options, which continues it (``rmbvideo.recon.resume``).
     """
+    if resume and fmt not in RESUMABLE_FORMATS:
+        raise OptionError(f"--resume: a {fmt} video cannot be continued where it was cut; give --format "
+                          f"{' or '.join(RESUMABLE_FORMATS)} for a run that can be resumed")
+    if resume and not overwrite and (Path(outdir) / "frames.csv").is_file():
+        raise OutputError(f"{outdir}: holds a complete run already, nothing to resume (--overwrite makes it again)")
     run = prepare_run(input_path, method=method, window=window, step=step, readout=readout, start_s=start_s,
                       duration_s=duration_s, capture=capture, extra_options=extra_options, resolution=resolution,
                       detail=detail, raw_gate=raw_gate)
@@ -180,5 +198,45 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
 
     if fmt == "null":
         return run_into(Path(outdir))
-    with staged_folder(Path(outdir), is_sink_output, overwrite=overwrite) as staging:
-        return run_into(staging)
+    if not resume:
+        with staged_folder(Path(outdir), is_sink_output, overwrite=overwrite) as staging:
+            return run_into(staging)
+    options = dict(method=method, window=window, step=run.step, fmt=fmt, exr_dtype=exr_dtype, tonemap=tonemap,
+                   readout=readout, start_s=start_s, duration_s=duration_s, extra_options=_output_options(extra_options),
+                   resolution=resolution, detail=detail, raw_gate=raw_gate)
+    fingerprint = run_fingerprint(Path(input_path), options, reader)
+    digest = fingerprint_digest(fingerprint)
+    with staged_folder(Path(outdir), is_sink_output, overwrite=overwrite, adopt=lambda f: is_resumable(f, digest),
+                       keep=holds_frames) as staging:
+        done = written_frames(staging)
+        start_record(staging, fingerprint, done)
+        next_index = done[-1][0] + 1 if done else None
+        if done:
+            log.info("%s: resuming an interrupted run: %d frames kept, continuing at frame %d", outdir, len(done),
+                     next_index)
+        first = restart_plane(run.start, next_index, run.step)
+        sink = make_sink(fmt, staging, prior_rows=tuple(done), **sink_options)
+        frames = ResumedSink(sink, staging, next_index, fmt)
+        try:
+            summary = reconstruct_stream(reader, run.method, frames, start=first, stop=run.stop,
+                                         chunk_planes=chunk_planes, progress=progress, readout=run.readout,
+                                         expected_frames=(run.stop - first) // run.step)
+            frames.close()
+            if frames.written + len(done) == 0:
+                raise InputError(f"{input_path}: no frame to reconstruct: planes {run.start}..{run.stop} hold no "
+                                 f"whole frame of {run.step} planes (check --start/--duration)")
+            sink.close()
+        except BaseException as exc:
+            sink.leave()
+            kept = len(written_frames(staging))
+            if isinstance(exc, KeyboardInterrupt) and kept:  # said in place of "partial output removed"
+                exc.left_behind = (f"its {kept} frames are kept for the same command with --resume, which "  # type: ignore[attr-defined]
+                                   "continues it")
+            raise
+        finish_record(staging)
+        return replace(summary, frames=frames.written)
+
+
+def _output_options(extra_options: dict[str, Any] | None) -> dict[str, Any]:
+    """The method options that decide the frames (the thread count does not)."""
+    return {k: v for k, v in (extra_options or {}).items() if k != "threads"}

@@ -1,0 +1,134 @@
+"""Continuing an interrupted reconstruction (``reconstruct --resume``): the frames it wrote are kept, and the
+method restarts a little before the first frame missing.
+
+A resumable run writes frame files (EXR or PNG, each renamed into place whole) into its staging folder, with a
+record of its fingerprint (``RESUME_RECORD``) and a log of the frames written (``RESUME_LOG``, a line a frame,
+flushed as each frame is written). When it is interrupted (Ctrl-C, SIGTERM, a full disk, kill -9) that folder stays.
+A later run with the same input and options adopts it, keeps the frames its log lists whose files are there, and
+runs the method from ``WARM_UP_FRAMES`` frames before the first missing one, writing only the frames from there: a
+method's windows refill and RMB-Net's recurrent state is rebuilt over frames the old run had also seen.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+from pathlib import Path
+from typing import Any
+
+from rmbvideo.chunks import Frame
+from rmbvideo.errors import OutputError
+from rmbvideo.io.atomic import atomic_write_text, output_error
+from rmbvideo.io.sinks import FrameSink, frame_file_name
+from rmbvideo.recon.fingerprint import fingerprint_digest
+
+log = logging.getLogger(__name__)
+
+#: Formats a run can be resumed in: one file a frame. A video stream cannot be continued where it was cut.
+RESUMABLE_FORMATS = ("exr", "png")
+#: Frames run again before the first missing one and not written: they refill every method's windows (TFI's
+#: 200-plane reach, the aligned means' 11 frames) and give RMB-Net's recurrent state a past, whose cell state decays
+#: by 0.95 a frame.
+WARM_UP_FRAMES = 64
+RESUME_RECORD = ".resume.json"
+RESUME_LOG = ".resume-frames.csv"
+RECORD_FORMAT = "rmbvideo-resumable-run"
+
+
+def is_resumable(folder: Path, digest: str) -> bool:
+    """Whether ``folder`` (an interrupted run's staging folder) was made by a run of fingerprint ``digest``."""
+    try:
+        record = json.loads((folder / RESUME_RECORD).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return False
+    return isinstance(record, dict) and record.get("format") == RECORD_FORMAT and record.get("digest") == digest
+
+
+def holds_frames(folder: Path) -> bool:
+    """Whether a failed run's folder is worth keeping for a resume: its record and at least one logged frame."""
+    return (folder / RESUME_RECORD).is_file() and bool(written_frames(folder))
+
+
+def written_frames(folder: Path) -> list[tuple[int, float, str]]:
+    """(index, time_s, file) of the frames an interrupted run in ``folder`` finished, in order: its log's lines up to
+    the first torn one or the first whose file is missing."""
+    try:
+        lines = (folder / RESUME_LOG).read_text(encoding="utf-8").split("\n")
+    except (OSError, UnicodeDecodeError):
+        return []
+    rows: list[tuple[int, float, str]] = []
+    for line in lines[:-1]:  # the text after the last newline is a line cut short, or nothing
+        try:
+            index, time_s, name = line.split(",", 2)
+            row = (int(index), float(time_s), name)
+        except ValueError:
+            break
+        if name != frame_file_name(row[0], name.rsplit(".", 1)[-1]) or not (folder / name).is_file():
+            break
+        if rows and row[0] <= rows[-1][0]:
+            break
+        rows.append(row)
+    return rows
+
+
+def start_record(folder: Path, fingerprint: dict[str, Any], rows: list[tuple[int, float, str]]) -> None:
+    """Write the run's record into ``folder`` and its log afresh with the ``rows`` kept (a torn last line dropped),
+    removing the temporary files a killed run left (a frame or ``frames.csv`` half written)."""
+    for leftover in folder.glob(".*.tmp-*"):
+        leftover.unlink(missing_ok=True)
+    atomic_write_text(folder / RESUME_RECORD, json.dumps({"format": RECORD_FORMAT, "version": 1,
+                                                          "digest": fingerprint_digest(fingerprint),
+                                                          "fingerprint": fingerprint}, indent=2) + "\n")
+    atomic_write_text(folder / RESUME_LOG, "".join(f"{i},{t!r},{name}\n" for i, t, name in rows))
+
+
+def finish_record(folder: Path) -> None:
+    """Remove the record and log of a run that completed: the output folder holds the outputs alone."""
+    for name in (RESUME_RECORD, RESUME_LOG):
+        try:
+            os.unlink(folder / name)
+        except FileNotFoundError:
+            pass
+
+
+def restart_plane(first_plane: int, next_index: int | None, step: int) -> int:
+    """The raw plane a resumed run starts at: ``WARM_UP_FRAMES`` frames of ``step`` planes before frame
+    ``next_index`` (frame i covers planes i*step .. (i+1)*step - 1 of the capture), never before the run's own start."""
+    if next_index is None:
+        return first_plane
+    return max(first_plane, (next_index - WARM_UP_FRAMES) * step)
+
+
+class ResumedSink:
+    """The frames of a (resumed) run into ``sink``: those before ``next_index`` (made again as warm-up, or written
+    by the run this one continues) are dropped; each one written (a file ``frame_NNNNNN.ext``) is logged in
+    ``folder``'s resume log."""
+
+    def __init__(self, sink: FrameSink, folder: Path, next_index: int | None, ext: str) -> None:
+        self.sink = sink
+        self.next_index = next_index
+        self.ext = ext
+        self.written = 0
+        self._log_path = folder / RESUME_LOG
+        try:
+            self._log = open(self._log_path, "a", encoding="utf-8", newline="\n")
+        except OSError as exc:
+            raise output_error(self._log_path, exc) from exc
+
+    def write(self, frame: Frame) -> None:
+        if self.next_index is not None and frame.index < self.next_index:
+            return
+        self.sink.write(frame)
+        self.written += 1
+        try:  # flushed a frame at a time: a kill -9 loses at most the frame being written
+            self._log.write(f"{frame.index},{float(frame.time_s)!r},{frame_file_name(frame.index, self.ext)}\n")
+            self._log.flush()
+        except OSError as exc:
+            raise output_error(self._log_path, exc) from exc
+
+    def close(self) -> None:
+        try:
+            self._log.close()
+        except OSError as exc:
+            raise OutputError(f"{self._log_path}: cannot write: {exc.strerror or exc}") from exc
