@@ -27,9 +27,10 @@ def moving_capture(path: Path, planes: int, width: int, height: int) -> Path:
     return path
 
 
-def command(capture: Path, out: Path, *options: str) -> list[str]:
-    return [sys.executable, "-m", "rmbvideo", "reconstruct", str(capture), "-o", str(out), "--format", "exr",
-            "--exr-dtype", "float", "--threads", "1", "-q", *options]
+def command(capture: Path, out: Path, *options: str, fmt: str = "exr") -> list[str]:
+    exr = ("--exr-dtype", "float") if fmt == "exr" else ()
+    return [sys.executable, "-m", "rmbvideo", "reconstruct", str(capture), "-o", str(out), "--format", fmt, *exr,
+            "--threads", "1", "-q", *options]
 
 
 def interrupted(args: list[str], out: Path, frames: int, sig: int) -> subprocess.CompletedProcess:
@@ -38,7 +39,7 @@ def interrupted(args: list[str], out: Path, frames: int, sig: int) -> subprocess
     proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and proc.poll() is None:
-        if [p for p in out.parent.glob(f".{out.name}.partial-*") if len(list(p.glob("*.exr"))) >= frames]:
+        if [p for p in out.parent.glob(f".{out.name}.partial-*") if len(list(p.glob("frame_*"))) >= frames]:
             proc.send_signal(sig)
             break
         time.sleep(0.02)
@@ -49,23 +50,31 @@ def interrupted(args: list[str], out: Path, frames: int, sig: int) -> subprocess
 
 
 def frames_of(folder: Path) -> dict[str, np.ndarray]:
-    return {p.name: read_exr(p)[0] for p in sorted(folder.glob("*.exr"))}
+    """Every frame file in ``folder`` by name: EXR as linear floats, PNG as its 8-bit pixels."""
+    import cv2
+
+    frames = {p.name: read_exr(p)[0] for p in sorted(folder.glob("*.exr"))}
+    return frames | {p.name: cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in sorted(folder.glob("*.png"))}
 
 
-def test_a_killed_window_method_run_resumes_to_the_uninterrupted_frames_bit_for_bit(tmp_path: Path) -> None:
+@pytest.mark.parametrize("fmt", ["exr", "png"])
+def test_a_killed_window_method_run_resumes_to_the_uninterrupted_frames_bit_for_bit(tmp_path: Path, fmt: str) -> None:
     """kill -9 in the middle of a TFP run: its frames stay in the hidden staging folder (nothing under the output's
     name); the same command with --resume keeps them, runs from a little before the first missing one, and the
-    folder then holds exactly what an uninterrupted run writes, frames.csv included, and nothing else."""
+    folder then holds exactly what an uninterrupted run writes, frames.csv included, and nothing else (the PNGs too:
+    the tone mapper's smoothed exposure is carried over)."""
     capture = moving_capture(tmp_path / "long.dat", 6000, 16, 16)
     options = ("--width", "16", "--height", "16", "--method", "tfp", "--step", "2")
     whole = tmp_path / "whole"
-    subprocess.run(command(capture, whole, *options), check=True)
+    subprocess.run(command(capture, whole, *options, fmt=fmt), check=True)
     out = tmp_path / "out"
-    killed = interrupted(command(capture, out, *options, "--resume"), out, 2 * WARM_UP_FRAMES + 50, signal.SIGKILL)
+    killed = interrupted(command(capture, out, *options, "--resume", fmt=fmt), out, 2 * WARM_UP_FRAMES + 50,
+                         signal.SIGKILL)
     assert killed.returncode == -signal.SIGKILL and not out.exists()
     (partial,) = tmp_path.glob(".out.partial-*")
-    kept = len(list(partial.glob("*.exr")))
-    resumed = subprocess.run(command(capture, out, *options, "--resume", "-v"), capture_output=True, text=True)
+    kept = len(list(partial.glob("frame_*")))
+    resumed = subprocess.run(command(capture, out, *options, "--resume", "-v", fmt=fmt), capture_output=True,
+                             text=True)
     assert resumed.returncode == 0, resumed.stderr
     assert "resuming an interrupted run" in resumed.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["long.dat", "out", "whole"]  # the partial was taken up
@@ -135,3 +144,32 @@ def test_resume_refuses_a_video_and_a_complete_output(tmp_path: Path) -> None:
     one_line_error(again, "holds a complete run already")
     assert {p.name: p.stat().st_mtime_ns for p in done.iterdir()} == before
     assert subprocess.run([*args, "--overwrite"], capture_output=True, text=True).returncode == 0
+
+
+def test_a_run_that_fills_the_disk_keeps_its_frames_and_resumes_once_there_is_room(tmp_path: Path) -> None:
+    """A file-size limit (as a full disk) stops a resumable run: one line, the write's reason and that its frames are
+    kept; the same command run again with room completes the folder as an uninterrupted run would."""
+    import resource
+
+    capture = moving_capture(tmp_path / "long.dat", 2000, 16, 16)
+    options = ("--width", "16", "--height", "16", "--method", "tfp", "--step", "2")
+    whole = tmp_path / "whole"
+    subprocess.run(command(capture, whole, *options), check=True)
+    out = tmp_path / "out"
+    limit = 4000  # bytes a file: the frame log and frames.csv reach it after about a hundred frames
+
+    def small_files() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    full = subprocess.run(command(capture, out, *options, "--resume"), capture_output=True, text=True,
+                          preexec_fn=small_files)
+    assert full.returncode == 2 and "Traceback" not in full.stderr, full.stderr
+    (line,) = full.stderr.strip().splitlines()
+    assert "frames are kept for the same command with --resume" in line and not out.exists()
+    resumed = subprocess.run(command(capture, out, *options, "--resume"), capture_output=True, text=True)
+    assert resumed.returncode == 0, resumed.stderr
+    assert (out / "frames.csv").read_text() == (whole / "frames.csv").read_text()
+    expected, got = frames_of(whole), frames_of(out)
+    assert got.keys() == expected.keys()
+    for name, image in expected.items():
+        np.testing.assert_array_equal(got[name], image, err_msg=name)

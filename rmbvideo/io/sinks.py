@@ -188,6 +188,14 @@ class FrameSink(ABC):
         self._open = False
         self._discard()
 
+    def carried_state(self) -> Any:
+        """What this sink's next frame depends on of the frames before (a tone mapper's smoothed exposure), as JSON
+        data, or None: a resumed run sets it back with ``restore_state``."""
+        return None
+
+    def restore_state(self, state: Any) -> None:
+        """Continue from ``state`` (``carried_state`` of the run this one continues)."""
+
     def leave(self) -> None:
         """Stop without committing: the frames written so far stay where a resumed run finds them, where a sink
         can leave them (one file a frame); any other sink removes its partial output, as ``abort``."""
@@ -285,6 +293,12 @@ class PngSink(_SequenceSink):
                  prior_rows: Sequence[tuple[int, float, str]] = ()) -> None:
         super().__init__(outdir, stem, prior_rows)
         self._tonemapper = ToneMapper(tonemap)
+
+    def carried_state(self) -> Any:
+        return self._tonemapper.state
+
+    def restore_state(self, state: Any) -> None:
+        self._tonemapper.restore(state)
 
     def _write_file(self, path: Path, frame: Frame, image: np.ndarray) -> None:
         import cv2

@@ -77,6 +77,16 @@ class ToneMapper:
         self._fallback_logged = False
 
     @property
+    def state(self) -> list[float | None]:
+        """The smoothed exposure state (log white point, log key), which ``restore`` sets back: a resumed run
+        continues the tone mapping exactly where the interrupted one was."""
+        return [self._log_white, self._log_key]
+
+    def restore(self, state: list[float | None]) -> None:
+        """Set the state ``state`` gave."""
+        self._log_white, self._log_key = state
+
+    @property
     def white(self) -> float:
         """The current smoothed linear value that maps to white."""
         if self._log_white is None:

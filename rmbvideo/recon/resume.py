@@ -6,7 +6,8 @@ record of its fingerprint (``RESUME_RECORD``) and a log of the frames written (`
 flushed as each frame is written). When it is interrupted (Ctrl-C, SIGTERM, a full disk, kill -9) that folder stays.
 A later run with the same input and options adopts it, keeps the frames its log lists whose files are there, and
 runs the method from ``WARM_UP_FRAMES`` frames before the first missing one, writing only the frames from there: a
-method's windows refill and RMB-Net's recurrent state is rebuilt over frames the old run had also seen.
+method's windows refill and RMB-Net's recurrent state is rebuilt over frames the old run had also seen. The log also
+carries what the sink's next frame depends on (the PNG tone mapper's smoothed exposure), which is set back.
 """
 
 from __future__ import annotations
@@ -47,21 +48,22 @@ def is_resumable(folder: Path, digest: str) -> bool:
 
 def holds_frames(folder: Path) -> bool:
     """Whether a failed run's folder is worth keeping for a resume: its record and at least one logged frame."""
-    return (folder / RESUME_RECORD).is_file() and bool(written_frames(folder))
+    return (folder / RESUME_RECORD).is_file() and bool(written_frames(folder)[0])
 
 
-def written_frames(folder: Path) -> list[tuple[int, float, str]]:
-    """(index, time_s, file) of the frames an interrupted run in ``folder`` finished, in order: its log's lines up to
-    the first torn one or the first whose file is missing."""
+def written_frames(folder: Path) -> tuple[list[tuple[int, float, str]], Any]:
+    """(index, time_s, file) of the frames an interrupted run in ``folder`` finished, in order (its log's lines up
+    to the first torn one or the first whose file is missing), and the sink's carried state after the last."""
     try:
         lines = (folder / RESUME_LOG).read_text(encoding="utf-8").split("\n")
     except (OSError, UnicodeDecodeError):
-        return []
+        return [], None
     rows: list[tuple[int, float, str]] = []
+    state = None
     for line in lines[:-1]:  # the text after the last newline is a line cut short, or nothing
         try:
-            index, time_s, name = line.split(",", 2)
-            row = (int(index), float(time_s), name)
+            index, time_s, name, carried = line.split(",", 3)
+            row, carried = (int(index), float(time_s), name), json.loads(carried)
         except ValueError:
             break
         if name != frame_file_name(row[0], name.rsplit(".", 1)[-1]) or not (folder / name).is_file():
@@ -69,10 +71,11 @@ def written_frames(folder: Path) -> list[tuple[int, float, str]]:
         if rows and row[0] <= rows[-1][0]:
             break
         rows.append(row)
-    return rows
+        state = carried
+    return rows, state
 
 
-def start_record(folder: Path, fingerprint: dict[str, Any], rows: list[tuple[int, float, str]]) -> None:
+def start_record(folder: Path, fingerprint: dict[str, Any], rows: list[tuple[int, float, str]], state: Any) -> None:
     """Write the run's record into ``folder`` and its log afresh with the ``rows`` kept (a torn last line dropped),
     removing the temporary files a killed run left (a frame or ``frames.csv`` half written)."""
     for leftover in folder.glob(".*.tmp-*"):
@@ -80,7 +83,14 @@ def start_record(folder: Path, fingerprint: dict[str, Any], rows: list[tuple[int
     atomic_write_text(folder / RESUME_RECORD, json.dumps({"format": RECORD_FORMAT, "version": 1,
                                                           "digest": fingerprint_digest(fingerprint),
                                                           "fingerprint": fingerprint}, indent=2) + "\n")
-    atomic_write_text(folder / RESUME_LOG, "".join(f"{i},{t!r},{name}\n" for i, t, name in rows))
+    last = len(rows) - 1  # the state after each earlier frame is not needed again
+    atomic_write_text(folder / RESUME_LOG, "".join(_log_line(i, t, name, state if k == last else None)
+                                                   for k, (i, t, name) in enumerate(rows)))
+
+
+def _log_line(index: int, time_s: float, name: str, state: Any) -> str:
+    """One frame's line of the resume log: index, time (exactly, as Python's shortest repr), file, carried state."""
+    return f"{index},{float(time_s)!r},{name},{json.dumps(state)}\n"
 
 
 def finish_record(folder: Path) -> None:
@@ -121,8 +131,9 @@ class ResumedSink:
             return
         self.sink.write(frame)
         self.written += 1
+        line = _log_line(frame.index, frame.time_s, frame_file_name(frame.index, self.ext), self.sink.carried_state())
         try:  # flushed a frame at a time: a kill -9 loses at most the frame being written
-            self._log.write(f"{frame.index},{float(frame.time_s)!r},{frame_file_name(frame.index, self.ext)}\n")
+            self._log.write(line)
             self._log.flush()
         except OSError as exc:
             raise output_error(self._log_path, exc) from exc

@@ -208,14 +208,16 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
     digest = fingerprint_digest(fingerprint)
     with staged_folder(Path(outdir), is_sink_output, overwrite=overwrite, adopt=lambda f: is_resumable(f, digest),
                        keep=holds_frames) as staging:
-        done = written_frames(staging)
-        start_record(staging, fingerprint, done)
+        done, carried = written_frames(staging)
+        start_record(staging, fingerprint, done, carried)
         next_index = done[-1][0] + 1 if done else None
         if done:
             log.info("%s: resuming an interrupted run: %d frames kept, continuing at frame %d", outdir, len(done),
                      next_index)
         first = restart_plane(run.start, next_index, run.step)
         sink = make_sink(fmt, staging, prior_rows=tuple(done), **sink_options)
+        if done:
+            sink.restore_state(carried)
         frames = ResumedSink(sink, staging, next_index, fmt)
         try:
             summary = reconstruct_stream(reader, run.method, frames, start=first, stop=run.stop,
@@ -228,10 +230,12 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
             sink.close()
         except BaseException as exc:
             sink.leave()
-            kept = len(written_frames(staging))
+            kept = len(written_frames(staging)[0])
+            said = f"its {kept} frames are kept for the same command with --resume, which continues it"
             if isinstance(exc, KeyboardInterrupt) and kept:  # said in place of "partial output removed"
-                exc.left_behind = (f"its {kept} frames are kept for the same command with --resume, which "  # type: ignore[attr-defined]
-                                   "continues it")
+                exc.left_behind = said  # type: ignore[attr-defined]
+            if isinstance(exc, (OutputError, InputError)) and kept:  # a full disk: free space, then resume
+                raise type(exc)(f"{str(exc).rstrip('.')}; {said}") from exc
             raise
         finish_record(staging)
         return replace(summary, frames=frames.written)
