@@ -25,7 +25,7 @@ import re
 import struct
 import zlib
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -241,7 +241,7 @@ class _SequenceSink(FrameSink):
 
     ext = ""
 
-    def __init__(self, outdir: Path, stem: str, prior_rows: Sequence[tuple[int, float, str]] = ()) -> None:
+    def __init__(self, outdir: Path, stem: str, prior_rows: Iterable[tuple[int, float, str]] = ()) -> None:
         super().__init__(outdir)
         self._index = FrameIndex(self.outdir / f"{stem}.csv")
         for index, time_s, name in prior_rows:  # the frames of an interrupted run this one continues
@@ -274,7 +274,7 @@ class ExrSink(_SequenceSink):
     ext = "exr"
 
     def __init__(self, outdir: Path, stem: str, dtype: ExrDtype, attrs: dict[str, float | int | str],
-                 prior_rows: Sequence[tuple[int, float, str]] = ()) -> None:
+                 prior_rows: Iterable[tuple[int, float, str]] = ()) -> None:
         super().__init__(outdir, stem, prior_rows)
         self.dtype = dtype
         self.attrs = attrs
@@ -290,7 +290,7 @@ class PngSink(_SequenceSink):
     ext = "png"
 
     def __init__(self, outdir: Path, stem: str, tonemap: ToneMapConfig,
-                 prior_rows: Sequence[tuple[int, float, str]] = ()) -> None:
+                 prior_rows: Iterable[tuple[int, float, str]] = ()) -> None:
         super().__init__(outdir, stem, prior_rows)
         self._tonemapper = ToneMapper(tonemap)
 
@@ -447,8 +447,8 @@ class SinkOptions:
     frame_rate_hz: float | None = None
     mp4_pixel_format: Mp4PixelFormat = "auto"
     nits_per_unit: float | None = None
-    #: (index, time_s, file) of the frames an interrupted run left, which a frame-file sink continues
-    prior_rows: tuple[tuple[int, float, str], ...] = ()
+    #: (index, time_s, file) of the frames an interrupted run left, which a frame-file sink continues (read once)
+    prior_rows: Iterable[tuple[int, float, str]] = ()
 
     def exr_attributes(self) -> dict[str, float | int | str]:
         """The rates as EXR header attributes."""

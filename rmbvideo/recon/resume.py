@@ -15,6 +15,8 @@ from __future__ import annotations
 import json
 import logging
 import os
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -48,44 +50,74 @@ def is_resumable(folder: Path, digest: str) -> bool:
 
 def holds_frames(folder: Path) -> bool:
     """Whether a failed run's folder is worth keeping for a resume: its record and at least one logged frame."""
-    return (folder / RESUME_RECORD).is_file() and bool(written_frames(folder)[0])
+    return (folder / RESUME_RECORD).is_file() and scan_log(folder).frames > 0
 
 
-def written_frames(folder: Path) -> tuple[list[tuple[int, float, str]], Any]:
-    """(index, time_s, file) of the frames an interrupted run in ``folder`` finished, in order (its log's lines up
-    to the first torn one or the first whose file is missing), and the sink's carried state after the last."""
+@dataclass(frozen=True)
+class LoggedFrames:
+    """What an interrupted run's frame log holds: ``frames`` finished (its lines up to the first torn one or the first
+    whose file is missing, ``valid_bytes`` of it), the next frame's index, and the sink's carried state after the
+    last finished frame."""
+
+    frames: int = 0
+    next_index: int | None = None
+    state: Any = None
+    valid_bytes: int = 0
+
+
+def scan_log(folder: Path) -> LoggedFrames:
+    """Read ``folder``'s frame log a line at a time (it has a line a frame: memory stays bounded)."""
+    frames, last, state, valid = 0, None, None, 0
     try:
-        lines = (folder / RESUME_LOG).read_text(encoding="utf-8").split("\n")
-    except (OSError, UnicodeDecodeError):
-        return [], None
-    rows: list[tuple[int, float, str]] = []
-    state = None
-    for line in lines[:-1]:  # the text after the last newline is a line cut short, or nothing
-        try:
-            index, time_s, name, carried = line.split(",", 3)
-            row, carried = (int(index), float(time_s), name), json.loads(carried)
-        except ValueError:
-            break
-        if name != frame_file_name(row[0], name.rsplit(".", 1)[-1]) or not (folder / name).is_file():
-            break
-        if rows and row[0] <= rows[-1][0]:
-            break
-        rows.append(row)
-        state = carried
-    return rows, state
+        with open(folder / RESUME_LOG, "rb") as log_file:
+            for raw in log_file:
+                row = _parse(raw, folder)
+                if row is None or (last is not None and row[0] <= last):
+                    break  # a line cut short, a frame whose file is gone, or a log out of order
+                frames, last, state, valid = frames + 1, row[0], row[1], valid + len(raw)
+    except OSError:
+        pass
+    return LoggedFrames(frames, None if last is None else last + 1, state, valid)
 
 
-def start_record(folder: Path, fingerprint: dict[str, Any], rows: list[tuple[int, float, str]], state: Any) -> None:
-    """Write the run's record into ``folder`` and its log afresh with the ``rows`` kept (a torn last line dropped),
-    removing the temporary files a killed run left (a frame or ``frames.csv`` half written)."""
+def _parse(raw: bytes, folder: Path) -> tuple[int, Any, tuple[int, float, str]] | None:
+    """(index, carried state, csv row) of one whole log line whose frame file is there, else None."""
+    if not raw.endswith(b"\n"):
+        return None
+    try:
+        index, time_s, name, carried = raw.decode("utf-8").rstrip("\n").split(",", 3)
+        row = (int(index), float(time_s), name)
+        state = json.loads(carried)
+    except ValueError:
+        return None
+    if name != frame_file_name(row[0], name.rsplit(".", 1)[-1]) or not (folder / name).is_file():
+        return None
+    return row[0], state, row
+
+
+def logged_rows(folder: Path, logged: LoggedFrames) -> Iterator[tuple[int, float, str]]:
+    """The (index, time_s, file) rows of the frames ``logged`` counts, read from the log as they are taken."""
+    with open(folder / RESUME_LOG, "rb") as log_file:
+        for _ in range(logged.frames):
+            parsed = _parse(log_file.readline(), folder)
+            if parsed is None:
+                raise OutputError(f"{folder / RESUME_LOG}: changed while it was read")
+            yield parsed[2]
+
+
+def start_record(folder: Path, fingerprint: dict[str, Any], logged: LoggedFrames) -> None:
+    """Write the run's record into ``folder``, cut its log after the frames ``logged`` counts (a torn line dropped),
+    and remove the temporary files a killed run left (a frame or ``frames.csv`` half written)."""
     for leftover in folder.glob(".*.tmp-*"):
         leftover.unlink(missing_ok=True)
     atomic_write_text(folder / RESUME_RECORD, json.dumps({"format": RECORD_FORMAT, "version": 1,
                                                           "digest": fingerprint_digest(fingerprint),
                                                           "fingerprint": fingerprint}, indent=2) + "\n")
-    last = len(rows) - 1  # the state after each earlier frame is not needed again
-    atomic_write_text(folder / RESUME_LOG, "".join(_log_line(i, t, name, state if k == last else None)
-                                                   for k, (i, t, name) in enumerate(rows)))
+    try:
+        with open(folder / RESUME_LOG, "ab") as log_file:
+            log_file.truncate(logged.valid_bytes)
+    except OSError as exc:
+        raise output_error(folder / RESUME_LOG, exc) from exc
 
 
 def _log_line(index: int, time_s: float, name: str, state: Any) -> str:

@@ -19,9 +19,9 @@ from rmbvideo.io.rmbfile import RmbFileReader
 from rmbvideo.io.sidecar import simulated_camera
 from rmbvideo.io.sinks import is_sink_output, make_sink
 from rmbvideo.io.tonemap import ToneMapConfig
+from rmbvideo.recon.fingerprint import fingerprint_digest, run_fingerprint
 from rmbvideo.recon.full_resolution import FullResolution, detail_stage, raw_gate_stage
 from rmbvideo.recon.methods import DEFAULT_METHOD, get_method
-from rmbvideo.recon.fingerprint import fingerprint_digest, run_fingerprint
 from rmbvideo.recon.pipeline import RunSummary, iter_frames, reconstruct_stream
 from rmbvideo.recon.resume import (
     RESUMABLE_FORMATS,
@@ -29,9 +29,10 @@ from rmbvideo.recon.resume import (
     finish_record,
     holds_frames,
     is_resumable,
+    logged_rows,
     restart_plane,
+    scan_log,
     start_record,
-    written_frames,
 )
 from rmbvideo.sensor.conventions import response_for
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
@@ -208,29 +209,29 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
     digest = fingerprint_digest(fingerprint)
     with staged_folder(Path(outdir), is_sink_output, overwrite=overwrite, adopt=lambda f: is_resumable(f, digest),
                        keep=holds_frames) as staging:
-        done, carried = written_frames(staging)
-        start_record(staging, fingerprint, done, carried)
-        next_index = done[-1][0] + 1 if done else None
-        if done:
-            log.info("%s: resuming an interrupted run: %d frames kept, continuing at frame %d", outdir, len(done),
+        logged = scan_log(staging)
+        start_record(staging, fingerprint, logged)
+        next_index = logged.next_index
+        if logged.frames:
+            log.info("%s: resuming an interrupted run: %d frames kept, continuing at frame %d", outdir, logged.frames,
                      next_index)
         first = restart_plane(run.start, next_index, run.step)
-        sink = make_sink(fmt, staging, prior_rows=tuple(done), **sink_options)
-        if done:
-            sink.restore_state(carried)
+        sink = make_sink(fmt, staging, prior_rows=logged_rows(staging, logged), **sink_options)
+        if logged.frames:
+            sink.restore_state(logged.state)
         frames = ResumedSink(sink, staging, next_index, fmt)
         try:
             summary = reconstruct_stream(reader, run.method, frames, start=first, stop=run.stop,
                                          chunk_planes=chunk_planes, progress=progress, readout=run.readout,
                                          expected_frames=(run.stop - first) // run.step)
             frames.close()
-            if frames.written + len(done) == 0:
+            if frames.written + logged.frames == 0:
                 raise InputError(f"{input_path}: no frame to reconstruct: planes {run.start}..{run.stop} hold no "
                                  f"whole frame of {run.step} planes (check --start/--duration)")
             sink.close()
         except BaseException as exc:
             sink.leave()
-            kept = len(written_frames(staging)[0])
+            kept = scan_log(staging).frames
             said = f"its {kept} frames are kept for the same command with --resume, which continues it"
             if isinstance(exc, KeyboardInterrupt) and kept:  # said in place of "partial output removed"
                 exc.left_behind = said  # type: ignore[attr-defined]
