@@ -57,12 +57,11 @@ def frames_of(folder: Path) -> dict[str, np.ndarray]:
     return frames | {p.name: cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in sorted(folder.glob("*.png"))}
 
 
-@pytest.mark.parametrize("fmt", ["exr", "png"])
+@pytest.mark.parametrize("fmt", ["exr"])  # PNG: tests/test_fault_matrix.py, every signal at random moments
 def test_a_killed_window_method_run_resumes_to_the_uninterrupted_frames_bit_for_bit(tmp_path: Path, fmt: str) -> None:
     """kill -9 in the middle of a TFP run: its frames stay in the hidden staging folder (nothing under the output's
     name); the same command with --resume keeps them, runs from a little before the first missing one, and the
-    folder then holds exactly what an uninterrupted run writes, frames.csv included, and nothing else (the PNGs too:
-    the tone mapper's smoothed exposure is carried over)."""
+    folder then holds exactly what an uninterrupted run writes, frames.csv included, and nothing else."""
     capture = moving_capture(tmp_path / "long.dat", 6000, 16, 16)
     options = ("--width", "16", "--height", "16", "--method", "tfp", "--step", "2")
     whole = tmp_path / "whole"
@@ -90,7 +89,7 @@ def test_a_stopped_rmbnet_run_says_what_it_kept_and_resumes_to_within_rounding(t
     """SIGTERM in the middle of the default method's run: one line saying the frames are kept for --resume (not
     "removed"); the resumed run's recurrent state is rebuilt over the warm-up frames, so its frames agree with an
     uninterrupted run's to a small fraction of their level (measured: 2e-4, over 100 dB)."""
-    capture = moving_capture(tmp_path / "long.dat", 4400, 32, 24)
+    capture = moving_capture(tmp_path / "long.dat", 3400, 32, 24)
     options = ("--width", "32", "--height", "24")
     whole = tmp_path / "whole"
     subprocess.run(command(capture, whole, *options), check=True)

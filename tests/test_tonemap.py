@@ -164,3 +164,16 @@ def test_default_exposure_follows_the_absolute_level_and_looks_normal() -> None:
     steady = [tone(scene * 0.1) for _ in range(10)]
     flash = tone(scene * 1.0)  # one frame 10x brighter: brighter, but the exposure does not jump to it
     assert flash.mean() > steady[-1].mean() and tone._log_key < np.log(np.exp(np.mean(np.log(scene + 1e-4))) * 0.5)
+
+
+@pytest.mark.parametrize("method", ["reinhard", "drago", "mantiuk"])
+def test_a_frame_is_mapped_the_same_however_many_came_before(method: str) -> None:
+    """The same linear frame, fed repeatedly, maps to the same 8-bit frame each time (its white point is steady):
+    OpenCV's Reinhard operator keeps state between calls, which made a frame's tones depend on how many frames had
+    been mapped before it (up to 8 levels), so a resumed run could not continue a video's tones."""
+    rng = np.random.default_rng(3)
+    frame = (0.1 + rng.random((48, 64))).astype(np.float32)
+    mapper = ToneMapper(ToneMapConfig(method=method))
+    outputs = [mapper(frame) for _ in range(6)]
+    for out in outputs[1:]:
+        np.testing.assert_array_equal(out, outputs[0])

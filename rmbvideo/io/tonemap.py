@@ -72,7 +72,7 @@ class ToneMapper:
         self.config = config or ToneMapConfig()
         self._log_white: float | None = None
         self._log_key: float | None = None
-        self._operator = _opencv_operator(self.config)
+        self._uses_opencv = _opencv_operator(self.config) is not None
         self.nonfinite_pixels = 0
         self._fallback_logged = False
 
@@ -110,7 +110,7 @@ class ToneMapper:
         if self.config.method == "exposure":
             return _to_uint8(self._expose(linear))
         normalised = linear / np.float32(self.white)
-        if self._operator is None:
+        if not self._uses_opencv:
             display = mu_law(normalised, self.config.mu)
         else:
             display = self._apply_opencv(normalised)
@@ -157,7 +157,9 @@ class ToneMapper:
 
         bgr = np.ascontiguousarray(np.repeat(normalised[:, :, None], 3, axis=2))
         try:
-            mapped = self._operator.process(bgr)[:, :, 0]
+            # a fresh operator a frame: OpenCV's Reinhard keeps state between calls (the same image mapped twice by one
+            # operator differs by up to 0.033), so a frame's tones would depend on how many frames came before it
+            mapped = _opencv_operator(self.config).process(bgr)[:, :, 0]
         except cv2.error:
             # Degenerate frames (e.g. perfectly flat) fail OpenCV's internal checks.
             if not self._fallback_logged:
