@@ -171,6 +171,7 @@ class ResumedSink:
             raise output_error(self._log_path, exc) from exc
 
     def close(self) -> None:
+        """Close the frame log (again: nothing)."""
         try:
             self._log.close()
         except OSError as exc:

@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
@@ -231,6 +232,8 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
             sink.close()
         except BaseException as exc:
             sink.leave()
+            with contextlib.suppress(OutputError):  # the log's own error is the one being raised
+                frames.close()
             kept = scan_log(staging).frames
             said = f"its {kept} frames are kept for the same command with --resume, which continues it"
             if isinstance(exc, KeyboardInterrupt) and kept:  # said in place of "partial output removed"
