@@ -34,6 +34,9 @@ RESUMABLE_FORMATS = ("exr", "png")
 #: 200-plane reach, the aligned means' 11 frames) and give RMB-Net's recurrent state a past, whose cell state decays
 #: by 0.95 a frame.
 WARM_UP_FRAMES = 64
+#: Raw planes TFI searches on each side of a frame (``Tfi``'s default reach, which the raw gate's TFI-16 shares), with
+#: a margin: a frame at a --step of a few planes still has all its evidence inside the warm-up
+INTERVAL_REACH = 400
 RESUME_RECORD = ".resume.json"
 RESUME_LOG = ".resume-frames.csv"
 RECORD_FORMAT = "rmbvideo-resumable-run"
@@ -134,12 +137,22 @@ def finish_record(folder: Path) -> None:
             pass
 
 
-def restart_plane(first_plane: int, next_index: int | None, step: int) -> int:
+def restart_plane(first_plane: int, next_index: int | None, step: int, reach: int = 0) -> int:
     """The raw plane a resumed run starts at: ``WARM_UP_FRAMES`` frames of ``step`` planes before frame
-    ``next_index`` (frame i covers planes i*step .. (i+1)*step - 1 of the capture), never before the run's own start."""
+    ``next_index`` (frame i covers planes i*step .. (i+1)*step - 1 of the capture), or more where the method's window
+    reaches further (``reach`` raw planes: a --window of thousands), never before the run's own start."""
     if next_index is None:
         return first_plane
-    return max(first_plane, (next_index - WARM_UP_FRAMES) * step)
+    warm_up = max(WARM_UP_FRAMES, -(-reach // step) + 2)
+    return max(first_plane, (next_index - warm_up) * step)
+
+
+def window_reach(window: int | None, unit: str | None, raw_per_readout: int) -> int:
+    """The raw planes a method's frame may read before its own: ``INTERVAL_REACH`` (TFI's search, the widest of the
+    defaults) plus what its ``--window`` spans (``unit``: what it counts, as ``Method.window`` says)."""
+    if window is None or unit is None or unit.startswith("half-width"):
+        return INTERVAL_REACH  # the method's default window, or RMB-Net's few frames
+    return INTERVAL_REACH + window * (raw_per_readout if unit == "readouts" else 1)
 
 
 class ResumedSink:

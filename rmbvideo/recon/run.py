@@ -34,6 +34,7 @@ from rmbvideo.recon.resume import (
     restart_plane,
     scan_log,
     start_record,
+    window_reach,
 )
 from rmbvideo.sensor.conventions import response_for
 from rmbvideo.sensor.readout import ReadoutMode, RmbReadout
@@ -204,8 +205,9 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
         with staged_folder(Path(outdir), is_sink_output, overwrite=overwrite) as staging:
             return run_into(staging)
     options = dict(method=method, window=window, step=run.step, fmt=fmt, exr_dtype=exr_dtype, tonemap=tonemap,
-                   readout=readout, start_s=start_s, duration_s=duration_s, extra_options=_output_options(extra_options),
-                   resolution=resolution, detail=detail, raw_gate=raw_gate)
+                   readout=readout, start_s=start_s, duration_s=duration_s,
+                   extra_options=_output_options(extra_options), resolution=resolution, detail=detail,
+                   raw_gate=raw_gate)
     fingerprint = run_fingerprint(Path(input_path), options, reader)
     digest = fingerprint_digest(fingerprint)
     with staged_folder(Path(outdir), is_sink_output, overwrite=overwrite, adopt=lambda f: is_resumable(f, digest),
@@ -216,7 +218,8 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
         if logged.frames:
             log.info("%s: resuming an interrupted run: %d frames kept, continuing at frame %d", outdir, logged.frames,
                      next_index)
-        first = restart_plane(run.start, next_index, run.step)
+        reach = window_reach(window, get_method(method).window, 1 if isinstance(reader, RmbFileReader) else 2)
+        first = restart_plane(run.start, next_index, run.step, reach)
         sink = make_sink(fmt, staging, prior_rows=logged_rows(staging, logged), **sink_options)
         if logged.frames:
             sink.restore_state(logged.state)
