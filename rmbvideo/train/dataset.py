@@ -304,9 +304,9 @@ class SamplePrefetcher:
         return samples
 
     def close(self) -> None:
-        """Stop the workers now: the samples they are simulating are not needed any more, and they write nothing."""
-        for process in list((getattr(self._pool, "_processes", None) or {}).values()):
-            process.terminate()
+        """Stop the workers: the samples queued are cancelled and the ones being simulated (a second or so) are let
+        finish. They are not terminated: a worker killed while it held the pool's queue could leave the pool's own
+        threads waiting on it forever (a training run's Ctrl-C hung so once in CI)."""
         self._pool.shutdown(wait=True, cancel_futures=True)
 
 
