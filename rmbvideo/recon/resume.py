@@ -13,7 +13,6 @@ carries what the sink's next frame depends on (the PNG tone mapper's smoothed ex
 from __future__ import annotations
 
 import json
-import logging
 import os
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -25,8 +24,6 @@ from rmbvideo.errors import OutputError
 from rmbvideo.io.atomic import atomic_write_text, output_error
 from rmbvideo.io.sinks import FrameSink, frame_file_name
 from rmbvideo.recon.fingerprint import fingerprint_digest
-
-log = logging.getLogger(__name__)
 
 #: Formats a run can be resumed in: one file a frame. A video stream cannot be continued where it was cut.
 RESUMABLE_FORMATS = ("exr", "png")
@@ -188,4 +185,4 @@ class ResumedSink:
         try:
             self._log.close()
         except OSError as exc:
-            raise OutputError(f"{self._log_path}: cannot write: {exc.strerror or exc}") from exc
+            raise output_error(self._log_path, exc) from exc

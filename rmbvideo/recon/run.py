@@ -189,14 +189,17 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
                         mp4_pixel_format=pixel_format, capture_rate_hz=reader.rate_hz,
                         frame_rate_hz=reader.rate_hz / run.step, nits_per_unit=nits_per_unit)
 
+    def no_frame() -> InputError:
+        return InputError(f"{input_path}: no frame to reconstruct: planes {run.start}..{run.stop} hold no whole frame "
+                          f"of {run.step} planes (check --start/--duration)")
+
     def run_into(folder: Path) -> RunSummary:
         with make_sink(fmt, folder, **sink_options) as sink:
             summary = reconstruct_stream(reader, run.method, sink, start=run.start, stop=run.stop,
                                          chunk_planes=chunk_planes, progress=progress, readout=run.readout,
                                          expected_frames=(run.stop - run.start) // run.step)
             if summary.frames == 0:
-                raise InputError(f"{input_path}: no frame to reconstruct: planes {run.start}..{run.stop} hold no "
-                                 f"whole frame of {run.step} planes (check --start/--duration)")
+                raise no_frame()
         return summary
 
     if fmt == "null":
@@ -230,8 +233,7 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
                                          expected_frames=(run.stop - first) // run.step)
             frames.close()
             if frames.written + logged.frames == 0:
-                raise InputError(f"{input_path}: no frame to reconstruct: planes {run.start}..{run.stop} hold no "
-                                 f"whole frame of {run.step} planes (check --start/--duration)")
+                raise no_frame()
             sink.close()
         except BaseException as exc:
             sink.leave()
