@@ -92,6 +92,19 @@ def test_output_does_not_depend_on_chunk_size(tmp_path: Path) -> None:
     np.testing.assert_array_equal(images[0], images[2])
 
 
+def test_a_huge_chunk_is_cut_to_the_memory_bound_of_the_plane_size(tmp_path: Path) -> None:
+    """--chunk-planes 1000000 on a 1000x1000 camera would decode a terabyte at once: the chunk is cut to
+    CHUNK_BYTES of planes, so memory stays bounded whatever the option, and a small plane keeps its chunk."""
+    from rmbvideo.io.dat import DatReader
+    from rmbvideo.recon.run import CHUNK_BYTES, bounded_chunk_planes
+    big = tmp_path / "big.dat"
+    big.write_bytes(bytes(3 * 1000 * 1000 // 8))
+    reader = DatReader(big, DatGeometry(width=1000, height=1000))
+    assert bounded_chunk_planes(10**6, reader) == CHUNK_BYTES // 10**6 < 1024
+    small = DatReader(small_capture(tmp_path / "cap.dat"), DatGeometry(width=64, height=48))
+    assert bounded_chunk_planes(1024, small) == 1024
+
+
 def test_info_json_and_preview(tmp_path: Path) -> None:
     dat = small_capture(tmp_path / "cap.dat", planes=50)
     with open(dat, "ab") as f:
@@ -274,4 +287,9 @@ def test_an_output_named_as_a_video_file_is_refused_not_made_a_folder(tmp_path: 
     assert result.exit_code == 2
     assert "names a .mp4 file, but the output is a folder" in result.output
     assert f"give e.g. -o {tmp_path / 'video'}" in result.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cap.dat"]
+    result = CliRunner().invoke(main, ["batch", str(dat), "-o", str(tmp_path / "b.mp4"), *GEOM, "--method", "tfp",
+                                       "--jobs", "1", "-q"])
+    assert result.exit_code == 2
+    assert "names a .mp4 file, but the output is a folder (one output folder per capture" in result.output
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cap.dat"]

@@ -28,7 +28,7 @@ from rmbvideo.batch.jobs import (
 from rmbvideo.batch.report import write_report
 from rmbvideo.batch.runner import finished_result, run_capture_job
 from rmbvideo.errors import OutputError
-from rmbvideo.io.atomic import make_dir, signals_deferred
+from rmbvideo.io.atomic import make_dir, refuse_file_name_for_folder, signals_deferred
 from rmbvideo.threads import available_cores
 
 log = logging.getLogger(__name__)
@@ -139,6 +139,7 @@ def run_batch(jobs: Sequence[CaptureJob], batch_dir: Path, *, workers: int | Non
     from tqdm import tqdm
 
     batch_dir = Path(batch_dir)
+    refuse_file_name_for_folder(batch_dir, "one output folder per capture and the batch report go into it")
     make_dir(batch_dir)
     results: list[CaptureResult | None] = [None] * len(jobs)
     workers = min(workers or default_workers(), max(1, len(jobs)))

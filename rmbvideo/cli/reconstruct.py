@@ -13,7 +13,7 @@ from rmbvideo.io.sinks import PLAYBACK_FPS_RANGE, SINK_FORMATS
 from rmbvideo.io.tonemap import TONE_METHODS
 from rmbvideo.recon.full_resolution import DETAIL_KINDS, RAW_GATE_KINDS
 from rmbvideo.recon.methods import DEFAULT_METHOD, METHODS
-from rmbvideo.recon.run import DEFAULT_RESOLUTION, RESOLUTIONS, run_reconstruction
+from rmbvideo.recon.run import CHUNK_BYTES, DEFAULT_RESOLUTION, RESOLUTIONS, run_reconstruction
 from rmbvideo.sensor.conventions import CONVENTIONS, RESPONSES
 from rmbvideo.sensor.readout import ReadoutMode
 
@@ -128,7 +128,8 @@ def rmbnet_options(func):
 @click.option("--duration", "duration_s", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Seconds of capture to process [default: to the end].")
 @click.option("--chunk-planes", type=click.IntRange(min=1), default=1024, show_default=True,
-              help="Raw planes read per chunk (memory bound; the output does not depend on it).")
+              help=f"Raw planes read per chunk (memory bound, cut to {CHUNK_BYTES // 2**20} MiB of decoded planes; the "
+                   "output does not depend on it).")
 @rmbnet_options
 @click.option("--overwrite", is_flag=True,
               help="Replace the outputs of an earlier run in OUTDIR (kept intact until the new run is complete).")

@@ -267,6 +267,14 @@ MEDIA_SUFFIXES = frozenset({".mp4", ".mov", ".mkv", ".webm", ".avi", ".png", ".j
                             ".exr", ".hdr"})
 
 
+def refuse_file_name_for_folder(folder: Path, contents: str) -> None:
+    """Refuse a new output folder named like a video or picture (``-o video.mp4``): the user meant a file."""
+    folder = Path(folder)
+    if not folder.exists() and folder.suffix.lower() in MEDIA_SUFFIXES:
+        raise OutputError(f"{folder}: names a {folder.suffix.lower()} file, but the output is a folder ({contents}): "
+                          f"give e.g. -o {folder.with_suffix('')}")
+
+
 def check_replaceable(final: Path, is_output: Callable[[str], bool], overwrite: bool) -> None:
     """Refuse to replace ``final`` as a whole unless it is absent, empty, or (with ``overwrite``) holds
     nothing but files ``is_output`` recognises by name: a user's own files, or the capture itself, are
@@ -274,9 +282,7 @@ def check_replaceable(final: Path, is_output: Callable[[str], bool], overwrite: 
     final = Path(final)
     if final.exists() and not final.is_dir():
         raise OutputError(f"{final}: exists and is not a folder")
-    if not final.exists() and final.suffix.lower() in MEDIA_SUFFIXES:
-        raise OutputError(f"{final}: names a {final.suffix.lower()} file, but the output is a folder (frames.mp4 or "
-                          f"the frames, and frames.csv, go into it): give e.g. -o {final.with_suffix('')}")
+    refuse_file_name_for_folder(final, "frames.mp4 or the frames, and frames.csv, go into it")
     if final.resolve() == Path.cwd().resolve():
         raise OutputError(f"{final}: is the current folder; the outputs go into a folder of their own, replaced "
                           "as a whole: name a new one")

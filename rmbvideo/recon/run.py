@@ -49,6 +49,9 @@ RESOLUTIONS = ("binned", "full")
 #: the binned output after 2x2 averaging (README "Full resolution"); "binned" (RMB-Net's frames mixed with the raw
 #: intervals as at full size, without the detail stage) is about 1.2x faster on 2 cores.
 DEFAULT_RESOLUTION = "full"
+#: Most bytes a chunk's decoded planes may take, whatever --chunk-planes asks (one byte per pixel and plane):
+#: memory stays bounded on any camera, and the frames do not depend on the chunk size
+CHUNK_BYTES = 256 * 2**20
 
 
 @dataclass
@@ -121,6 +124,16 @@ def prepare_run(input_path: Path, *, method: str = DEFAULT_METHOD, window: int |
     return PreparedRun(reader, recon, start, stop, step, rmb_readout)
 
 
+def bounded_chunk_planes(chunk_planes: int, reader: DatReader | RmbFileReader) -> int:
+    """``chunk_planes``, cut to the planes of ``reader`` that fit in ``CHUNK_BYTES`` once decoded."""
+    height, width = reader.shape
+    most = max(2, CHUNK_BYTES // max(1, height * width))
+    if chunk_planes > most:
+        log.info("--chunk-planes %d: %d planes of %dx%d fit in %d MiB; reading %d at a time", chunk_planes, most,
+                 width, height, CHUNK_BYTES // 2**20, most)
+    return min(chunk_planes, most)
+
+
 def auto_convention(reader: DatReader | RmbFileReader, path: Path, start: int = 0, stop: int | None = None) -> str:
     """``capture_convention``, physical when it cannot tell; a real capture read in the rate convention is logged."""
     found = capture_convention(reader, path, start, stop)
@@ -153,7 +166,8 @@ def reconstruct_frames(path: str | Path, method: str = DEFAULT_METHOD, *, window
     run = prepare_run(Path(path), method=method, window=window, step=step, readout=readout, start_s=start_s,
                       duration_s=duration_s, extra_options=options, resolution=resolution, detail=detail,
                       raw_gate=raw_gate, capture=dict(width=width, height=height, flip=flip, header_cols=header_cols, rate_hz=rate_hz))
-    return iter_frames(run.reader, run.method, start=run.start, stop=run.stop, chunk_planes=chunk_planes,
+    return iter_frames(run.reader, run.method, start=run.start, stop=run.stop,
+                       chunk_planes=bounded_chunk_planes(chunk_planes, run.reader),
                        progress=progress, readout=run.readout, expected_frames=(run.stop - run.start) // run.step)
 
 
@@ -185,6 +199,7 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
                       duration_s=duration_s, capture=capture, extra_options=extra_options, resolution=resolution,
                       detail=detail, raw_gate=raw_gate)
     reader = run.reader
+    chunk_planes = bounded_chunk_planes(chunk_planes, reader)
     sink_options = dict(fps=fps, tonemap=ToneMapConfig(method=tonemap), exr_dtype=exr_dtype,
                         mp4_pixel_format=pixel_format, capture_rate_hz=reader.rate_hz,
                         frame_rate_hz=reader.rate_hz / run.step, nits_per_unit=nits_per_unit)
