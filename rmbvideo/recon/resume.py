@@ -6,8 +6,11 @@ record of its fingerprint (``RESUME_RECORD``) and a log of the frames written (`
 flushed as each frame is written). When it is interrupted (Ctrl-C, SIGTERM, a full disk, kill -9) that folder stays.
 A later run with the same input and options adopts it, keeps the frames its log lists whose files are there, and
 runs the method from ``WARM_UP_FRAMES`` frames before the first missing one, writing only the frames from there: a
-method's windows refill and RMB-Net's recurrent state is rebuilt over frames the old run had also seen. The log also
-carries what the sink's next frame depends on (the PNG tone mapper's smoothed exposure), which is set back.
+method's windows refill over frames the old run had also seen. RMB-Net's recurrent state keeps a faint long memory a
+warm-up rebuilds only to about 1 % of the light on a few pixels, so a run keeps a snapshot of it every few frames
+(``RESUME_STATE``) and the resumed run sets it back, warming up before the snapshot's frame instead: its frames are
+then the uninterrupted run's. The log also carries what the sink's next frame depends on (the PNG tone mapper's smoothed
+exposure), which is set back.
 """
 
 from __future__ import annotations
@@ -17,11 +20,15 @@ import os
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
+
+import torch
+from safetensors import SafetensorError, safe_open
+from safetensors.torch import save
 
 from rmbvideo.chunks import Frame
 from rmbvideo.errors import OutputError
-from rmbvideo.io.atomic import atomic_write_text, output_error
+from rmbvideo.io.atomic import atomic_write_bytes, atomic_write_text, output_error
 from rmbvideo.io.sinks import FrameSink, frame_file_name
 from rmbvideo.recon.fingerprint import fingerprint_digest
 
@@ -36,7 +43,43 @@ WARM_UP_FRAMES = 64
 INTERVAL_REACH = 400
 RESUME_RECORD = ".resume.json"
 RESUME_LOG = ".resume-frames.csv"
+#: The recurrent state after a frame already written (safetensors: tensors and the frame's index, no code)
+RESUME_STATE = ".resume-state.safetensors"
 RECORD_FORMAT = "rmbvideo-resumable-run"
+
+
+class StateCarrier(Protocol):
+    """A method with a recurrent state a resumed run sets back (``RmbNetReconstructor``)."""
+
+    def keep_state_snapshots(self) -> None: ...
+
+    def recurrent_state(self, at_most: int) -> tuple[int, dict[str, torch.Tensor]] | None: ...
+
+    def resume_from(self, after: int, tensors: dict[str, torch.Tensor]) -> None: ...
+
+
+def state_carrier(method: Any) -> StateCarrier | None:
+    """The part of ``method`` whose recurrent state a resumed run sets back: RMB-Net, alone or inside
+    ``FullResolution``; None for the window methods, which have none."""
+    for part in (method, getattr(method, "binned", None)):
+        if hasattr(part, "recurrent_state"):
+            return part
+    return None
+
+
+def saved_state(folder: Path, next_index: int | None) -> tuple[int, dict[str, torch.Tensor]] | None:
+    """The recurrent state an interrupted run in ``folder`` saved, as (the frame it follows, tensors), when it can
+    start the frames from ``next_index`` on: the frame after the snapshot's is made again too (the raw gate reads the
+    change from the frame before it), so the snapshot must lie two frames before. None when there is none."""
+    if next_index is None:
+        return None
+    try:
+        with safe_open(str(folder / RESUME_STATE), framework="pt") as stored:
+            after = int((stored.metadata() or {}).get("after", ""))
+            tensors = {name: stored.get_tensor(name) for name in stored.keys()}
+    except (OSError, ValueError, SafetensorError):
+        return None
+    return (after, tensors) if after + 1 < next_index else None
 
 
 def is_resumable(folder: Path, digest: str) -> bool:
@@ -127,7 +170,7 @@ def _log_line(index: int, time_s: float, name: str, state: Any) -> str:
 
 def finish_record(folder: Path) -> None:
     """Remove the record and log of a run that completed: the output folder holds the outputs alone."""
-    for name in (RESUME_RECORD, RESUME_LOG):
+    for name in (RESUME_RECORD, RESUME_LOG, RESUME_STATE):
         try:
             os.unlink(folder / name)
         except FileNotFoundError:
@@ -157,11 +200,15 @@ class ResumedSink:
     by the run this one continues) are dropped; each one written (a file ``frame_NNNNNN.ext``) is logged in
     ``folder``'s resume log."""
 
-    def __init__(self, sink: FrameSink, folder: Path, next_index: int | None, ext: str) -> None:
+    def __init__(self, sink: FrameSink, folder: Path, next_index: int | None, ext: str,
+                 carrier: StateCarrier | None = None) -> None:
         self.sink = sink
         self.next_index = next_index
         self.ext = ext
         self.written = 0
+        self._carrier = carrier
+        self._saved = -1
+        self._state_path = folder / RESUME_STATE
         self._log_path = folder / RESUME_LOG
         try:
             self._log = open(self._log_path, "a", encoding="utf-8", newline="\n")
@@ -179,6 +226,20 @@ class ResumedSink:
             self._log.flush()
         except OSError as exc:
             raise output_error(self._log_path, exc) from exc
+        self._save_state(frame.index)
+
+    def _save_state(self, written: int) -> None:
+        """Replace the saved recurrent state with the carrier's newest snapshot that a resume can use after frame
+        ``written`` (one before it: ``saved_state``), when there is a newer one."""
+        snapshot = None if self._carrier is None else self._carrier.recurrent_state(at_most=written - 1)
+        if snapshot is None or snapshot[0] <= self._saved:
+            return
+        after, tensors = snapshot
+        try:
+            atomic_write_bytes(self._state_path, save(tensors, metadata={"after": str(after)}))
+        except OSError as exc:
+            raise output_error(self._state_path, exc) from exc
+        self._saved = after
 
     def close(self) -> None:
         """Close the frame log (again: nothing)."""

@@ -22,6 +22,7 @@ from __future__ import annotations
 import copy
 import logging
 import time
+from collections import deque
 from collections.abc import Callable, Iterable
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import nullcontext
@@ -37,6 +38,7 @@ from rmbvideo.chunks import Frame, RmbChunk
 from rmbvideo.errors import InputError
 from rmbvideo.net.activations import InplaceReLU
 from rmbvideo.net.blend import BIN_TRIALS
+from rmbvideo.net.decoder import DecoderState
 from rmbvideo.net.encoder import Encoder
 from rmbvideo.net.model import (
     EncodedFrame,
@@ -53,6 +55,7 @@ from rmbvideo.recon.aligned_batched import BatchedAlignedMean, BatchedAlignedWor
 from rmbvideo.recon.aligned_worker import AlignedMean, AlignedWorker, Ready
 from rmbvideo.recon.precision import PRECISIONS, uses_bf16
 from rmbvideo.recon.prelim import MultiUpsampler, PreliminaryFrames, select_centre
+from rmbvideo.recon.recurrent_state import state_from_tensors, state_tensors
 from rmbvideo.sensor.conventions import CONVENTIONS, RESPONSES
 from rmbvideo.threads import available_cores, compute_threads, default_threads, work_beside
 
@@ -61,6 +64,10 @@ log = logging.getLogger(__name__)
 ALIGN_METHODS = ("none", "dis", "farneback", "tvl1")
 # Frames encoded per call: bounds the full-resolution activations whatever the chunk size.
 ENCODE_BATCH = 8
+#: Frames between the snapshots of the recurrent state kept for a resumable run (``keep_state_snapshots``), and how
+#: many are kept: enough to reach back over a chunk's frames, which the network makes before the sink writes them
+SNAPSHOT_EVERY = 16
+SNAPSHOTS_KEPT = 16
 
 
 class PrelimLike(Protocol):
@@ -255,6 +262,8 @@ class RmbNetReconstructor:
         self._received = 0
         self._next_out = 0
         self._state = None
+        self._snapshots: deque[tuple[int, dict[str, torch.Tensor]]] | None = None
+        self._restore: tuple[int, DecoderState] | None = None
         self._size: tuple[int, int] | None = None
         self.nonfinite_frames = 0
         #: seconds spent making preliminary frames, in the network (with its caches and state) and, for a
@@ -285,6 +294,25 @@ class RmbNetReconstructor:
     def flush(self) -> list[Frame]:
         """End of capture: emit the last w frames (their windows end at the last frame)."""
         return self._consume(self._preliminary_frames(lambda prelim: prelim.flush(), final=True), final=True)
+
+    def keep_state_snapshots(self) -> None:
+        """Keep a copy of the recurrent state every ``SNAPSHOT_EVERY`` frames (the last ``SNAPSHOTS_KEPT``), for a
+        resumable run to save (``recurrent_state``)."""
+        self._snapshots = deque(maxlen=SNAPSHOTS_KEPT)
+
+    def recurrent_state(self, at_most: int) -> tuple[int, dict[str, torch.Tensor]] | None:
+        """The newest kept snapshot of the recurrent state after a frame of index ``at_most`` or less: that frame's
+        index and the state's tensors by name, on the CPU; None before the first."""
+        for index, tensors in reversed(self._snapshots or ()):
+            if index <= at_most:
+                return index, tensors
+        return None
+
+    def resume_from(self, after: int, tensors: dict[str, torch.Tensor]) -> None:
+        """Make the frame after frame ``after`` from this recurrent state (``recurrent_state``'s) instead of the one
+        built over the frames before it: a resumed run's warm-up refills the windows, and this sets back the state's
+        long memory, which a warm-up rebuilds only to about 1 % of the light on a few pixels."""
+        self._restore = (after, state_from_tensors(tensors, self.device))
 
     def _preliminary_frames(self, task: Callable[[PreliminaryFrames], list[PrelimLike]] | None,
                             final: bool) -> list[PrelimLike]:
@@ -384,6 +412,7 @@ class RmbNetReconstructor:
             means: dict[int, AlignedMean | None] = {}
             out: list[Frame] = []
             for run in runs:
+                self._restore_before(run[0])
                 for j in range(run[0], min(run[-1] + ahead + 1, ready[-1] + 1)):  # ready is consecutive
                     if j not in means:
                         means[j] = self._kept_means.pop(j, None) or self._aligned(j, count)
@@ -392,6 +421,20 @@ class RmbNetReconstructor:
                 self._next_out = run[-1] + 1
                 self._evict(self._next_out)
         return out
+
+    def _restore_before(self, i: int) -> None:
+        """Set the state ``resume_from`` gave before frame ``i`` when ``i`` is the frame after its own."""
+        if self._restore is not None and int(self._raw[i].index) == self._restore[0] + 1:
+            self._state, self._restore = self._restore[1], None
+
+    def _made(self, index: int, state: DecoderState | None) -> None:
+        """The state after the frame of ``index`` (the last of a pass); snapshotted when one is due."""
+        self._state = state
+        if self._snapshots is None or state is None:
+            return
+        last = self._snapshots[-1][0] if self._snapshots else -1
+        if index // SNAPSHOT_EVERY > last // SNAPSHOT_EVERY:
+            self._snapshots.append((index, state_tensors(state)))
 
     @property
     def frame_batch(self) -> int:
@@ -406,9 +449,11 @@ class RmbNetReconstructor:
         afresh, so every frame is a run of its own."""
         limit = self.frame_batch if self.align == "none" else 1
         runs: list[list[int]] = []
+        restart = None if self._restore is None else self._restore[0] + 1
         for i in ready:
             whole = i >= self._w and (count is None or i + self._w < count)
-            if whole and runs and len(runs[-1]) < limit and runs[-1][-1] == i - 1 and runs[-1][-1] >= self._w:
+            if (whole and runs and len(runs[-1]) < limit and runs[-1][-1] == i - 1 and runs[-1][-1] >= self._w
+                    and self._raw[i].index != restart):
                 runs[-1].append(i)
             else:
                 runs.append([i])
@@ -534,9 +579,9 @@ class RmbNetReconstructor:
             log.warning("RMB-Net produced NaN/Inf in frame %d; replaced by 0 and reset the recurrent state", i)
             t = torch.nan_to_num(t, nan=0.0, posinf=0.0, neginf=0.0)
             state = None
-        self._state = state
-        image = self._net.to_linear(t)[0, 0].float().cpu().numpy()
         source = self._raw[i]
+        self._made(int(source.index), state)
+        image = self._net.to_linear(t)[0, 0].float().cpu().numpy()
         return Frame(index=int(source.index), time_s=float(source.time_s), image=image)
 
     def _emit_run(self, run: list[int], count: int | None, means: list[AlignedMean | None]) -> list[Frame]:
@@ -556,7 +601,7 @@ class RmbNetReconstructor:
             t, state = self._net.step_run(frames, self._state, convention=self._convention, aligned=aligned)
         if not all_finite(t):
             return [self._emit(i, count, None if rates is None else Ready(rates[k])) for k, i in enumerate(run)]
-        self._state = state
+        self._made(int(self._raw[run[-1]].index), state)
         images = self._net.to_linear(t)[:, 0].float().cpu().numpy()
         return [Frame(index=int(self._raw[i].index), time_s=float(self._raw[i].time_s), image=images[k])
                 for k, i in enumerate(run)]

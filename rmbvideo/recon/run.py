@@ -32,8 +32,10 @@ from rmbvideo.recon.resume import (
     is_resumable,
     logged_rows,
     restart_plane,
+    saved_state,
     scan_log,
     start_record,
+    state_carrier,
     window_reach,
 )
 from rmbvideo.sensor.conventions import response_for
@@ -237,11 +239,18 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
             log.info("%s: resuming an interrupted run: %d frames kept, continuing at frame %d", outdir, logged.frames,
                      next_index)
         reach = window_reach(window, get_method(method).window, 1 if isinstance(reader, RmbFileReader) else 2)
-        first = restart_plane(run.start, next_index, run.step, reach)
+        carrier = state_carrier(run.method)
+        saved = saved_state(staging, next_index) if carrier is not None else None
+        first = restart_plane(run.start, next_index if saved is None else saved[0] + 1, run.step, reach)
+        if carrier is not None:
+            carrier.keep_state_snapshots()
+            if saved is not None:
+                log.info("%s: the recurrent state after frame %d is set back", outdir, saved[0])
+                carrier.resume_from(*saved)
         sink = make_sink(fmt, staging, prior_rows=logged_rows(staging, logged), **sink_options)
         if logged.frames:
             sink.restore_state(logged.state)
-        frames = ResumedSink(sink, staging, next_index, fmt)
+        frames = ResumedSink(sink, staging, next_index, fmt, carrier)
         try:
             summary = reconstruct_stream(reader, run.method, frames, start=first, stop=run.stop,
                                          chunk_planes=chunk_planes, progress=progress, readout=run.readout,
