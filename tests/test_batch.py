@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -194,6 +195,49 @@ def test_kill_9_mid_capture_then_resume(tmp_path: Path) -> None:
     assert report(out)["big.dat"]["status"] == ("skipped" if complete else "ok")
     assert len(list((out / "big").glob("*.exr"))) == 3000
     assert not list(out.glob(".big.*"))
+
+
+def test_a_killed_resume_batch_keeps_its_frames_and_the_next_one_continues_them(tmp_path: Path) -> None:
+    """batch --resume, killed mid-capture: the next batch --resume takes up the frames the first kept (it used to
+    start each run in a new hidden folder, so they were never taken up, and never removed) and ends with the
+    uninterrupted frames and nothing hidden left; a batch without --resume removes such kept frames."""
+    big = tmp_path / "in" / "big.dat"
+    big.parent.mkdir()
+    rng = np.random.default_rng(0)
+    write_dat(big, (rng.random((6000, 16, 16)) < 0.3).astype(np.uint8), DatGeometry(16, 16))
+    out, whole = tmp_path / "out", tmp_path / "whole"
+    options = ["--width", "16", "--height", "16", "--method", "tfp", "--format", "exr", "--step", "2", "--jobs", "1"]
+    batch = [sys.executable, "-m", "rmbvideo", "batch", str(big), *options]
+    subprocess.run([*batch, "-o", str(whole), "-q"], check=True)
+
+    def killed_midway() -> None:
+        proc = subprocess.Popen([*batch, "-o", str(out), "--resume", "-q"], stdout=subprocess.DEVNULL,
+                                stderr=subprocess.DEVNULL)
+        try:
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline and proc.poll() is None:
+                if [p for p in out.glob("..big.resumable.partial-*") if len(list(p.glob("*.exr"))) > 20]:
+                    break
+                time.sleep(0.05)
+            os.kill(proc.pid, signal.SIGKILL)
+        finally:
+            proc.wait()
+        if proc.returncode != -signal.SIGKILL or (out / "big").exists():
+            pytest.skip("the run ended before the kill reached it")
+
+    killed_midway()
+    result = subprocess.run([*batch, "-o", str(out), "--resume", "-v"], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert "resuming an interrupted run" in result.stderr
+    assert report(out)["big.dat"]["status"] == "ok"
+    assert sorted(p.name for p in (out / "big").iterdir()) == sorted(p.name for p in (whole / "big").iterdir())
+    for frame in sorted((whole / "big").glob("*.exr")):
+        np.testing.assert_array_equal(read_exr(out / "big" / frame.name)[0], read_exr(frame)[0], err_msg=frame.name)
+    assert not [p.name for p in out.iterdir() if p.name.startswith((".big", "..big"))]
+    shutil.rmtree(out / "big")
+    killed_midway()
+    assert run("batch", big, "-o", out, *options, "-q").exit_code == 0
+    assert not [p.name for p in out.iterdir() if p.name.startswith((".big", "..big"))]
 
 
 def test_parallel_processes_give_the_same_outputs(tmp_path: Path) -> None:

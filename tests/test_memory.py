@@ -15,6 +15,7 @@ from rmbvideo.bench.memory import reconstruct_peak_rss, write_random_capture
 from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.model import RmbNet
 from rmbvideo.net.weights import ModelCard, save_model
+from rmbvideo.recon.run import CHUNK_BYTES
 
 WIDTH, HEIGHT = 400, 250
 FACTOR = 5
@@ -52,6 +53,10 @@ def test_rmbnet_peak_rss_independent_of_length(tmp_path, startup_env):
 
 
 def test_a_leak_would_be_seen(tmp_path, startup_env):
-    """The measurement can fail: holding the whole capture in memory (read it all at once) shows."""
-    short, long = peaks(tmp_path, 2048, ["--method", "tfp", "--chunk-planes", str(FACTOR * 2048)], startup_env)
+    """The measurement can fail: holding the whole capture in memory (read it all at once, decoded: the longer one
+    still under the chunk's memory bound, ``CHUNK_BYTES``) shows."""
+    planes = 512
+    assert FACTOR * planes * WIDTH * HEIGHT < CHUNK_BYTES
+    short, long = peaks(tmp_path, planes, ["--method", "tfw", "--resolution", "binned",
+                                           "--chunk-planes", str(FACTOR * planes)], startup_env)
     assert long > 1.10 * short, (short, long)

@@ -63,7 +63,8 @@ def _convert_capture(job: CaptureJob) -> CaptureResult:
             result.status, result.frames = "skipped", marker.get("frames")
             return result
         check_replaceable(job.output_dir, _is_capture_output, overwrite=True)
-        work = job.batch_dir / f".{job.name}.partial-{os.getpid()}-{secrets.token_hex(4)}"
+        work = resumable_work(job) if job.options.get("resume") else (
+            job.batch_dir / f".{job.name}.partial-{os.getpid()}-{secrets.token_hex(4)}")
         try:
             summary = run_reconstruction(job.input_path, work, **{**job.options, "progress": False})
             make_dir(work)
@@ -135,12 +136,25 @@ def finished_result(job: CaptureJob) -> CaptureResult | None:
                          frames=marker.get("frames"))
 
 
+def resumable_work(job: CaptureJob) -> Path:
+    """The hidden folder a ``--resume`` job is reconstructed into: the same for every run of the job, so that the
+    frames an interrupted run kept beside it (``..NAME.resumable.partial-*``, ``rmbvideo.recon.resume``) are taken up
+    by the next run with the same options."""
+    return job.batch_dir / f".{job.name}.resumable"
+
+
 def _remove_leftovers(job: CaptureJob) -> None:
-    """Remove partial or replaced folders of ``job`` left by an interrupted run (the batch lock is held)."""
-    for leftover in job.batch_dir.glob(f".{glob.escape(job.name)}.*-*"):
-        if leftover.name.startswith((f".{job.name}.partial-", f".{job.name}.old-")):
-            log.info("removing %s left by an interrupted run", leftover)
-            shutil.rmtree(leftover, ignore_errors=True)
+    """Remove partial or replaced folders of ``job`` left by an interrupted run (the batch lock is held): a
+    ``--resume`` job's kept frames stay for it to take up, and are removed by a job without ``--resume``."""
+    leftovers = [p for p in job.batch_dir.glob(f".{glob.escape(job.name)}.*-*")
+                 if p.name.startswith((f".{job.name}.partial-", f".{job.name}.old-"))]
+    work = resumable_work(job)
+    leftovers += [work] if work.exists() else []  # killed between its run's end and the install
+    if not job.options.get("resume"):
+        leftovers += work.parent.glob(f".{glob.escape(work.name)}.partial-*")
+    for leftover in leftovers:
+        log.info("removing %s left by an interrupted run", leftover)
+        shutil.rmtree(leftover, ignore_errors=True)
 
 
 def _is_capture_output(name: str) -> bool:
