@@ -315,6 +315,13 @@ def test_a_users_own_streams_alone(tmp_path):
     result = CliRunner().invoke(main, ["evaluate", "--no-heldout", "-o", str(tmp_path / "none")])
     assert result.exit_code == 2 and "--real-video" in result.output
     assert not (tmp_path / "none").exists()  # a usage error leaves no output folder behind
+    (tmp_path / "torn").mkdir()  # a stream whose reference is cut short: found, then unreadable mid-run
+    (tmp_path / "torn" / "a.dat").write_bytes(next((tmp_path / "mine").glob("*.dat")).read_bytes())
+    (tmp_path / "torn" / "a.png").write_bytes(next((tmp_path / "mine").glob("*.png")).read_bytes()[:100])
+    result = CliRunner().invoke(main, ["evaluate", "--no-heldout", "--real-video", str(tmp_path / "torn"), "-o",
+                                       str(tmp_path / "new" / "out"), "--device", "cpu", "--quiet"])
+    assert result.exit_code == 2 and "a.png" in result.output, result.output
+    assert not (tmp_path / "new").exists()  # a failed run leaves no empty output folder behind either
 
 
 def test_rate_methods_are_scored_as_light_on_a_camera_stream_only():

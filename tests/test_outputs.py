@@ -17,7 +17,14 @@ import pytest
 
 from rmbvideo.chunks import Frame
 from rmbvideo.errors import InputError, OutputError, RmbvideoError
-from rmbvideo.io.atomic import atomic_path, atomic_write_text, outputs_together, staged_folder
+from rmbvideo.io.atomic import (
+    atomic_path,
+    atomic_write_text,
+    check_folder_creatable,
+    output_folder,
+    outputs_together,
+    staged_folder,
+)
 from rmbvideo.io.exr import HALF_MAX, read_exr, read_exr_rgb, write_exr
 from rmbvideo.io.ffmpeg import FfmpegEncoder
 from rmbvideo.io.sinks import make_sink
@@ -460,3 +467,25 @@ def test_sdr_outputs_carry_bt709_tags(tmp_path):
     write_frames(frames, tmp_path / "png", fmt="png")
     data = (tmp_path / "png" / "frame_000000.png").read_bytes()
     assert data[37:45] == b"cICP" + bytes([1, 1, 0, 1])
+
+
+def test_an_output_folder_made_for_a_run_that_fails_is_removed_again(tmp_path: Path) -> None:
+    """evaluate, bench and dynamic-range --plots make their folder for the reports: a run that fails or is stopped
+    removes the folders it made while they are empty (an empty folder was left behind), never one that was there
+    or holds a file; a folder that cannot be made is refused before the run."""
+    with pytest.raises(KeyboardInterrupt), output_folder(tmp_path / "a" / "b" / "c"):
+        raise KeyboardInterrupt
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(ValueError), output_folder(tmp_path / "kept" / "new") as folder:
+        (tmp_path / "kept" / "mine.txt").write_text("mine")
+        assert folder.is_dir()
+        raise ValueError
+    assert sorted(p.name for p in (tmp_path / "kept").iterdir()) == ["mine.txt"]
+    with output_folder(tmp_path / "done"):
+        pass
+    assert (tmp_path / "done").is_dir()
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(OutputError, match="is not a folder"):
+        check_folder_creatable(tmp_path / "file" / "out")
+    check_folder_creatable(tmp_path / "x" / "y")
+    assert not (tmp_path / "x").exists()

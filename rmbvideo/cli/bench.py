@@ -86,11 +86,11 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
     from rmbvideo.bench.report import mark_pareto, markdown_table, write_csv, write_plot
     from rmbvideo.bench.runner import TIMING_RUNS, run_config
     from rmbvideo.evaluate.heldout import load_heldout
-    from rmbvideo.io.atomic import atomic_write_text, outputs_together
+    from rmbvideo.io.atomic import atomic_write_text, check_folder_creatable, output_folder, outputs_together
     from rmbvideo.net.weights import MODELS_DIR
 
     models_dir = models_dir or MODELS_DIR
-    outdir.mkdir(parents=True, exist_ok=True)
+    check_folder_creatable(outdir)
     sequences = load_heldout(quick, cache)
     alignments = tuple(a for a in ALIGNMENTS if not ((quick or no_tvl1) and a == "tvl1"))
     configs = default_configs(_devices(device), full_grid=full_grid, baselines=not no_baselines,
@@ -137,7 +137,7 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
                      f"planes, {m['peak_anon_mib'][1]:.0f} MiB for {m['factor']}x as many ({100 * m['growth']:+.1f} %; "
                      f"total RSS with mapped file pages {m['peak_rss_mib'][0]:.0f} -> {m['peak_rss_mib'][1]:.0f} MiB)."
                      for m in memory]
-    with outputs_together(outdir, ("bench.*",)):  # the three of one run, or none
+    with output_folder(outdir), outputs_together(outdir, ("bench.*",)):  # the three of one run, or none
         atomic_write_text(outdir / "bench.md", "\n".join(document) + "\n")
         write_csv(records, outdir / "bench.csv")
         write_plot(records, outdir / "bench.png")

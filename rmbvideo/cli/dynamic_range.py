@@ -80,12 +80,11 @@ def dynamic_range(levels: list[int], n_values: list[int], q_r: float | None, dar
                 table[(level, res.n)] = res.dr_db
 
     if plots_dir is not None:
-        from rmbvideo.io.atomic import make_dir, outputs_together
+        from rmbvideo.io.atomic import output_folder, outputs_together
         from rmbvideo.io.png import write_figure
         from rmbvideo.sensor.plots import expectation_std_figure, snr_figure
 
-        make_dir(plots_dir)
-        with outputs_together(plots_dir, ("fig*.png",)):  # both figures of one readout design, or neither
+        with output_folder(plots_dir), outputs_together(plots_dir, ("fig*.png",)):  # both figures, or neither
             write_figure(expectation_std_figure(params), plots_dir / "fig2_expectation_std.png", dpi=120)
             write_figure(snr_figure(params, exact=variance == "exact"), plots_dir / "fig3_snr.png", dpi=120)
 

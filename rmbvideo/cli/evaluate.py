@@ -249,9 +249,8 @@ def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Pat
     """Score TFW-S/L, TFI, GC20, MG20, RMB-Net, its ablations and the classical methods on the raw
     capture (2x2-averaged) on the held-out synthetic set, and optionally on real-video streams (with
     --no-heldout, those alone); with --development, candidate models on the development sets instead."""
-    from rmbvideo.errors import OutputError
 
-    from rmbvideo.io.atomic import outputs_together
+    from rmbvideo.io.atomic import output_folder, outputs_together
     from rmbvideo.evaluate.harness import evaluate_rows, table2_specs, with_best_raw
     from rmbvideo.evaluate.heldout import load_heldout, load_video_heldout
     from rmbvideo.evaluate.table import real_capture_comparison
@@ -270,11 +269,7 @@ def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Pat
 
     streams = find_streams(real_video) if real_video is not None else []  # a wrong folder fails before the long run
     resolved = str(resolve_device(device))
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputError(f"{out_dir}: cannot create the output folder ({exc.strerror or exc})") from None
-    with outputs_together(out_dir, REPORT_PATTERNS):  # all of this run's reports, or none
+    with output_folder(out_dir), outputs_together(out_dir, REPORT_PATTERNS):  # all of this run's reports, or none
         if development:
             paths = _development(out_dir, [models_dir / "rmbnet-binned.safetensors", *candidates], cache_dir,
                                  real_video, resolved, progress_enabled(quiet))

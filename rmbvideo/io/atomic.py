@@ -245,6 +245,35 @@ def make_dir(path: Path) -> None:
         raise OutputError(f"{path}: cannot create folder: {exc.strerror or exc}") from exc
 
 
+@contextmanager
+def output_folder(path: Path) -> Iterator[Path]:
+    """Create folder ``path`` and its missing parents (``make_dir``) for the outputs of the block; when the block fails
+    or is stopped, the folders it created are removed again while empty, so a failed run leaves nothing behind."""
+    path = Path(path)
+    missing = [folder for folder in (path, *path.parents) if not folder.exists()]  # deepest first
+    make_dir(path)
+    try:
+        yield path
+    except BaseException:
+        for folder in missing:
+            try:
+                folder.rmdir()
+            except OSError:
+                break
+        raise
+
+
+def check_folder_creatable(path: Path) -> None:
+    """``OutputError`` up front, before a long run, when folder ``path`` could not be made or written into: its
+    nearest existing ancestor is not a writable folder (``output_folder`` makes it when the outputs are ready)."""
+    path = Path(path)
+    existing = next(folder for folder in (path, *path.parents) if folder.exists() or folder == folder.parent)
+    if not existing.is_dir():
+        raise OutputError(f"{path}: cannot create folder: {existing} is not a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise OutputError(f"{path}: cannot create folder: {existing} is not writable")
+
+
 def check_file_writable(path: Path, overwrite: bool, suffixes: tuple[str, ...] = (), example: str = "output") -> None:
     """``OutputError`` up front, before any long work, when ``path`` cannot be the one file a command writes: a
     folder, a missing folder, a name not ending in one of ``suffixes`` (any case), or an existing file when
