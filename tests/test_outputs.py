@@ -14,8 +14,10 @@ import imageio_ffmpeg
 import numpy as np
 import OpenEXR
 import pytest
+from click.testing import CliRunner
 
 from rmbvideo.chunks import Frame
+from rmbvideo.cli import main
 from rmbvideo.errors import InputError, OutputError, RmbvideoError
 from rmbvideo.io.atomic import (
     atomic_path,
@@ -489,3 +491,7 @@ def test_an_output_folder_made_for_a_run_that_fails_is_removed_again(tmp_path: P
         check_folder_creatable(tmp_path / "file" / "out")
     check_folder_creatable(tmp_path / "x" / "y")
     assert not (tmp_path / "x").exists()
+    (tmp_path / "bad.safetensors").write_text("junk")  # a training run that fails before its first checkpoint
+    result = CliRunner().invoke(main, ["train-detail", "-o", str(tmp_path / "new"), "--init",
+                                       str(tmp_path / "bad.safetensors"), "--minutes", "0.01", "-q"])
+    assert result.exit_code == 2 and "bad.json" in result.output and not (tmp_path / "new").exists()

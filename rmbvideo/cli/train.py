@@ -15,6 +15,7 @@ import click
 
 from rmbvideo.cli import progress_enabled, quiet_option, verbose_option
 from rmbvideo.cli.options import DEVICE_CHOICE, AliasOption
+from rmbvideo.io.atomic import output_folder
 
 
 @click.command()
@@ -81,8 +82,9 @@ def train(recipe: str | None, list_recipes: bool, out_dir: Path | None, cache_di
     out_dir = out_dir if out_dir is not None else Path(f"train-{config.name}")
     if resume and overwrite:
         raise click.UsageError("--resume and --overwrite exclude each other")
-    result = Trainer(config, out_dir, cache_dir=cache_dir, resume=resume, overwrite=overwrite,
-                     progress=progress_enabled(quiet), device=device).run()
+    with output_folder(out_dir):  # a run that fails before its first checkpoint leaves no empty folder
+        result = Trainer(config, out_dir, cache_dir=cache_dir, resume=resume, overwrite=overwrite,
+                         progress=progress_enabled(quiet), device=device).run()
     click.echo(f"{result.weights}: {result.steps} steps in {result.elapsed_s / 60:.1f} min "
                f"(stopped by {result.stopped_by}); held-out mu-law PSNR {result.metrics['val_mu_psnr']:.2f} dB, "
                f"TFW {result.metrics['val_tfw_mu_psnr']:.2f} dB")
@@ -140,8 +142,9 @@ def train_detail(out_dir: Path, minutes: float, resume: bool, overwrite: bool, c
                **({"mismatch": tuple(mismatch)} if mismatch is not None else {})}
     if resume and overwrite:
         raise click.UsageError("--resume and --overwrite exclude each other")
-    weights = run(DetailTrainConfig(detail=detail, minutes=minutes, **options), out_dir, resume=resume,
-                  overwrite=overwrite, progress=progress_enabled(quiet), init=init)
+    with output_folder(out_dir):
+        weights = run(DetailTrainConfig(detail=detail, minutes=minutes, **options), out_dir, resume=resume,
+                      overwrite=overwrite, progress=progress_enabled(quiet), init=init)
     click.echo(f"{weights}: install it as models/detail-binned.safetensors (+ .json) to use it")
 
 
