@@ -200,7 +200,8 @@ def test_kill_9_mid_capture_then_resume(tmp_path: Path) -> None:
 def test_a_killed_resume_batch_keeps_its_frames_and_the_next_one_continues_them(tmp_path: Path) -> None:
     """batch --resume, killed mid-capture: the next batch --resume takes up the frames the first kept (it used to
     start each run in a new hidden folder, so they were never taken up, and never removed) and ends with the
-    uninterrupted frames and nothing hidden left; a batch without --resume removes such kept frames."""
+    uninterrupted frames and nothing hidden left; a batch without --resume removes such kept frames. --resume with a
+    video format is refused before the batch starts (each capture failed on it)."""
     big = tmp_path / "in" / "big.dat"
     big.parent.mkdir()
     rng = np.random.default_rng(0)
@@ -208,6 +209,8 @@ def test_a_killed_resume_batch_keeps_its_frames_and_the_next_one_continues_them(
     out, whole = tmp_path / "out", tmp_path / "whole"
     options = ["--width", "16", "--height", "16", "--method", "tfp", "--format", "exr", "--step", "2", "--jobs", "1"]
     batch = [sys.executable, "-m", "rmbvideo", "batch", str(big), *options]
+    video = CliRunner().invoke(main, ["batch", str(big), "-o", str(out), *options[:6], "--resume"])
+    assert video.exit_code == 2 and "a mp4 video cannot be continued" in video.output and not out.exists()
     subprocess.run([*batch, "-o", str(whole), "-q"], check=True)
 
     def killed_midway() -> None:

@@ -27,7 +27,7 @@ from safetensors import SafetensorError, safe_open
 from safetensors.torch import save
 
 from rmbvideo.chunks import Frame
-from rmbvideo.errors import OutputError
+from rmbvideo.errors import OptionError, OutputError
 from rmbvideo.io.atomic import atomic_write_bytes, atomic_write_text, output_error
 from rmbvideo.io.sinks import FrameSink, frame_file_name
 from rmbvideo.recon.fingerprint import fingerprint_digest
@@ -80,6 +80,13 @@ def saved_state(folder: Path, next_index: int | None) -> tuple[int, dict[str, to
     except (OSError, ValueError, SafetensorError):
         return None
     return (after, tensors) if after + 1 < next_index else None
+
+
+def check_resumable_format(fmt: str) -> None:
+    """``OptionError`` for ``--resume`` with a format that cannot be continued (a video stream)."""
+    if fmt not in RESUMABLE_FORMATS:
+        raise OptionError(f"--resume: a {fmt} video cannot be continued where it was cut; give --format "
+                          f"{' or '.join(RESUMABLE_FORMATS)} for a run that can be resumed")
 
 
 def is_resumable(folder: Path, digest: str) -> bool:

@@ -25,8 +25,8 @@ from rmbvideo.recon.full_resolution import FullResolution, detail_stage, raw_gat
 from rmbvideo.recon.methods import DEFAULT_METHOD, get_method
 from rmbvideo.recon.pipeline import RunSummary, iter_frames, reconstruct_stream
 from rmbvideo.recon.resume import (
-    RESUMABLE_FORMATS,
     ResumedSink,
+    check_resumable_format,
     finish_record,
     holds_frames,
     is_resumable,
@@ -192,9 +192,8 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
     (frame files only, ``RESUMABLE_FORMATS``) an interrupted run's frames are kept for a later run with the same
     input and options, which continues it (``rmbvideo.recon.resume``).
     """
-    if resume and fmt not in RESUMABLE_FORMATS:
-        raise OptionError(f"--resume: a {fmt} video cannot be continued where it was cut; give --format "
-                          f"{' or '.join(RESUMABLE_FORMATS)} for a run that can be resumed")
+    if resume:
+        check_resumable_format(fmt)
     if resume and not overwrite and (Path(outdir) / "frames.csv").is_file():
         raise OutputError(f"{outdir}: holds a complete run already, nothing to resume (--overwrite makes it again)")
     run = prepare_run(input_path, method=method, window=window, step=step, readout=readout, start_s=start_s,
