@@ -248,6 +248,12 @@ def test_native_rmb_capture_reconstructs_without_binning(tmp_path: Path) -> None
     assert len(rows) == 80 // 10  # one frame per N = 10 native readouts, full resolution
     image, _ = read_exr(out / rows[3]["file"])
     assert image.shape == (32, 48) and np.isfinite(image).all() and image.max() > 0
+    # its companions given for the capture (they were read as spikes: "2000 multi-bit readouts but native.mbit has
+    # 96 planes (truncated capture?)") are refused naming the capture to give
+    for companion, what in (("native.mbit", "the multi-bit readouts"), ("native.capture.json", "the sidecar")):
+        result = run("reconstruct", tmp_path / companion, "-o", tmp_path / "again", "-q")
+        assert result.exit_code == 2 and f"is {what} of the capture {dat}; give {dat}" in result.output
+    assert not (tmp_path / "again").exists()
     record = json.loads(run("info", dat, "--json").stdout)  # info says what the .mbit holds
     assert record["multi_bit"] == {"file": str(tmp_path / "native.mbit"), "bits": 3, "level": 7, "band_rows": 4,
                                    "band_shift": 2}

@@ -26,6 +26,7 @@ def open_capture(path: Path, width: int | None = None, height: int | None = None
     A capture with a ``.mbit`` multi-bit sidecar (a native multi-bit/RMB sensor, see
     ``rmbvideo.io.rmbfile``) opens as an ``RmbFileReader``, whose header fixes its geometry.
     """
+    _refuse_a_companion(Path(path))
     if Path(path).is_file() and mbit_path(Path(path)).is_file():
         reader = RmbFileReader(Path(path))
         given = {"--width": (width, reader.width), "--height": (height, reader.height), "--flip": (flip, reader.flip),
@@ -51,6 +52,21 @@ def open_capture(path: Path, width: int | None = None, height: int | None = None
     if info.width is None and info.height is None and info.header_cols is None:
         _warn_of_a_better_geometry(Path(path), geometry)
     return reader
+
+
+def _refuse_a_companion(path: Path) -> None:
+    """``InputError`` naming the capture when ``path`` is one of its companion files, the multi-bit readouts
+    (``.mbit``) or the sidecar (``.capture.json``): read as spikes, they gave a misleading error or noise."""
+    name = path.name.lower()
+    if name.endswith(".capture.json"):
+        what, dat = "the sidecar", path.with_name(path.name[: -len(".capture.json")] + ".dat")
+    elif name.endswith(".mbit"):
+        what, dat = "the multi-bit readouts", path.with_suffix(".dat")
+    else:
+        return
+    if dat.is_file():
+        raise InputError(f"{path}: is {what} of the capture {dat}; give {dat}, which is read with it")
+    raise InputError(f"{path}: is {what} of a capture, read with its {dat.name}, which is not there")
 
 
 #: The captures (path, size, modification time) already checked in this process: a warning once per capture
