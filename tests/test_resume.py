@@ -191,3 +191,23 @@ def test_a_run_that_fills_the_disk_keeps_its_frames_and_resumes_once_there_is_ro
     assert got.keys() == expected.keys()
     for name, image in expected.items():
         np.testing.assert_array_equal(got[name], image, err_msg=name)
+
+
+def test_the_fingerprint_holds_the_shipped_weights(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Weights retrained in a newer checkout under the same version number make another run: a resume does not mix
+    the old weights' frames with the new ones' (nor set back a state of another network), and a batch does not skip
+    the old weights' output as complete."""
+    from rmbvideo.io.capture import open_capture
+    from rmbvideo.recon import fingerprint
+
+    capture = moving_capture(tmp_path / "c.dat", 40, 16, 16)
+    reader = open_capture(capture, width=16, height=16)
+    models = tmp_path / "models"
+    models.mkdir()
+    (models / "rmbnet-binned.safetensors").write_bytes(b"weights of one training")
+    monkeypatch.setattr(fingerprint, "MODELS_DIR", models)
+    before = fingerprint.fingerprint_digest(fingerprint.run_fingerprint(capture, {"method": "rmbnet"}, reader))
+    assert before == fingerprint.fingerprint_digest(fingerprint.run_fingerprint(capture, {"method": "rmbnet"}, reader))
+    (models / "rmbnet-binned.safetensors").write_bytes(b"weights of another training")
+    after = fingerprint.fingerprint_digest(fingerprint.run_fingerprint(capture, {"method": "rmbnet"}, reader))
+    assert after != before

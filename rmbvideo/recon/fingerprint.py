@@ -6,6 +6,7 @@ from another input or with other options.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -13,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from rmbvideo import __version__
+from rmbvideo.net.weights import MODELS_DIR
 
 
 def run_fingerprint(input_path: Path, options: dict[str, Any], reader: Any) -> dict[str, Any]:
@@ -22,11 +24,33 @@ def run_fingerprint(input_path: Path, options: dict[str, Any], reader: Any) -> d
     stat = Path(input_path).stat()
     return {
         "code_version": __version__,
+        "shipped_models": shipped_models(),
         "options": {k: describe_option(v) for k, v in sorted(options.items())},
         "capture": {"width": g.width, "height": g.height, "header_cols": g.header_cols, "flip": g.flip,
                     "rate_hz": reader.rate_hz},
         "input": {"size": stat.st_size, "mtime_ns": stat.st_mtime_ns},
     }
+
+
+def shipped_models() -> dict[str, str]:
+    """The SHA-256 of every shipped weight file by name: a run made with other shipped weights (retrained in a newer
+    checkout under the same version number) is another run, not one to continue or skip."""
+    return {path.name: _file_digest(str(path), *_stat_key(path)) for path in sorted(MODELS_DIR.glob("*.safetensors"))}
+
+
+def _stat_key(path: Path) -> tuple[int, int]:
+    stat = path.stat()
+    return stat.st_size, stat.st_mtime_ns
+
+
+@functools.lru_cache(maxsize=64)
+def _file_digest(path: str, size: int, mtime_ns: int) -> str:
+    """SHA-256 of file ``path``, once per process for each (size, mtime) it has had."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
 
 
 def describe_option(value: Any) -> Any:
