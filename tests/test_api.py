@@ -40,6 +40,9 @@ def test_reconstruct_streams_the_cli_frames(tmp_path):
         np.testing.assert_array_equal(on_disk, frame.image)
     with pytest.raises(OptionError, match="takes no option model"):
         rmbvideo.reconstruct(capture, method="tfp", model="x.safetensors")
+    # threads is every method's, as --threads on the command line (it was refused for the classical ones)
+    threaded = list(rmbvideo.reconstruct(capture, method="tfw", window=20, threads=1))
+    assert all(np.array_equal(a.image, b.image) for a, b in zip(threaded, frames, strict=True))
     assert "torch" not in rmbvideo.__all__ and os.fspath(capture)
 
 

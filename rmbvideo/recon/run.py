@@ -161,8 +161,9 @@ def reconstruct_frames(path: str | Path, method: str = DEFAULT_METHOD, *, window
     """The frames of capture ``path`` (``.index``, ``.time_s``, ``.image``: linear float32, finite,
     >= 0) reconstructed with ``method``, with the defaults and sidecar handling of ``rmbvideo
     reconstruct``, streaming in bounded memory. ``options`` go to the method (e.g. RMB-Net's ``model``,
-    ``device``, ``threads``). Available as ``rmbvideo.reconstruct``."""
-    unknown = sorted(set(options) - set(get_method(method).extra_options))
+    ``device``; ``threads`` is every method's, as on the command line: the classical ones run on one). Available as
+    ``rmbvideo.reconstruct``."""
+    unknown = sorted(set(options) - set(get_method(method).extra_options) - {"threads"})
     if unknown:
         raise OptionError(f"method {method} takes no option {', '.join(unknown)}")
     run = prepare_run(Path(path), method=method, window=window, step=step, readout=readout, start_s=start_s,
