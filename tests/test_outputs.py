@@ -495,3 +495,21 @@ def test_an_output_folder_made_for_a_run_that_fails_is_removed_again(tmp_path: P
     result = CliRunner().invoke(main, ["train-detail", "-o", str(tmp_path / "new"), "--init",
                                        str(tmp_path / "bad.safetensors"), "--minutes", "0.01", "-q"])
     assert result.exit_code == 2 and "bad.json" in result.output and not (tmp_path / "new").exists()
+
+
+def test_write_frames_replaces_a_folder_whole_and_only_when_told(tmp_path: Path) -> None:
+    """``rmbvideo.write_frames`` wrote frame files one by one into the folder: a second, shorter run left the first
+    run's extra frames beside its own. It now makes the folder whole, as ``reconstruct`` does: an earlier run's
+    outputs are replaced only with ``overwrite``, and then as a whole."""
+    from rmbvideo.io.sinks import write_frames
+
+    def frames(count: int) -> list[Frame]:
+        return [Frame(i, i / 1000, np.full((8, 8), 0.1 * (i + 1), np.float32)) for i in range(count)]
+
+    out = tmp_path / "out"
+    assert write_frames(frames(5), out, fmt="exr") == 5
+    with pytest.raises(OutputError, match="holds earlier outputs; use --overwrite"):
+        write_frames(frames(2), out, fmt="exr")
+    assert len(list(out.glob("*.exr"))) == 5
+    assert write_frames(frames(2), out, fmt="exr", overwrite=True) == 2
+    assert sorted(p.name for p in out.iterdir()) == ["frame_000000.exr", "frame_000001.exr", "frames.csv"]

@@ -41,6 +41,7 @@ from rmbvideo.io.atomic import (
     is_environment_error,
     output_error,
     remove_quietly,
+    staged_folder,
     temp_path_for,
 )
 from rmbvideo.io.exr import ExrDtype, write_exr
@@ -510,10 +511,19 @@ def ffmpeg_reason(exc: BaseException) -> str:
     return lines[-1] if lines else type(exc).__name__
 
 
-def write_frames(frames: Iterable[Frame], outdir: Path, fmt: SinkFormat = "mp4", **options: Any) -> int:
-    """Write ``frames`` to ``outdir`` as ``fmt`` (``make_sink`` options), committed atomically when
-    all are written (removed on error); returns the number of frames written."""
-    with make_sink(fmt, Path(outdir), **options) as sink:
-        for frame in frames:
-            sink.write(frame)
-        return sink.frames_written
+def write_frames(frames: Iterable[Frame], outdir: Path, fmt: SinkFormat = "mp4", overwrite: bool = False,
+                 **options: Any) -> int:
+    """Write ``frames`` to ``outdir`` as ``fmt`` (``make_sink`` options) and return how many were written. Like
+    ``rmbvideo reconstruct``, the folder is made whole in a staging folder and replaces ``outdir`` when all are
+    written: an error leaves ``outdir`` as it was, and earlier outputs there are replaced only with ``overwrite``
+    (frames written into them one by one left the earlier run's extra frames beside the new ones)."""
+    if fmt == "null":
+        with make_sink(fmt, Path(outdir), **options) as sink:
+            for frame in frames:
+                sink.write(frame)
+            return sink.frames_written
+    with staged_folder(Path(outdir), is_sink_output, overwrite=overwrite) as staging:
+        with make_sink(fmt, staging, **options) as sink:
+            for frame in frames:
+                sink.write(frame)
+            return sink.frames_written
