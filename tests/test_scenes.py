@@ -155,3 +155,25 @@ def test_rolling_readout_integrates_each_row_over_its_own_interval(tmp_path: Pat
     global_shutter = CaptureSimulator(load_scene(tiny(tmp_path, effects=[], pan=3000.0)))
     assert not np.allclose(global_shutter.expected_photo(k)[r], row, rtol=1e-3)
     np.testing.assert_allclose(global_shutter.expected_photo(k)[0], expected[0], rtol=1e-5)
+
+
+def test_a_scene_files_panorama_path_is_read_from_its_own_folder(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``panorama = "mine.exr"`` (and ``panorama:mine.exr`` textures) name a file beside the scene file, whatever the
+    folder the command runs in (it was looked for there); a name that is neither bundled nor a file is an error naming
+    the scene file and the key when the scene is read, not later in the renderer without either."""
+    from rmbvideo.scenes.scene import HDRI_DIR
+
+    folder = tmp_path / "scenes"
+    folder.mkdir()
+    (folder / "mine.exr").write_bytes((HDRI_DIR / "city.exr").read_bytes())
+    body = 'width = 48\nheight = 32\nduration_s = 0.002\n[background]\npanorama = "{}"\n'
+    (folder / "s.toml").write_text(body.format("mine.exr") + '[[objects]]\ntexture = "panorama:mine.exr"\n')
+    monkeypatch.chdir(tmp_path)
+    scene = load_scene(Path("scenes/s.toml"))
+    mine = (folder / "mine.exr").resolve()
+    assert Path(scene.background.panorama) == mine and scene.objects[0].texture == f"panorama:{mine}"
+    assert SceneRenderer(scene).render(0.0).shape == (32, 48)
+    assert load_scene(folder / "s.toml").background.panorama == scene.background.panorama
+    (folder / "bad.toml").write_text(body.format("nowhere"))
+    with pytest.raises(InputError, match=r"bad.toml: 'background.panorama' names no bundled panorama \(city, "):
+        load_scene(folder / "bad.toml")

@@ -25,9 +25,8 @@ import cv2
 import numpy as np
 
 from rmbvideo.errors import InputError
-from rmbvideo.scenes.scene import Background, DarkRegion, Scene, SceneObject
+from rmbvideo.scenes.scene import HDRI_DIR, Background, DarkRegion, Scene, SceneObject, bundled_panoramas
 
-HDRI_DIR = Path(__file__).resolve().parent / "hdri"
 _PAD = 2  # columns of horizontal wrap padding, so bilinear sampling crosses the seam
 _LED_BASE = 0.01  # housing of an LED array, relative to the LED peak
 
@@ -40,8 +39,7 @@ def panorama_path(name: str) -> Path:
     path = Path(name)
     if path.is_file():
         return path
-    names = ", ".join(sorted(p.stem for p in HDRI_DIR.glob("*.exr")))
-    raise InputError(f"{name}: no such panorama file or bundled panorama (bundled: {names})")
+    raise InputError(f"{name}: no such panorama file or bundled panorama (bundled: {', '.join(bundled_panoramas())})")
 
 
 @functools.lru_cache(maxsize=8)

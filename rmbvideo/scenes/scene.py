@@ -125,6 +125,15 @@ class Scene:
         return self.width, self.height
 
 
+#: The bundled HDR panoramas (``NAME.exr``), named by ``panorama = "NAME"`` or a ``panorama:NAME`` texture
+HDRI_DIR = Path(__file__).resolve().parent / "hdri"
+
+
+def bundled_panoramas() -> list[str]:
+    """Names of the bundled panoramas."""
+    return sorted(p.stem for p in HDRI_DIR.glob("*.exr"))
+
+
 def bundled_dir() -> Path:
     """Folder of the bundled scene files."""
     return Path(str(resources.files(BUNDLED_PACKAGE).joinpath("bundled")))
@@ -318,7 +327,7 @@ class _SceneParser:
         if not isinstance(panorama, str):
             raise self.fail("background.panorama", "must be a bundled panorama name or a path")
         return Background(
-            panorama=panorama,
+            panorama=self.panorama(panorama, "background.panorama"),
             gain=self.number(table, "gain", "background.", 1.0, minimum=0.0),
             center=self.vector(table, "center", "background.", (512.0, 256.0), 2),
             velocity=self.vector(table, "velocity", "background.", (0.0, 0.0), 2),
@@ -335,6 +344,8 @@ class _SceneParser:
         texture = table.get("texture", "checker")
         if not isinstance(texture, str) or not (texture in TEXTURES or texture.startswith("panorama:")):
             raise self.fail(prefix + "texture", f"must be one of {', '.join(TEXTURES)} or 'panorama:NAME'")
+        if texture.startswith("panorama:"):
+            texture = "panorama:" + self.panorama(texture.removeprefix("panorama:"), prefix + "texture")
         size = self.vector(table, "size", prefix, (40.0, 30.0), 2)
         if min(size) <= 0:
             raise self.fail(prefix + "size", "must be positive")
@@ -352,6 +363,17 @@ class _SceneParser:
             texture=texture, radiance=self.number(table, "radiance", prefix, 1.0, minimum=0.0),
             crop=crop, grid=(int(grid[0]), int(grid[1])),
         )
+
+    def panorama(self, name: str, key: str) -> str:
+        """A bundled panorama's name as it is, or an EXR file's path, relative to the scene file's folder (not to the
+        folder the command runs in); an error naming the key when it is neither."""
+        if (HDRI_DIR / f"{name}.exr").is_file():
+            return name
+        path = Path(name).expanduser()
+        path = (path if path.is_absolute() else self.path.parent / path).resolve()
+        if not path.is_file():
+            raise self.fail(key, f"names no bundled panorama ({', '.join(bundled_panoramas())}) and no file ({path})")
+        return str(path)
 
     def dark_region(self, table: dict, index: int) -> DarkRegion:
         prefix = f"dark_regions[{index}]."
