@@ -231,8 +231,9 @@ def test_a_killed_resume_batch_keeps_its_frames_and_the_next_one_continues_them(
     killed_midway()
     result = subprocess.run([*batch, "-o", str(out), "--resume", "-v"], capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
-    assert "resuming an interrupted run" in result.stderr
-    assert report(out)["big.dat"]["status"] == "ok"
+    assert f"{big}: resuming an interrupted run" in result.stderr and ".resumable" not in result.stderr
+    assert report(out)["big.dat"]["status"] == "ok" and report(out)["big.dat"]["frames"] == 3000  # kept ones too
+    assert json.loads((out / "big" / MARKER_NAME).read_text())["frames"] == 3000
     assert sorted(p.name for p in (out / "big").iterdir()) == sorted(p.name for p in (whole / "big").iterdir())
     for frame in sorted((whole / "big").glob("*.exr")):
         np.testing.assert_array_equal(read_exr(out / "big" / frame.name)[0], read_exr(frame)[0], err_msg=frame.name)

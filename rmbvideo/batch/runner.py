@@ -68,11 +68,11 @@ def _convert_capture(job: CaptureJob) -> CaptureResult:
         try:
             summary = run_reconstruction(job.input_path, work, **{**job.options, "progress": False})
             make_dir(work)
-            write_marker(work, job, fingerprint, summary.frames, summary.planes, summary.seconds)
+            write_marker(work, job, fingerprint, summary.frames + summary.kept, summary.planes, summary.seconds)
             _install(work, job.output_dir)
         finally:
             shutil.rmtree(work, ignore_errors=True)
-        result.status, result.frames = "ok", summary.frames
+        result.status, result.frames = "ok", summary.frames + summary.kept
     except RmbvideoError as exc:
         result.error = _as_output(str(exc), work, job.output_dir)
     except OSError as exc:  # a write failure (full disk, quota, read-only) is the output's, not the input's

@@ -162,7 +162,8 @@ def reconstruct(input_path: Path, outdir: Path, method: str, window, step, fmt: 
         detail=detail, raw_gate=raw_gate, resume=resume,
     )
     if not quiet:
-        click.echo(f"{summary.frames} frames from {summary.planes} planes in {summary.seconds:.2f} s "
+        kept = f" (and {summary.kept} kept from the interrupted run)" if summary.kept else ""
+        click.echo(f"{summary.frames} frames{kept} from {summary.planes} planes in {summary.seconds:.2f} s "
                    f"({summary.frames_per_second:.1f} frames/s) -> {outdir}", err=True)
 
 

@@ -41,14 +41,16 @@ class FrameConsumer(Protocol):
 
 @dataclass
 class RunSummary:
-    """What a run did: frames written, raw planes read, wall-clock seconds, pixels repaired, and
-    seconds per stage (``STAGES``, plus the method's own parts, e.g. RMB-Net's "network")."""
+    """What a run did: frames written, raw planes read, wall-clock seconds, pixels repaired, seconds per stage
+    (``STAGES``, plus the method's own parts, e.g. RMB-Net's "network"), and the frames an interrupted run had written
+    that a resumed one kept (``kept``: the output holds ``frames + kept``)."""
 
     frames: int
     planes: int
     seconds: float
     nonfinite_pixels: int = 0
     stages: dict[str, float] = field(default_factory=dict)
+    kept: int = 0
 
     @property
     def frames_per_second(self) -> float:

@@ -236,7 +236,7 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
         start_record(staging, fingerprint, logged)
         next_index = logged.next_index
         if logged.frames:
-            log.info("%s: resuming an interrupted run: %d frames kept, continuing at frame %d", outdir, logged.frames,
+            log.info("%s: resuming an interrupted run: %d frames kept, continuing at frame %d", input_path, logged.frames,
                      next_index)
         reach = window_reach(window, get_method(method).window, 1 if isinstance(reader, RmbFileReader) else 2)
         carrier = state_carrier(run.method)
@@ -245,7 +245,7 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
         if carrier is not None:
             carrier.keep_state_snapshots()
             if saved is not None:
-                log.info("%s: the recurrent state after frame %d is set back", outdir, saved[0])
+                log.info("%s: the recurrent state after frame %d is set back", input_path, saved[0])
                 carrier.resume_from(*saved)
         sink = make_sink(fmt, staging, prior_rows=logged_rows(staging, logged), **sink_options)
         if logged.frames:
@@ -271,7 +271,7 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
                 raise type(exc)(f"{str(exc).rstrip('.')}; {said}") from exc
             raise
         finish_record(staging)
-        return replace(summary, frames=frames.written)
+        return replace(summary, frames=frames.written, kept=logged.frames)
 
 
 def _output_options(extra_options: dict[str, Any] | None) -> dict[str, Any]:
