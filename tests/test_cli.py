@@ -17,6 +17,7 @@ from click.testing import CliRunner
 from rmbvideo.cli import main
 from rmbvideo.io.dat import DatGeometry, write_dat
 from rmbvideo.io.exr import read_exr
+from rmbvideo.io.tonemap import ToneMapConfig, ToneMapper
 
 
 def small_capture(path: Path, planes: int = 80, width: int = 64, height: int = 48,
@@ -118,6 +119,31 @@ def test_info_json_and_preview(tmp_path: Path) -> None:
     assert run("preview", dat, "-o", png, *GEOM).exit_code == 0
     sheet = iio.imread(png)
     assert sheet.shape == (2 * 48, 3 * 64)
+
+
+def test_preview_reads_a_wide_window_in_blocks_and_lays_many_points_out_square(tmp_path: Path) -> None:
+    """--window 10000 on a 1000x1000 camera decoded 10 GB of planes at once: a tile's mean is now summed
+    ``MEAN_BLOCK`` planes at a time (the same mean); 64 points came as a sheet 3 tiles wide and 22 high."""
+    from rmbvideo.cli.preview import MEAN_BLOCK, contact_sheet
+    from rmbvideo.io.dat import DatReader
+
+    class Reads(DatReader):
+        """A real reader that remembers the most planes one read decoded."""
+        most = 0
+
+        def read(self, start: int, stop: int) -> np.ndarray:
+            Reads.most = max(Reads.most, stop - start)
+            return super().read(start, stop)
+
+    dat = small_capture(tmp_path / "cap.dat", planes=3 * MEAN_BLOCK)
+    reader = Reads(dat, DatGeometry(width=64, height=48))
+    whole = ToneMapper(ToneMapConfig())(reader.read(0, 3 * MEAN_BLOCK).mean(axis=0, dtype=np.float32))
+    Reads.most = 0
+    sheet = contact_sheet(reader, count=1, window=3 * MEAN_BLOCK)
+    assert Reads.most == MEAN_BLOCK
+    np.testing.assert_array_equal(sheet[20:], whole[20:])  # below the label: the same tile
+    assert contact_sheet(reader, count=64, window=2).shape == (8 * 48, 8 * 64)
+    assert contact_sheet(reader, count=6, window=2).shape == (2 * 48, 3 * 64)
 
 
 def test_preview_never_writes_over_a_capture_or_an_earlier_file_unasked(tmp_path: Path) -> None:

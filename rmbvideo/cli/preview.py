@@ -16,13 +16,18 @@ from rmbvideo.io.png import write_png
 from rmbvideo.io.tonemap import TONE_METHODS, ToneMapConfig, ToneMapper
 
 
-def contact_sheet(reader, count: int = 6, window: int = 41, columns: int = 3,
+#: Raw planes decoded at a time for a tile's mean: memory stays bounded whatever --window asks
+MEAN_BLOCK = 256
+
+
+def contact_sheet(reader, count: int = 6, window: int = 41, columns: int | None = None,
                   tonemap: ToneMapConfig = ToneMapConfig()) -> np.ndarray:
-    """Tile TFP reconstructions at ``count`` evenly spaced times into one labelled 8-bit image.
+    """Tile TFP reconstructions at ``count`` evenly spaced times into one labelled 8-bit image, ``columns`` wide
+    (default: about as many columns as rows, at least 3).
 
     The tiles are tone-mapped as one image, with ``reconstruct``'s operator (default: its exposure), so the sheet
-    looks as the video will and its tiles compare. Only ``count * window`` planes are read, so this is fast on
-    captures of any length.
+    looks as the video will and its tiles compare. Only ``count * window`` planes are read, ``MEAN_BLOCK`` at a time,
+    so this is fast and small on captures of any length and size.
     """
     n = reader.n_planes
     window = min(window, n)
@@ -30,7 +35,7 @@ def contact_sheet(reader, count: int = 6, window: int = 41, columns: int = 3,
     tiles = []
     for centre in centres.astype(int):
         start = max(0, centre - window // 2)
-        tiles.append(reader.read(start, min(n, start + window)).mean(axis=0, dtype=np.float32))
+        tiles.append(_mean_of_planes(reader, start, min(n, start + window)))
     mapped = ToneMapper(tonemap)(np.hstack(tiles))  # one exposure for every tile
     cells = []
     for centre, cell in zip(centres.astype(int), np.hsplit(mapped, len(tiles))):
@@ -38,10 +43,19 @@ def contact_sheet(reader, count: int = 6, window: int = 41, columns: int = 3,
         label = f"{centre / reader.rate_hz * 1e3:.2f} ms"
         cv2.putText(cell, label, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, 255, 1, cv2.LINE_AA)
         cells.append(cell)
-    columns = min(columns, len(cells))
+    columns = min(columns or max(3, round(len(cells) ** 0.5)), len(cells))
     while len(cells) % columns:
         cells.append(np.zeros_like(cells[0]))
     return np.vstack([np.hstack(cells[r:r + columns]) for r in range(0, len(cells), columns)])
+
+
+def _mean_of_planes(reader, start: int, stop: int) -> np.ndarray:
+    """The mean of raw planes ``start..stop`` (float32), decoded ``MEAN_BLOCK`` at a time."""
+    total = None
+    for a in range(start, stop, MEAN_BLOCK):
+        part = reader.read(a, min(stop, a + MEAN_BLOCK)).sum(axis=0, dtype=np.float32)
+        total = part if total is None else total + part
+    return total / np.float32(stop - start)
 
 
 @click.command()
