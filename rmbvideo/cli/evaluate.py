@@ -249,7 +249,6 @@ def evaluate(models_dir: Path | None, quick: bool, out_dir: Path, cache_dir: Pat
     """Score TFW-S/L, TFI, GC20, MG20, RMB-Net, its ablations and the classical methods on the raw
     capture (2x2-averaged) on the held-out synthetic set, and optionally on real-video streams (with
     --no-heldout, those alone); with --development, candidate models on the development sets instead."""
-
     from rmbvideo.io.atomic import output_folder, outputs_together
     from rmbvideo.evaluate.harness import evaluate_rows, table2_specs, with_best_raw
     from rmbvideo.evaluate.heldout import load_heldout, load_video_heldout

@@ -19,6 +19,7 @@ an odd size by one edge-replicated row/column (logged).
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import re
@@ -517,13 +518,10 @@ def write_frames(frames: Iterable[Frame], outdir: Path, fmt: SinkFormat = "mp4",
     ``rmbvideo reconstruct``, the folder is made whole in a staging folder and replaces ``outdir`` when all are
     written: an error leaves ``outdir`` as it was, and earlier outputs there are replaced only with ``overwrite``
     (frames written into them one by one left the earlier run's extra frames beside the new ones)."""
-    if fmt == "null":
-        with make_sink(fmt, Path(outdir), **options) as sink:
-            for frame in frames:
-                sink.write(frame)
-            return sink.frames_written
-    with staged_folder(Path(outdir), is_sink_output, overwrite=overwrite) as staging:
-        with make_sink(fmt, staging, **options) as sink:
+    with contextlib.ExitStack() as stack:
+        folder = Path(outdir) if fmt == "null" else stack.enter_context(
+            staged_folder(Path(outdir), is_sink_output, overwrite=overwrite))
+        with make_sink(fmt, folder, **options) as sink:
             for frame in frames:
                 sink.write(frame)
             return sink.frames_written

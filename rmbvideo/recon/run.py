@@ -131,7 +131,7 @@ def bounded_chunk_planes(chunk_planes: int, reader: DatReader | RmbFileReader) -
     height, width = reader.shape
     most = max(2, CHUNK_BYTES // max(1, height * width))
     if chunk_planes > most:
-        log.info("--chunk-planes %d: %d planes of %dx%d fit in %d MiB; reading %d at a time", chunk_planes, most,
+        log.debug("--chunk-planes %d: %d planes of %dx%d fit in %d MiB; reading %d at a time", chunk_planes, most,
                  width, height, CHUNK_BYTES // 2**20, most)
     return min(chunk_planes, most)
 
