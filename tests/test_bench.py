@@ -84,10 +84,10 @@ def test_full_resolution_row_scores_its_2x2_average_which_is_the_binned_output(t
     torch.manual_seed(1)
     save_model(models / "ablations" / "tiny-w1", RmbNet(RmbNetConfig(w=1, width=0.25)), ModelCard(name="tiny"))
     sequences = [tiny_sequence(0)]
-    binned, gated = (run_config(rmbnet_config(w=1, width=0.25, resolution=r), sequences, tmp_path, models)
-                     for r in ("binned", "full"))
+    binned, gated = (run_config(rmbnet_config(w=1, width=0.25, resolution=r), sequences, tmp_path, models,
+                                memory=False) for r in ("binned", "full"))
     monkeypatch.setattr(full_module, "raw_gate_stage", lambda kind="auto": None)
-    full = run_config(rmbnet_config(w=1, width=0.25, resolution="full"), sequences, tmp_path, models)
+    full = run_config(rmbnet_config(w=1, width=0.25, resolution="full"), sequences, tmp_path, models, memory=False)
     assert full.name.endswith("full res") and full.frames == binned.frames and full.net_fps > 0
     assert full.psnr == pytest.approx(binned.psnr, abs=0.02) and full.ssim == pytest.approx(binned.ssim, abs=1e-3)
     assert gated.frames == binned.frames and abs(gated.psnr - full.psnr) > 1e-3  # the gate mixed
@@ -102,12 +102,15 @@ def test_run_config_records_are_complete_and_finite(tmp_path):
     sequences = [tiny_sequence(0), tiny_sequence(1)]
     configs = [BenchConfig("TFW-S", "tfw", {"window": 10, "step": 10}), BenchConfig("TFI", "tfi", {"step": 20}),
                rmbnet_config(w=1, width=0.25), rmbnet_config(w=2, width=0.25)]
-    records = [run_config(c, sequences, tmp_path, models) for c in configs]
+    records = [run_config(c, sequences, tmp_path, models, memory=c.name != "TFI") for c in configs]
     tfw, tfi, trained, untrained = records
     for r in records:
         assert r.frames == 2 * READOUTS // 10
         assert math.isfinite(r.fps) and r.fps > 0 and r.realtime_factor > 0
-        assert r.peak_rss_mib > 0 and r.rss_growth_mib >= 0
+        if r is tfi:
+            assert r.peak_rss_mib is None and r.peak_anon_mib is None
+        else:
+            assert 0 < r.peak_anon_mib <= r.peak_rss_mib
     for r in (tfw, tfi, trained):
         assert r.trained and r.scored_frames == 2 * len(sequences[0].scored_frames)
         assert math.isfinite(r.psnr) and 0 <= r.ssim <= 1
@@ -125,24 +128,40 @@ def test_run_config_records_are_complete_and_finite(tmp_path):
     write_csv(records, tmp_path / "bench.csv")
     rows = list(csv.DictReader((tmp_path / "bench.csv").open()))
     assert [r["name"] for r in rows] == [c.name for c in configs] and rows[3]["psnr"] == ""
+    assert rows[1]["peak_rss_mib"] == "" and float(rows[0]["peak_rss_mib"]) == tfw.peak_rss_mib
     write_plot(records, tmp_path / "bench.png")
     assert (tmp_path / "bench.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_rows_peak_memory_is_its_own_not_the_benchmark_processes(tmp_path):
+    """Each row's peak is measured in a fresh process running it: memory this process holds (here 800 MB, as earlier
+    rows' high-water mark would be) is not in it, and an RMB-Net row reads its model, which a baseline's does not."""
+    models = tmp_path / "models"
+    (models / "ablations").mkdir(parents=True)
+    save_model(models / "ablations" / "tiny-w1", RmbNet(RmbNetConfig(w=1, width=0.25)), ModelCard(name="tiny"))
+    held = np.ones(800 * 2**20, dtype=np.uint8)  # touched: resident in this process
+    sequences = [tiny_sequence(0)]
+    tfw = run_config(BenchConfig("TFW-S", "tfw", {"window": 10, "step": 10}), sequences, tmp_path, models, runs=1)
+    net = run_config(rmbnet_config(w=1, width=0.25), sequences, tmp_path, models, runs=1)
+    assert held.sum() == held.size
+    for record in (tfw, net):
+        assert 30 < record.peak_rss_mib < 700 and 0 < record.peak_anon_mib <= record.peak_rss_mib
 
 
 def test_timing_runs_repeat_each_scene_and_count_its_frames_once(tmp_path):
     """Each scene runs ``runs`` times and the fastest is timed: the frames and scores are those of one run."""
     sequences = [tiny_sequence(0)]
     config = BenchConfig("TFW-S", "tfw", {"window": 10, "step": 10})
-    once, thrice = (run_config(config, sequences, tmp_path, tmp_path, runs=r) for r in (1, 3))
+    once, thrice = (run_config(config, sequences, tmp_path, tmp_path, runs=r, memory=False) for r in (1, 3))
     assert once.frames == thrice.frames == READOUTS // 10 and once.psnr == thrice.psnr
     with pytest.raises(ValueError, match="runs"):
-        run_config(config, sequences, tmp_path, tmp_path, runs=0)
+        run_config(config, sequences, tmp_path, tmp_path, runs=0, memory=False)
 
 
 def test_record_json_roundtrip():
     record = BenchRecord(name="x", method="tfw", w=None, align=None, width=None, precision=None, device="cpu",
                          threads=1, model="-", trained=True, frames=3, scored_frames=2, psnr=30.0, ssim=0.9,
-                         fps=0.0, net_fps=None, realtime_factor=0.0, peak_rss_mib=1.0, rss_growth_mib=0.0)
+                         fps=0.0, net_fps=None, realtime_factor=0.0, peak_rss_mib=1.0, peak_anon_mib=None)
     assert json.loads(json.dumps(record.to_dict()))["name"] == "x" and record.seconds_per_frame == math.inf
 
 

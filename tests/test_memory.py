@@ -3,7 +3,7 @@ peak memory of its process by less than 10 % (measured inside a fresh subprocess
 
 The measure is the anonymous RSS (heap, arrays, tensors). Total RSS also counts the file pages of the
 memory-mapped input that were touched; the kernel drops those at will, but until it does they grow
-with the length read, so ru_maxrss is reported alongside and not asserted on.
+with the length read, so the high-water mark of the total is reported alongside and not asserted on.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""Peak memory: sampled RSS of this process during a run, and the peak RSS of a ``reconstruct`` run
-in a fresh subprocess (so captures of different lengths can be compared)."""
+"""Peak memory of a fresh subprocess: of a ``reconstruct`` run (so captures of different lengths can be compared) or of
+any statement (a benchmark row alone: within one process the resident set keeps every earlier run's high-water mark)."""
 
 from __future__ import annotations
 
@@ -8,19 +8,18 @@ import os
 import subprocess
 import sys
 import tempfile
-import threading
 from dataclasses import dataclass
 from pathlib import Path
-from types import TracebackType
 
 _PAGE = os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else 4096
 
-# Runs ``rmbvideo reconstruct`` in-process and prints its peak RSS (ru_maxrss, KiB on Linux) and the
-# sampled peak of its anonymous RSS (RssAnon: heap and arrays, without file pages of memory maps).
+# Runs CALL (Python statements; argv[1:] are theirs) in a fresh process and prints its peak RSS and the sampled peak of
+# its anonymous RSS (RssAnon: heap and arrays, without file pages of memory maps). The peak RSS is the kernel's
+# high-water mark of this process's own memory (VmHWM), not ru_maxrss: Linux carries the parent's high-water mark into
+# a child's ru_maxrss across fork and exec (a parent holding 800 MB made a 14 MB child read 827 MB).
 _CHILD = """
 import json, resource, sys, threading
-from rmbvideo.bench.memory import anonymous_rss_bytes
-from rmbvideo.cli import main
+from rmbvideo.bench.memory import anonymous_rss_bytes, high_water_rss_bytes
 peak = [anonymous_rss_bytes()]
 stop = threading.Event()
 def sample():
@@ -29,13 +28,15 @@ def sample():
 thread = threading.Thread(target=sample, daemon=True)
 thread.start()
 try:
-    main(sys.argv[1:], prog_name="rmbvideo", standalone_mode=False)
+    CALL
 finally:
     stop.set()
     thread.join()
     peak[0] = max(peak[0], anonymous_rss_bytes())
-    print(json.dumps({"maxrss_kib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, "anon_peak": peak[0]}))
+    rss = high_water_rss_bytes() or resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    print(json.dumps({"rss": rss, "anon_peak": peak[0]}))
 """
+_RECONSTRUCT = 'from rmbvideo.cli import main; main(sys.argv[1:], prog_name="rmbvideo", standalone_mode=False)'
 
 
 # glibc raises its mmap threshold each time a large array is freed, after which arrays of that size come
@@ -48,23 +49,33 @@ FIXED_MMAP_THRESHOLD = {"MALLOC_MMAP_THRESHOLD_": "65536"}
 
 @dataclass(frozen=True)
 class PeakMemory:
-    """Peak memory of a process in bytes: ``rss`` (ru_maxrss, including file pages of memory-mapped
+    """Peak memory of a process in bytes: ``rss`` (its high-water mark, including file pages of memory-mapped
     input, which the kernel can drop at will) and ``anonymous`` (sampled peak of RssAnon)."""
 
     rss: int
     anonymous: int
 
 
-def anonymous_rss_bytes() -> int:
-    """RssAnon of this process now, in bytes (0 where /proc is unavailable)."""
+def _status_bytes(field: str) -> int:
+    """A ``kB`` field of /proc/self/status in bytes (0 where /proc is unavailable)."""
     try:
         with open("/proc/self/status") as fh:
             for line in fh:
-                if line.startswith("RssAnon:"):
+                if line.startswith(field + ":"):
                     return int(line.split()[1]) * 1024
     except OSError:
         pass
     return 0
+
+
+def anonymous_rss_bytes() -> int:
+    """RssAnon of this process now, in bytes (0 where /proc is unavailable)."""
+    return _status_bytes("RssAnon")
+
+
+def high_water_rss_bytes() -> int:
+    """VmHWM: the peak resident set of this process's memory so far, in bytes (0 where /proc is unavailable)."""
+    return _status_bytes("VmHWM")
 
 
 def current_rss_bytes() -> int:
@@ -76,40 +87,17 @@ def current_rss_bytes() -> int:
         return 0
 
 
-class PeakRss:
-    """Context manager sampling this process's RSS every ``interval_s``; ``peak``/``baseline`` in bytes.
-
-    ``ru_maxrss`` cannot be reset within a process, so the peak of one run is sampled instead.
-    """
-
-    def __init__(self, interval_s: float = 0.005) -> None:
-        self.interval_s = interval_s
-        self.baseline = 0
-        self.peak = 0
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-
-    def __enter__(self) -> "PeakRss":
-        self.baseline = self.peak = current_rss_bytes()
-        self._thread = threading.Thread(target=self._sample, daemon=True)
-        self._thread.start()
-        return self
-
-    def _sample(self) -> None:
-        while not self._stop.wait(self.interval_s):
-            self.peak = max(self.peak, current_rss_bytes())
-
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join()
-        self.peak = max(self.peak, current_rss_bytes())
-
-    @property
-    def growth(self) -> int:
-        """Bytes the peak rose above the RSS at entry."""
-        return max(0, self.peak - self.baseline)
+def child_peak_memory(call: str, args: list[str], env: dict[str, str] | None = None, timeout_s: float = 600.0,
+                      what: str = "the child") -> PeakMemory:
+    """Peak memory of a fresh Python subprocess running the statement ``call`` with ``args`` as its argv[1:], in the
+    environment ``env`` (default: this process's). Raises ``RuntimeError`` with the child's stderr if it fails."""
+    result = subprocess.run([sys.executable, "-c", _CHILD.replace("CALL", call), *args], capture_output=True,
+                            text=True, timeout=timeout_s, env=env)
+    last = result.stdout.strip().splitlines()[-1] if result.stdout.strip() else ""
+    if result.returncode != 0 or not last.startswith("{"):
+        raise RuntimeError(f"{what} failed ({result.returncode}): {result.stderr[-2000:]}")
+    result_json = json.loads(last)
+    return PeakMemory(rss=int(result_json["rss"]), anonymous=int(result_json["anon_peak"]))
 
 
 def reconstruct_peak_rss(args: list[str], env: dict[str, str] | None = None,
@@ -120,13 +108,8 @@ def reconstruct_peak_rss(args: list[str], env: dict[str, str] | None = None,
     Raises ``RuntimeError`` with the child's stderr if it fails.
     """
     child_env = {**(os.environ if base_env is None else base_env), **FIXED_MMAP_THRESHOLD, **(env or {})}
-    result = subprocess.run([sys.executable, "-c", _CHILD, "reconstruct", *args], capture_output=True,
-                            text=True, timeout=timeout_s, env=child_env)
-    last = result.stdout.strip().splitlines()[-1] if result.stdout.strip() else ""
-    if result.returncode != 0 or not last.startswith("{"):
-        raise RuntimeError(f"reconstruct {' '.join(args)} failed ({result.returncode}): {result.stderr[-2000:]}")
-    result_json = json.loads(last)
-    return PeakMemory(rss=int(result_json["maxrss_kib"]) * 1024, anonymous=int(result_json["anon_peak"]))
+    return child_peak_memory(_RECONSTRUCT, ["reconstruct", *args], child_env, timeout_s,
+                             what=f"reconstruct {' '.join(args)}")
 
 
 def write_random_capture(path: Path, n_planes: int, width: int, height: int, rate: float = 0.3,

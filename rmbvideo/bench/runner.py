@@ -8,11 +8,14 @@ their own model's), frames of methods on raw planes (TFI) are 2x2 area-averaged 
 size, and scores are per-sequence means of mu-law
 PSNR/SSIM (a row: the mean over sequences). For RMB-Net the network alone (the streaming engine on
 precomputed preliminary frames, window alignment included) is timed separately. Each sequence runs
-``TIMING_RUNS`` times and the fastest run is timed: a shared machine slows single runs by 5-10 % at random.
+``TIMING_RUNS`` times and the fastest run is timed: a shared machine slows single runs by 5-10 % at random. A row's
+peak memory is that of a fresh process running it once on the largest sequence (``peak_memory_alone``): within one
+process the resident set keeps the high-water mark of every row before, so each row would read at least the last's.
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 from dataclasses import asdict, dataclass
@@ -22,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from rmbvideo.bench.configs import BenchConfig
-from rmbvideo.bench.memory import PeakRss
+from rmbvideo.bench.memory import PeakMemory, child_peak_memory
 from rmbvideo.bench.models import ModelChoice, build_network, find_model
 from rmbvideo.chunks import Frame
 from rmbvideo.evaluate.heldout import Sequence
@@ -49,8 +52,9 @@ class BenchRecord:
 
     ``fps``: output frames per wall second end to end; ``net_fps``: the network alone (RMB-Net
     only); ``realtime_factor``: seconds of capture processed per wall second end to end (>= 1 is real
-    time); ``peak_rss_mib``: peak resident memory during the end-to-end runs; ``rss_growth_mib``: how
-    far it rose above the RSS before them.
+    time); ``peak_rss_mib``: peak resident memory of a fresh process running the row once on the largest sequence
+    (imports, model and all), ``peak_anon_mib`` its anonymous part (heap and arrays, without mapped file pages);
+    None where not measured.
     """
 
     name: str
@@ -70,8 +74,8 @@ class BenchRecord:
     fps: float
     net_fps: float | None
     realtime_factor: float
-    peak_rss_mib: float
-    rss_growth_mib: float
+    peak_rss_mib: float | None
+    peak_anon_mib: float | None
     pareto: bool = False
 
     @property
@@ -127,6 +131,41 @@ def _make(config: BenchConfig, network, threads: int | None):
                           precision=config.precision or "auto", raw_gate=raw_gate_stage("auto"))
 
 
+def _readout(config: BenchConfig, recon, models_dir: Path) -> RmbReadout | None:
+    """The readout design a row's binned input is read through: an RMB-Net row's own model's, else the default's."""
+    design = trained_readout(getattr(recon, "binned", recon)) if config.is_rmbnet \
+        else model_readout(models_dir / "rmbnet-binned.safetensors")
+    return RmbReadout(mode=ReadoutMode(design)) if recon.input_kind == "rmb" else None
+
+
+def run_alone(spec: str) -> None:
+    """Run one row once on one capture, as ``run_config`` times it: the body of ``peak_memory_alone``'s process.
+    ``spec``: JSON of the row's ``BenchConfig`` fields, the capture (path, width, height, rate), models folder and
+    threads."""
+    from rmbvideo.allocator import keep_freed_memory
+
+    keep_freed_memory()  # the allocator policy of every command
+    job = json.loads(spec)
+    config = BenchConfig(**job["config"])
+    network = None
+    if config.is_rmbnet:
+        network = build_network(config.w, config.width, find_model(config.w, config.width, Path(job["models"])))
+    reader = DatReader(Path(job["dat"]), DatGeometry(width=job["width"], height=job["height"]), rate_hz=job["rate_hz"])
+    recon = _make(config, network, job["threads"])
+    reconstruct_stream(reader, recon, _KeepFrames({}), chunk_planes=CHUNK_PLANES,
+                       readout=_readout(config, recon, Path(job["models"])))
+
+
+def peak_memory_alone(config: BenchConfig, sequence: Sequence, workdir: Path, models_dir: Path,
+                      threads: int | None) -> PeakMemory:
+    """Peak memory of a fresh process running ``config`` once on ``sequence``."""
+    path, geometry = write_sequence_dat(sequence, workdir)
+    spec = {"config": asdict(config), "dat": str(path), "width": geometry.width, "height": geometry.height,
+            "rate_hz": 2 * sequence.rate_hz, "models": str(models_dir), "threads": threads}
+    return child_peak_memory("from rmbvideo.bench.runner import run_alone; run_alone(sys.argv[1])",
+                             [json.dumps(spec)], what=f"bench row {config.name}")
+
+
 def _sync(device: str) -> None:
     if device.startswith("cuda"):
         import torch
@@ -135,10 +174,10 @@ def _sync(device: str) -> None:
 
 
 def run_config(config: BenchConfig, sequences: list[Sequence], workdir: Path, models_dir: Path,
-               threads: int | None = 1, runs: int = TIMING_RUNS) -> BenchRecord:
+               threads: int | None = 1, runs: int = TIMING_RUNS, memory: bool = True) -> BenchRecord:
     """Benchmark ``config`` on ``sequences`` (their .dat files are cached in ``workdir``) with ``threads``
     threads (None: the thread policy) unless the row sets its own; each sequence ``runs`` times, the
-    fastest timed."""
+    fastest timed; then, with ``memory``, its peak memory in a process of its own."""
     if runs < 1:
         raise ValueError(f"runs must be >= 1, got {runs}")
     threads = config.threads or threads
@@ -152,7 +191,7 @@ def run_config(config: BenchConfig, sequences: list[Sequence], workdir: Path, mo
     net_frames, net_seconds = 0, 0.0
     psnrs: list[float] = []
     ssims: list[float] = []
-    peak = growth = scored_frames = 0
+    scored_frames = 0
     for sequence in sequences:
         path, geometry = write_sequence_dat(sequence, workdir)
         reader = DatReader(path, geometry, rate_hz=2 * sequence.rate_hz)
@@ -161,13 +200,9 @@ def run_config(config: BenchConfig, sequences: list[Sequence], workdir: Path, mo
         for _ in range(runs):
             sink = _KeepFrames(scored)
             recon = _make(config, network, threads)
-            design = trained_readout(getattr(recon, "binned", recon)) if config.is_rmbnet \
-                else model_readout(models_dir / "rmbnet-binned.safetensors")
-            readout = RmbReadout(mode=ReadoutMode(design)) if recon.input_kind == "rmb" else None
-            with PeakRss() as rss:
-                run = reconstruct_stream(reader, recon, sink, chunk_planes=CHUNK_PLANES, readout=readout)
-                _sync(config.device)
-            peak, growth = max(peak, rss.peak), max(growth, rss.growth)
+            run = reconstruct_stream(reader, recon, sink, chunk_planes=CHUNK_PLANES,
+                                     readout=_readout(config, recon, models_dir))
+            _sync(config.device)
             summary = run if summary is None or run.seconds < summary.seconds else summary
         del reader
         frames += summary.frames
@@ -187,6 +222,10 @@ def run_config(config: BenchConfig, sequences: list[Sequence], workdir: Path, mo
             net_frames += summary.frames
             net_seconds += summary.stages["network"]
     fps = frames / seconds if seconds > 0 else 0.0
+    peak = None
+    if memory:
+        largest = max(sequences, key=lambda s: s.raw_shape[0] * s.raw_shape[1] * s.n_planes)
+        peak = peak_memory_alone(config, largest, workdir, models_dir, threads)
     return BenchRecord(
         name=config.name, method=config.method, w=config.w, align=config.align, width=config.width,
         precision=config.precision, device=config.device, threads=threads or default_threads(), model=choice.label if config.is_rmbnet else "-",
@@ -194,7 +233,8 @@ def run_config(config: BenchConfig, sequences: list[Sequence], workdir: Path, mo
         psnr=_finite_mean(psnrs), ssim=_finite_mean(ssims), fps=fps,
         net_fps=(net_frames / net_seconds if net_seconds > 0 else 0.0) if config.is_rmbnet else None,
         realtime_factor=capture_s / seconds if seconds > 0 else 0.0,
-        peak_rss_mib=peak / _MIB, rss_growth_mib=growth / _MIB,
+        peak_rss_mib=None if peak is None else peak.rss / _MIB,
+        peak_anon_mib=None if peak is None else peak.anonymous / _MIB,
     )
 
 
