@@ -70,10 +70,12 @@ def write_plot(records: Sequence[BenchRecord], path: Path) -> Path:
         import matplotlib.pyplot as plt
     except ImportError:
         return _write_plot_opencv(points, path)
-    fig, ax = plt.subplots(figsize=(8, 5), dpi=100)
+    fig, ax = plt.subplots(figsize=(10, 6), dpi=100)
+    labels = []
     for ms, psnr, name, front in points:
         ax.scatter(ms, psnr, color="tab:red" if front else "tab:blue", zorder=3)
-        ax.annotate(name, (ms, psnr), fontsize=7, xytext=(3, 3), textcoords="offset points")
+        labels.append(ax.annotate(name, (ms, psnr), fontsize=7, xytext=(4, 2), textcoords="offset points",
+                                  arrowprops={"arrowstyle": "-", "color": "0.6", "lw": 0.5}))
     front = sorted((ms, p) for ms, p, _, f in points if f)
     if front:
         ax.step([f[0] for f in front], [f[1] for f in front], where="post", color="tab:red",
@@ -85,7 +87,48 @@ def write_plot(records: Sequence[BenchRecord], path: Path) -> Path:
     ax.set_ylabel("μ-law PSNR (dB)")
     ax.set_title("rmbvideo bench: accuracy against time")
     ax.grid(True, which="both", alpha=0.3)
+    if points:  # room on the right for the slowest rows' names
+        ax.set_xlim(min(p[0] for p in points) / 1.5, max(p[0] for p in points) * 8)
+    _separate(labels, fig)
     return write_figure(fig, path)
+
+
+def _separate(labels: list, fig) -> None:
+    """Place each point's label, from the highest point down, at the first of a few spots beside it (right, then left;
+    level, then a line up or down, then further) inside the axes where it overlaps no other point and no label placed
+    before: rows of equal accuracy and near-equal time otherwise print their names over each other or over another's
+    point. A line joins a moved label to its point."""
+    from matplotlib.transforms import Bbox
+
+    renderer = fig.canvas.get_renderer()
+    axes = fig.axes[0]
+    inside = axes.get_window_extent(renderer)
+    line = 7 * 1.25  # the labels' font size and line spacing, in points
+    spots = [(side, k * line) for k in (0, 1, -1, 2, -2, 3, -3, 4, -4) for side in (1, -1)]
+    marker = 5  # half a point marker's size, in pixels
+    dots = {id(label): Bbox.from_extents(*(axes.transData.transform(label.xy) - marker),
+                                         *(axes.transData.transform(label.xy) + marker)) for label in labels}
+    placed = []
+    for label in sorted(labels, key=lambda a: (-a.xy[1], a.xy[0])):
+        others = [*placed, *(dot for key, dot in dots.items() if key != id(label))]
+        for side, dy in spots:
+            label.set_horizontalalignment("left" if side > 0 else "right")
+            box = _text_box(label, (4 * side, 2 + dy), renderer)
+            if inside.x0 <= box.x0 and box.x1 <= inside.x1 and not any(box.overlaps(other) for other in others):
+                break
+        else:
+            label.set_horizontalalignment("left")
+            box = _text_box(label, (4, 2), renderer)
+        placed.append(box)
+
+
+def _text_box(label, offset: tuple[float, float], renderer):
+    """The label moved to ``offset`` (points from its point): the extent of its text alone, not its line to the point."""
+    from matplotlib.text import Text
+
+    label.xyann = offset
+    label.update_positions(renderer)
+    return Text.get_window_extent(label, renderer)
 
 
 def _write_plot_opencv(points: list[tuple[float, float, str, bool]], path: Path) -> Path:
