@@ -194,7 +194,7 @@ def _tfi_m_reference(planes: np.ndarray, start: int, step: int, reach: int, wind
     """TFI-M written out per pixel as its docstring says, on the whole data (planes start..start+T-1)."""
     end = start + len(planes)
     out = {}
-    for i in range(1000):
+    for i in range(max(0, start // step - 1), start // step + 1000):
         centre2 = (2 * i + 1) * step
         if centre2 < 2 * start:
             continue
@@ -230,6 +230,20 @@ def test_tfi_window_counts_the_spikes_between_the_spikes_around_the_central_plan
     if window == 0:
         _same(_run(Tfi(step=11, max_reach=13), _spikes(planes, 17, start)),
               _run(Tfi(step=11, max_reach=13, window=0), _spikes(planes, 17, start)))
+
+
+@pytest.mark.parametrize("window, start", [(0, 2**31 - 60), (6, 2**31 - 60), (254, 0)])
+def test_tfi_plane_numbers_and_counts_hold_at_the_limits_of_their_types(window, start):
+    """The search keeps plane numbers in int32 and counts in the narrowest type that holds window + 1: past 2**31
+    planes (30 hours at 20 kHz) its plane numbers widen mid-stream, and a pixel firing at every one of 254 central
+    planes fills uint8 with the + 1; each gives the reference's frames bit for bit."""
+    planes = _random_planes(t=143 if window < 200 else 600, h=3, w=4, seed=5)
+    planes[:, 1, 1] = 1  # fires every plane
+    expected = _tfi_m_reference(planes, start, step=11, reach=13, window=window)
+    frames = _run(Tfi(step=11, max_reach=13, window=window), _spikes(planes, 17, start))
+    assert [f.index for f in frames] == sorted(expected)
+    for f in frames:
+        assert np.array_equal(f.image, expected[f.index]), f.index
 
 
 @pytest.mark.parametrize("window", [0, 4, 16])

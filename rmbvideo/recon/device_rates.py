@@ -115,12 +115,19 @@ class DeviceTfi(Tfi):
         return torch.stack(images) if isinstance(images[0], torch.Tensor) else np.stack(images)
 
     @staticmethod
-    def _full_like(like: torch.Tensor, value: int) -> torch.Tensor:
+    def _indices_like(like: torch.Tensor, value: int) -> torch.Tensor:
         return torch.full(like.shape, value, dtype=torch.int64, device=like.device)
 
     @staticmethod
-    def _int64(a: torch.Tensor) -> torch.Tensor:
+    def _counts_like(like: torch.Tensor) -> torch.Tensor:
+        return torch.zeros(like.shape, dtype=torch.int64, device=like.device)
+
+    @staticmethod
+    def _indices(a: torch.Tensor) -> torch.Tensor:
         return a.to(torch.int64)
+
+    def _widen_indices(self, stop: int) -> None:
+        """Plane numbers are int64 tensors throughout on a device (its memory is not the bound)."""
 
     @staticmethod
     def _count(planes: torch.Tensor) -> torch.Tensor:
