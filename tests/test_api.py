@@ -63,3 +63,22 @@ def test_prime_reaches_the_engine_from_the_api_and_the_cli(tmp_path):
          standalone_mode=False)
     for frame in unprimed:
         np.testing.assert_array_equal(read_exr(tmp_path / "out" / f"frame_{frame.index:06d}.exr")[0], frame.image)
+
+
+def test_a_multiple_of_rmbnets_step_keeps_every_kth_of_its_frames(tmp_path):
+    """RMB-Net makes a frame every 20 raw planes (its recurrent state steps through them all): at --step 40 the
+    output is every second of those frames, the same images at the same times, numbered on from 0; a resumed run could
+    not tell where the state stood, so --resume is refused there."""
+    from rmbvideo.recon.run import run_reconstruction
+
+    capture = tmp_path / "c.dat"
+    rmbvideo.simulate_capture(rmbvideo.load_scene("demo"), capture, duration_s=0.008)
+    options = dict(threads=1, precision="fp32")
+    every = list(rmbvideo.reconstruct(capture, **options))
+    second = list(rmbvideo.reconstruct(capture, step=40, **options))
+    assert len(every) == 8 and [f.index for f in second] == [0, 1, 2, 3]
+    for frame, made in zip(second, every[::2], strict=True):
+        assert frame.time_s == made.time_s and np.array_equal(frame.image, made.image)
+    with pytest.raises(OptionError, match="--resume: rmbnet at --step 40 keeps one in 2"):
+        run_reconstruction(capture, tmp_path / "out", step=40, fmt="exr", resume=True)
+    assert not (tmp_path / "out").exists()

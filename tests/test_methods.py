@@ -27,6 +27,13 @@ def test_window_and_step_mean_what_the_method_says(name, window, expected):
     assert get_method(name).options(window, 20) == expected
 
 
+def test_a_fixed_step_method_keeps_every_kth_frame_at_a_multiple_of_its_step():
+    rmbnet = get_method("rmbnet")
+    assert [rmbnet.frame_every(step) for step in (20, 40, 660)] == [1, 2, 33]
+    assert rmbnet.frame_every(20, raw_per_readout=1) == 2 and rmbnet.options(None, 40) == {}
+    assert get_method("tfp").frame_every(40) == 1  # its frames are made at any step
+
+
 def test_native_streams_count_readouts_of_one_raw_plane():
     assert get_method("tfw").options(10, 10, raw_per_readout=1) == {"window": 10, "step": 10}
     assert get_method("rmbnet").options(None, 10, raw_per_readout=1) == {}
@@ -37,7 +44,7 @@ def test_native_streams_count_readouts_of_one_raw_plane():
     ("tfp", 0, 20, "--window"),
     ("tfi", -1, 20, "--window: tfi takes 0..20000"),
     ("rmbnet", 4, 20, "--window: rmbnet takes 0..3"),
-    ("rmbnet", None, 40, "--step: rmbnet's frame step is fixed"),
+    ("rmbnet", None, 30, "--step: rmbnet makes a frame every 20 raw planes"),
     ("tfw", 10, 21, "--step: methods on the binned stream need an even step"),
 ])
 def test_values_a_method_cannot_take_are_refused(name, window, step, message):

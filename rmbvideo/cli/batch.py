@@ -19,7 +19,7 @@ from rmbvideo.batch import REPORT_NAME, plan_jobs, run_batch, summary_table
 from rmbvideo.cli import progress_enabled, quiet_option, verbose_option
 from rmbvideo.cli.reconstruct import reconstruct
 from rmbvideo.recon.methods import get_method
-from rmbvideo.recon.resume import check_resumable_format
+from rmbvideo.recon.resume import check_resumable_format, check_resumable_step
 from rmbvideo.recon.run import PER_CAPTURE_OPTIONS, run_reconstruction
 
 CAPTURE_KEYS = ("width", "height", "flip", "header_cols", "rate_hz")
@@ -43,10 +43,12 @@ def reconstruction_options(params: dict[str, Any]) -> dict[str, Any]:
 def check_method(options: dict[str, Any]) -> None:
     """Build the reconstructor once, so bad method options (or a bad model) stop the batch before it starts, as does
     ``--resume`` with a format that cannot be resumed (each capture would fail)."""
+    method = get_method(options["method"])
+    step = options.get("step") or 20
     if options.get("resume"):
         check_resumable_format(options["fmt"])
-    method = get_method(options["method"])
-    keywords = method.options(options.get("window"), options.get("step") or 20)
+        check_resumable_step(method.name, step, method.frame_every(step))
+    keywords = method.options(options.get("window"), step)
     keywords.update(method.select_extra(options.get("extra_options") or {}))
     # "auto" choices are made per capture, from its sidecar and spikes (``prepare_run``)
     method.build(**{k: v for k, v in keywords.items() if not (k in PER_CAPTURE_OPTIONS and v == "auto")})

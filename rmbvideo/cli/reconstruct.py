@@ -90,7 +90,9 @@ def rmbnet_options(func):
                    "for rmbnet the half-width w of the model (0..3; 2w+1 preliminary frames) [3].")
 @click.option("--step", type=click.IntRange(min=1), default=None,
               help="Raw planes per output frame [default: 20 (1000 frames per second of a 20 kHz "
-                   "capture); 10 for a native RMB capture, whose readouts are not binned].")
+                   "capture); 10 for a native RMB capture, whose readouts are not binned]. RMB-Net makes a frame "
+                   "every 20 (10): a multiple keeps every k-th of them, e.g. 660 for about 30 a second of capture "
+                   "(a video that plays in real time at --fps 30).")
 @click.option("--format", "fmt", type=click.Choice(SINK_FORMATS), default="mp4", show_default=True,
               help="mp4 (tone-mapped SDR H.264, BT.709), hdr10 (HEVC Main10, BT.2020, PQ), hlg (HEVC Main10, "
                    "BT.2020, HLG), exr (linear HDR frames), png (tone-mapped 8-bit), null (timing).")
@@ -163,7 +165,8 @@ def reconstruct(input_path: Path, outdir: Path, method: str, window, step, fmt: 
     )
     if not quiet:
         kept = f" (and {summary.kept} kept from the interrupted run)" if summary.kept else ""
-        click.echo(f"{summary.frames} frames{kept} from {summary.planes} planes in {summary.seconds:.2f} s "
+        frames = f"{summary.frames} frame{'' if summary.frames == 1 else 's'}"
+        click.echo(f"{frames}{kept} from {summary.planes} planes in {summary.seconds:.2f} s "
                    f"({summary.frames_per_second:.1f} frames/s) -> {outdir}", err=True)
 
 

@@ -63,6 +63,10 @@ class Method:
         """The entries of ``extra`` (command-line option values) that this method's factory takes."""
         return {k: v for k, v in extra.items() if k in self.extra_options}
 
+    def frame_every(self, step: int, raw_per_readout: int = 2) -> int:
+        """How many of its frames a method with a fixed frame step makes for each frame ``step`` asks (1: all)."""
+        return 1 if self.fixed_readouts is None else step // (self.fixed_readouts * raw_per_readout)
+
     def options(self, window: int | None, step: int, raw_per_readout: int = 2) -> dict[str, Any]:
         """Keyword options of the factory for ``--window``/``--step`` (step in raw planes).
 
@@ -80,9 +84,11 @@ class Method:
         if step % raw_per_readout:
             raise OptionError(f"--step: methods on the binned stream need an even step, got {step}")
         if self.fixed_readouts is not None:
-            if step != self.fixed_readouts * raw_per_readout:
-                raise OptionError(f"--step: {self.name}'s frame step is fixed by its model (N = {self.fixed_readouts} "
-                                  f"readouts = {self.fixed_readouts * raw_per_readout} raw planes)")
+            fixed = self.fixed_readouts * raw_per_readout
+            if step % fixed:
+                raise OptionError(f"--step: {self.name} makes a frame every {fixed} raw planes (its model's N = "
+                                  f"{self.fixed_readouts} readouts); give {fixed}, or a multiple of it to keep every "
+                                  f"k-th frame, got {step}")
             return options
         return {**options, "step": step // raw_per_readout}
 

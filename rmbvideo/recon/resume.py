@@ -89,6 +89,14 @@ def check_resumable_format(fmt: str) -> None:
                           f"{' or '.join(RESUMABLE_FORMATS)} for a run that can be resumed")
 
 
+def check_resumable_step(method: str, step: int, every: int) -> None:
+    """``OptionError`` for ``--resume`` with a step at which ``method`` keeps one in ``every`` of its frames (RMB-Net at
+    a multiple of its own): the frames a run wrote do not tell where the method's state stood."""
+    if every > 1:
+        raise OptionError(f"--resume: {method} at --step {step} keeps one in {every} of the frames it makes, which a "
+                          "resumed run cannot pick up; give its own step or leave --resume out")
+
+
 def is_resumable(folder: Path, digest: str) -> bool:
     """Whether ``folder`` (an interrupted run's staging folder) was made by a run of fingerprint ``digest``."""
     try:

@@ -20,6 +20,7 @@ from rmbvideo.io.rmbfile import RmbFileReader
 from rmbvideo.io.sidecar import simulated_camera
 from rmbvideo.io.sinks import is_sink_output, make_sink
 from rmbvideo.io.tonemap import ToneMapConfig
+from rmbvideo.recon.decimate import EveryKthFrame
 from rmbvideo.recon.fingerprint import fingerprint_digest, run_fingerprint
 from rmbvideo.recon.full_resolution import FullResolution, detail_stage, raw_gate_stage
 from rmbvideo.recon.methods import DEFAULT_METHOD, get_method
@@ -27,6 +28,7 @@ from rmbvideo.recon.pipeline import RunSummary, iter_frames, reconstruct_stream
 from rmbvideo.recon.resume import (
     ResumedSink,
     check_resumable_format,
+    check_resumable_step,
     finish_record,
     holds_frames,
     is_resumable,
@@ -111,6 +113,7 @@ def prepare_run(input_path: Path, *, method: str = DEFAULT_METHOD, window: int |
         raise InputError(f"{input_path}: {method} needs at least 1x1 pixels at its input; this capture "
                          f"gives {width}x{height} (check --width/--height/--header-cols)")
     recon = spec.build(**options)
+    every = spec.frame_every(step, raw_per_readout=1 if native else 2)  # RMB-Net at a multiple of its step
     # A native capture was read out by its sensor already; binned data gets the chosen design.
     readout = readout or trained_readout(recon)
     rmb_readout = RmbReadout(mode=ReadoutMode(readout)) if recon.input_kind == "rmb" and not native else None
@@ -118,11 +121,14 @@ def prepare_run(input_path: Path, *, method: str = DEFAULT_METHOD, window: int |
         # RMB-Net's frames of a 1-bit capture are mixed with the raw stream's intervals at either size (the raw gate)
         reads_light = getattr(recon, "light_reading", None) is not None
         gate = raw_gate_stage(raw_gate, options.get("model")) if reads_light else None
-        wrap = dict(step=step, raw_gate=gate, threads=options.get("threads"), precision=options.get("precision", "auto"))
+        wrap = dict(step=step // every, raw_gate=gate, threads=options.get("threads"),
+                    precision=options.get("precision", "auto"))
         if resolution == "full":
             recon, rmb_readout = FullResolution(recon, rmb_readout, detail=detail_stage(detail), **wrap), None
         elif gate is not None:
             recon, rmb_readout = FullResolution(recon, rmb_readout, output="binned", **wrap), None
+    if every > 1:
+        recon = EveryKthFrame(recon, every)
     return PreparedRun(reader, recon, start, stop, step, rmb_readout)
 
 
@@ -200,6 +206,8 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
     run = prepare_run(input_path, method=method, window=window, step=step, readout=readout, start_s=start_s,
                       duration_s=duration_s, capture=capture, extra_options=extra_options, resolution=resolution,
                       detail=detail, raw_gate=raw_gate)
+    if resume and isinstance(run.method, EveryKthFrame):
+        check_resumable_step(method, run.step, run.method.every)
     reader = run.reader
     chunk_planes = bounded_chunk_planes(chunk_planes, reader)
     sink_options = dict(fps=fps, tonemap=ToneMapConfig(method=tonemap), exr_dtype=exr_dtype,
