@@ -147,12 +147,16 @@ def test_a_partial_made_with_other_options_is_not_taken_up(tmp_path: Path) -> No
 
 def test_resume_refuses_a_video_and_a_complete_output(tmp_path: Path) -> None:
     """A video stream cannot be continued where it was cut: --resume with mp4 is refused in one line naming the
-    formats that can; a folder holding a complete run is not resumed (nor replaced) without --overwrite."""
+    formats that can, as is RMB-Net at a multiple of its step (some of its frames unwritten); a folder holding a
+    complete run is not resumed (nor replaced) without --overwrite."""
     capture = moving_capture(tmp_path / "c.dat", 200, 16, 16)
     base = [sys.executable, "-m", "rmbvideo", "reconstruct", str(capture), "-o", str(tmp_path / "v"), "--width", "16",
             "--height", "16", "--method", "tfp", "--resume"]
     proc = subprocess.run(base, capture_output=True, text=True)
     one_line_error(proc, "exr or png")
+    assert not (tmp_path / "v").exists()
+    every_other = [*base[:-3], "--step", "40", "--format", "exr", "--resume"]  # RMB-Net keeping every 2nd frame
+    one_line_error(subprocess.run(every_other, capture_output=True, text=True), "--resume: rmbnet at --step 40")
     assert not (tmp_path / "v").exists()
     done = tmp_path / "done"
     args = command(capture, done, "--width", "16", "--height", "16", "--method", "tfp", "--resume")

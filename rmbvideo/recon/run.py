@@ -201,13 +201,15 @@ def run_reconstruction(input_path: Path, outdir: Path, *, method: str = DEFAULT_
     """
     if resume:
         check_resumable_format(fmt)
+        spec = get_method(method)
+        if step is not None and spec.fixed_readouts is not None:  # refused before the capture is probed
+            native = isinstance(open_capture(Path(input_path), **(capture or {})), RmbFileReader)
+            check_resumable_step(method, step, spec.frame_every(step, raw_per_readout=1 if native else 2))
     if resume and not overwrite and (Path(outdir) / "frames.csv").is_file():
         raise OutputError(f"{outdir}: holds a complete run already, nothing to resume (--overwrite makes it again)")
     run = prepare_run(input_path, method=method, window=window, step=step, readout=readout, start_s=start_s,
                       duration_s=duration_s, capture=capture, extra_options=extra_options, resolution=resolution,
                       detail=detail, raw_gate=raw_gate)
-    if resume and isinstance(run.method, EveryKthFrame):
-        check_resumable_step(method, run.step, run.method.every)
     reader = run.reader
     chunk_planes = bounded_chunk_planes(chunk_planes, reader)
     sink_options = dict(fps=fps, tonemap=ToneMapConfig(method=tonemap), exr_dtype=exr_dtype,
