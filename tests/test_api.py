@@ -79,6 +79,13 @@ def test_a_multiple_of_rmbnets_step_keeps_every_kth_of_its_frames(tmp_path):
     assert len(every) == 8 and [f.index for f in second] == [0, 1, 2, 3]
     for frame, made in zip(second, every[::2], strict=True):
         assert frame.time_s == made.time_s and np.array_equal(frame.image, made.image)
+    from rmbvideo.recon.decimate import EveryKthFrame
+    from rmbvideo.recon.run import prepare_run
+
+    inner, kept = prepare_run(capture).method, prepare_run(capture, step=40).method
+    assert isinstance(kept, EveryKthFrame) and kept.every == 2
+    for name in ("input_kind", "accepts_packed", "max_push_planes"):  # read by the streaming loop
+        assert getattr(kept, name) == getattr(inner, name, None if name == "max_push_planes" else False), name
     with pytest.raises(OptionError, match="--resume: rmbnet at --step 40 keeps one in 2"):
         run_reconstruction(capture, tmp_path / "out", step=40, fmt="exr", resume=True)
     assert not (tmp_path / "out").exists()

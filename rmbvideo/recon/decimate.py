@@ -12,7 +12,7 @@ from rmbvideo.chunks import Frame
 
 class EveryKthFrame:
     """``method``'s frames whose index is a multiple of ``every``, frame ``i`` renumbered ``i // every`` (its time
-    kept: the moment it shows)."""
+    kept: the moment it shows). What the streaming loop reads of a method (``iter_frames``) is ``method``'s."""
 
     def __init__(self, method: Any, every: int) -> None:
         if every < 1:
@@ -31,6 +31,10 @@ class EveryKthFrame:
     @property
     def max_push_planes(self) -> int | None:
         return getattr(self.method, "max_push_planes", None)
+
+    @property
+    def accepts_packed(self) -> bool:
+        return getattr(self.method, "accepts_packed", False)
 
     def push(self, chunk: Any) -> list[Frame]:
         return self._kept(self.method.push(chunk))
