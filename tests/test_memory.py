@@ -55,7 +55,7 @@ def test_rmbnet_peak_rss_independent_of_length(tmp_path, startup_env):
 def test_a_leak_would_be_seen(tmp_path, startup_env):
     """The measurement can fail: holding the whole capture in memory (read it all at once, decoded: the longer one
     still under the chunk's memory bound, ``CHUNK_BYTES``) shows."""
-    planes = 512
+    planes = 256
     assert FACTOR * planes * WIDTH * HEIGHT < CHUNK_BYTES
     short, long = peaks(tmp_path, planes, ["--method", "tfw", "--resolution", "binned",
                                            "--chunk-planes", str(FACTOR * planes)], startup_env)
