@@ -158,6 +158,26 @@ def test_timing_runs_repeat_each_scene_and_count_its_frames_once(tmp_path):
         run_config(config, sequences, tmp_path, tmp_path, runs=0, memory=False)
 
 
+def test_names_of_rows_at_one_point_go_to_separate_spots_in_both_plots(tmp_path):
+    """Rows of equal accuracy and time (the w = 3 rows at one PSNR) get their names at spots that do not overlap, and
+    the OpenCV plot a plain install draws (no matplotlib) is a PNG."""
+    from rmbvideo.bench.report import _free_spot, _overlap, _write_plot_opencv
+
+    def box_at(spot):  # a 60x10 name beside a point at (100, 100), lines 12 apart
+        side, k = spot
+        x = 106 if side > 0 else 34
+        return x, 90 - 12 * k, x + 60, 100 - 12 * k
+
+    placed = []
+    for _ in range(5):
+        placed.append(box_at(_free_spot(box_at, placed, 0, 1000)))
+    assert all(not _overlap(a, b) for i, a in enumerate(placed) for b in placed[i + 1:])
+    assert _free_spot(box_at, [], 100, 1000) == (1, 0)  # level, right of the point, when free
+    points = [(30.0, 38.7, f"RMB-Net row {i}", i == 0) for i in range(4)] + [(1.0, 30.0, "TFP-80 (raw)", True)]
+    png = _write_plot_opencv(points, tmp_path / "plot.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+
+
 def test_record_json_roundtrip():
     record = BenchRecord(name="x", method="tfw", w=None, align=None, width=None, precision=None, device="cpu",
                          threads=1, model="-", trained=True, frames=3, scored_frames=2, psnr=30.0, ssim=0.9,
