@@ -67,8 +67,9 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
     Rows: TFW-S, TFW-L, TFI, GC20, MG20 and RMB-Net with w in {0,1,2,3}, alignment none/DIS/TV-L1,
     width x0.5/x1, fp32/bf16, per device. Each row reports mu-law PSNR and SSIM, output frames per
     second end to end (decode to sink) and for the network alone, the real-time factor (capture
-    seconds per wall second) and peak memory. RMB-Net configurations without trained weights in
-    the models folder are timed with a random-init network and their accuracy is n/a.
+    seconds per wall second) and the peak memory of a process running the row alone. RMB-Net
+    configurations without trained weights in the models folder are timed with a random-init
+    network and their accuracy is n/a.
 
     Writes bench.md (table, per-stage breakdown, real-time and memory checks), bench.csv and
     bench.png (PSNR against time, Pareto front marked). `rmbvideo bench decode` measures decoding.
