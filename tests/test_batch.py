@@ -175,7 +175,7 @@ def test_kill_9_mid_capture_then_resume(tmp_path: Path) -> None:
     try:
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline and proc.poll() is None:
-            partial = [p for p in out.glob(".big.partial-*") if len(list(p.glob("*.exr"))) > 20]
+            partial = [p for p in out.glob("..big.partial-*") if len(list(p.glob("*.exr"))) > 20]
             if partial:
                 break
             time.sleep(0.05)
@@ -194,7 +194,7 @@ def test_kill_9_mid_capture_then_resume(tmp_path: Path) -> None:
     # the rerun makes the capture, or finds it complete (its marker) and skips it
     assert report(out)["big.dat"]["status"] == ("skipped" if complete else "ok")
     assert len(list((out / "big").glob("*.exr"))) == 3000
-    assert not list(out.glob(".big.*"))
+    assert not list(out.glob(".big.*")) and not list(out.glob("..big.*"))
 
 
 def test_a_killed_resume_batch_keeps_its_frames_and_the_next_one_continues_them(tmp_path: Path) -> None:
@@ -374,7 +374,7 @@ def test_a_worker_that_does_not_stop_is_killed_and_the_next_run_clears_its_parti
     def freeze_and_stop() -> None:
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline:
-            if [p for p in out.glob(".big.partial-*") if len(list(p.glob("*.exr"))) > 200]:
+            if [p for p in out.glob("..big.partial-*") if len(list(p.glob("*.exr"))) > 200]:
                 frozen.extend(_worker_pids())
                 for pid in frozen:
                     os.kill(pid, signal.SIGSTOP)
@@ -395,4 +395,5 @@ def test_a_worker_that_does_not_stop_is_killed_and_the_next_run_clears_its_parti
     rerun = CliRunner().invoke(main, [str(a) for a in args])
     assert rerun.exit_code == 0, rerun.output
     assert {entry["status"] for entry in report(out).values()} <= {"ok", "skipped"}
-    assert len(list((out / "big").glob("*.exr"))) == 2000 and not list(out.glob(".big.*"))
+    assert len(list((out / "big").glob("*.exr"))) == 2000
+    assert not list(out.glob(".big.*")) and not list(out.glob("..big.*"))

@@ -4,6 +4,7 @@ Layout of a batch folder ``OUTDIR``::
 
     <name>/                    a finished capture: the outputs of ``run_reconstruction`` + .complete.json
     .<name>.partial-<token>/   work in progress, renamed to <name> as the very last step
+    ..<name>.partial-<token>.partial-<token>/   its reconstruction's staging, renamed into the one above
     batch-report.json          the report of the latest run (written atomically)
     .batch.lock                held while a batch runs, so two runs never share a folder
 

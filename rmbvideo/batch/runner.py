@@ -144,10 +144,12 @@ def resumable_work(job: CaptureJob) -> Path:
 
 
 def _remove_leftovers(job: CaptureJob) -> None:
-    """Remove partial or replaced folders of ``job`` left by an interrupted run (the batch lock is held): a
-    ``--resume`` job's kept frames stay for it to take up, and are removed by a job without ``--resume``."""
+    """Remove partial or replaced folders of ``job`` left by an interrupted run (the batch lock is held), and the
+    folder its reconstruction was staged in beside them (``..NAME.partial-*``): a ``--resume`` job's kept frames
+    stay for it to take up, and are removed by a job without ``--resume``."""
     leftovers = [p for p in job.batch_dir.glob(f".{glob.escape(job.name)}.*-*")
                  if p.name.startswith((f".{job.name}.partial-", f".{job.name}.old-"))]
+    leftovers += job.batch_dir.glob(f"..{glob.escape(job.name)}.partial-*")
     work = resumable_work(job)
     leftovers += [work] if work.exists() else []  # killed between its run's end and the install
     if not job.options.get("resume"):
