@@ -1,0 +1,26 @@
+import sys, time, torch, traceback, collections
+from rmbvideo.bench.network import _inputs, _frame_by_frame
+from rmbvideo.net.weights import load_model, default_model_path
+from rmbvideo.recon.rmbnet import inference_copy
+torch.set_num_threads(1)
+bf16 = sys.argv[1] == "bf16"
+model = load_model(default_model_path())[0].eval()
+net = inference_copy(model, bf16=bf16)
+inputs = _inputs(model, 200, 125, 48, torch.device("cpu"))
+stats = collections.defaultdict(lambda: [0, 0.0, None])
+orig = {"cat": torch.cat, "stack": torch.stack}
+def wrap(name):
+    f = orig[name]
+    def g(*a, **k):
+        t = time.perf_counter(); r = f(*a, **k); dt = time.perf_counter() - t
+        fr = traceback.extract_stack(limit=3)[-2]
+        key = (name, fr.filename.split("/")[-1], fr.lineno)
+        s = stats[key]; s[0] += 1; s[1] += dt; s[2] = (tuple(r.shape), r.dtype, r.is_contiguous(), r.is_contiguous(memory_format=torch.channels_last) if r.dim()==4 else None)
+        return r
+    return g
+with torch.inference_mode(), torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+    _frame_by_frame(net, inputs, 48)
+    torch.cat = wrap("cat"); torch.stack = wrap("stack")
+    _frame_by_frame(net, inputs, 48)
+for k, v in sorted(stats.items(), key=lambda kv: -kv[1][1])[:25]:
+    print(k, v[0], "%.2f ms/frame" % (1e3 * v[1] / 48), v[2])
