@@ -1,3 +1,4 @@
+"""Time every torch.cat/torch.stack called from Python in the shipped RMB-Net, frame by frame: python cat_prof.py fp32|bf16 (findings.md)."""
 import sys, time, torch, traceback, collections
 from rmbvideo.bench.network import _inputs, _frame_by_frame
 from rmbvideo.net.weights import load_model, default_model_path

@@ -1,3 +1,4 @@
+"""Time every Conv2d of the shipped RMB-Net, frame by frame as bench network runs it: python conv_prof.py fp32|bf16 (findings.md)."""
 import sys, time, torch, collections
 from rmbvideo.bench.network import _inputs, _frame_by_frame
 from rmbvideo.net.weights import load_model, default_model_path
