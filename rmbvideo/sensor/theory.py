@@ -321,13 +321,13 @@ def _covariance_sums(lam: np.ndarray, k: int, q_values: np.ndarray, level: int, 
     if n <= 1:
         return out
     tab = _PoissonTables(lam, int(q_values.max()) + 2)
-    chains: dict[int, np.ndarray] = {}
+    chain_t1, chain = -1, None  # thresholds ascend, so T_1 does too: one chain held at a time, not one per T_1
     for i, q in enumerate(q_values):
         th = level_thresholds(int(q), level)
         t1 = int(th[0])
-        if t1 not in chains:
-            chains[t1] = _chain_matrix(lam, k, t1, tab)
-        chain = chains[t1]
+        if t1 != chain_t1:
+            chain_t1, chain = t1, None
+            chain = _chain_matrix(lam, k, t1, tab)
         c = np.arange(t1)
         reward = tab.take("sf", th[:, None] - c[None, :] - k - 1, 1.0).sum(axis=1)  # (n, t1)
         centred = reward - means[i][:, None]
