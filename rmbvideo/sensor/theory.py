@@ -326,8 +326,8 @@ def _covariance_sums(lam: np.ndarray, k: int, q_values: np.ndarray, level: int, 
         th = level_thresholds(int(q), level)
         t1 = int(th[0])
         if t1 != chain_t1:
-            chain_t1, chain = t1, None
-            chain = _chain_matrix(lam, k, t1, tab)
+            chain = None  # the previous chain freed before the next is built
+            chain_t1, chain = t1, _chain_matrix(lam, k, t1, tab)
         c = np.arange(t1)
         reward = tab.take("sf", th[:, None] - c[None, :] - k - 1, 1.0).sum(axis=1)  # (n, t1)
         centred = reward - means[i][:, None]
