@@ -223,6 +223,14 @@ def test_cli_refuses_a_threshold_beyond_reach_at_once():
     assert result.exit_code == 2 and "--q-r" in result.output and "10000" in result.output
 
 
+def test_cli_refuses_an_exact_table_out_of_reach_before_any_work():
+    """--variance exact at L = 1, Q_r = 400 and the paper's N ran 152 s and then ran out of memory (7.6 GB); its time
+    is estimated first, and a table beyond the bound is refused in one line naming the estimate."""
+    result = CliRunner().invoke(main, ["dynamic-range", "--variance", "exact", "--q-r", "400", "--levels", "1"])
+    assert result.exit_code != 0 and "--variance exact" in result.output and "minutes" in result.output
+    assert len(result.output.strip().splitlines()) == 1
+
+
 @pytest.mark.parametrize("quiet", [False, True])
 def test_cli_shows_a_progress_bar_on_a_terminal(quiet: bool):
     """Minutes of work at a large Q_r: a bar per level on a terminal (stderr a pty), none with --quiet."""
@@ -266,3 +274,65 @@ def test_pixel_spread_vanishes_without_threshold_noise():
     spread = pixel_spread(lam, SensorParams())
     assert np.all(np.isfinite(spread)) and spread[2] > 1e-4   # thresholds differ by ~5 e- per pixel
     assert spread[2] <= spike_law(lam, SensorParams()).var[2]
+
+
+def _iterated_sum_variance(lam: float, q: int, level: int, n: int) -> float:
+    """Var(S_N) of the noise-free chain, its lag sum taken term by term (n - 1 products of the stationary chain), in
+    extended precision: a long sum cancels to a few digits of its terms."""
+    from scipy.stats import poisson
+
+    th = level_thresholds(q, level)
+    t1 = int(th[0])
+    px = poisson.pmf(np.arange(q + 200), lam).astype(np.longdouble)
+    chain, reward = np.zeros((t1, t1), np.longdouble), np.zeros(t1, np.longdouble)
+    for c in range(t1):
+        for x, p in enumerate(px):
+            h = int(np.sum(c + x >= th))
+            chain[c, 0 if h else c + x] += p
+            reward[c] += h * p
+    total = chain.sum(axis=1)
+    chain, reward = chain / total[:, None], reward / total
+    power = chain.copy()
+    for _ in range(20):
+        power = power @ power
+    pi = power[0] / power[0].sum()
+    mu = pi @ reward
+    var1 = pi @ np.array([sum(p * (int(np.sum(c + x >= th)) - mu) ** 2 for x, p in enumerate(px)) for c in range(t1)])
+    lagged, row = np.longdouble(0.0), np.eye(t1, dtype=np.longdouble)[0]
+    for j in range(1, n):
+        lagged += (n - j) * mu * (row @ reward - mu)
+        row = row @ chain
+    return float(n * var1 + 2.0 * lagged)
+
+
+@pytest.mark.parametrize("level,lam", [(1, 0.4), (1, 9.0), (3, 2.5)])
+def test_exact_variance_matches_the_lag_sum_term_by_term_at_long_sums(level, lam, single_blas_thread):
+    """Long sums take the cheaper of two exact ways: a renewal equation over the charge's jumps (n = 2,000 here) or binary
+    powers of the chain (n = 20,000). Both against the lag sum written out (at 1e-9 of N Var(S), which it saves a
+    fraction of)."""
+    params = replace(NOISE_FREE, voltage=30.0, level=level)
+    for n in (2000, 20000):
+        _, var = sum_moments(np.array([lam]), n, params, exact=True)
+        assert var[0] == pytest.approx(_iterated_sum_variance(lam, 30, level, n),
+                                       abs=1e-9 * n * spike_law(np.array([lam]), params).var[0])
+
+
+def test_the_two_exact_ways_agree_on_a_noisy_sensor(single_blas_thread):
+    """The renewal and the binary powers, on every threshold and dark value of a noisy L = 1 sensor, dark to
+    saturated, at four sums at once: to 1e-9 of N Var(S), or to the rounding of a lag sum of n^2 / 2 terms of size up to
+    1 (which both share, and which is all there is of Var(S_N) where the pixel fires in nearly every interval)."""
+    from rmbvideo.sensor.theory import _conditional, _PoissonTables, _power_sums, _renewal_sums, dark_law
+
+    params = replace(SensorParams(level=1), voltage=40.0 / SensorParams().capacitance)
+    lam = np.logspace(-4, 3, 8)
+    qlaw = threshold_law(params)
+    t1s = np.array([int(level_thresholds(int(q), 1)[0]) for q in qlaw.values])
+    law = spike_law(lam, params)
+    horizons = (2, 10, 1000, 20000)
+    for k in dark_law(params).values:
+        tab = _PoissonTables(lam, int(qlaw.values.max()) + 2)
+        means = _conditional(lam, qlaw.values, int(k), 1)[1]        # each threshold's own mean readout
+        a = _renewal_sums(tab, slice(0, lam.size), int(k), qlaw.values, t1s, 1, horizons, means)
+        b = _power_sums(tab, slice(0, lam.size), int(k), qlaw.values, t1s, 1, horizons, means)
+        n = np.array(horizons, dtype=float)[:, None, None]
+        assert np.all(np.abs(a - b) <= 1e-9 * n * law.var[None, None, :] + 1e-15 * n ** 2)

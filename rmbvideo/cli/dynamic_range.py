@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import math
 from dataclasses import replace
 from pathlib import Path
@@ -20,6 +21,11 @@ from rmbvideo.sensor.params import SensorParams
 #: threshold's values both grow with Q_r (on one core: the default table 3.3-3.6 s at 105; a level 20-45 s at 800,
 #: 3-5 minutes at 2,000; 1e9 was killed for memory; ``models/experiments/dynamic-range-speed/measure.py scaling``).
 MAX_Q_R = 10_000.0
+#: The longest exact-variance table computed (estimated before any work by ``exact_variance_seconds``: the default
+#: L = 1 row 4.7 minutes on one core; L = 1 at Q_r = 400, about 68, is refused in one line).
+MAX_EXACT_SECONDS = 3600.0
+
+logger = logging.getLogger(__name__)
 
 
 def _int_list(ctx: click.Context, param: click.Parameter, value: str) -> list[int]:
@@ -48,7 +54,9 @@ def _int_list(ctx: click.Context, param: click.Parameter, value: str) -> list[in
               help="Variance of every noise source (C^S, V^S, V^T0, dark) [default: 0.005].")
 @click.option("--variance", type=click.Choice(["independent", "exact"]), default="independent",
               show_default=True,
-              help="Var(S_N) as N*Var(S) (the paper's Table 1) or with the exact interval correlation.")
+              help="Var(S_N) as N*Var(S) (the paper's Table 1) or with the exact interval correlation (at the default "
+                   "Q_r on one core: L = 1 about 5 minutes, L = 3 and 7 seconds; a table estimated at more than "
+                   f"{MAX_EXACT_SECONDS / 60:.0f} minutes is refused before any work).")
 @click.option("--plots", "plots_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Write fig2_expectation_std.png and fig3_snr.png into this folder.")
 @click.option("--json", "as_json", is_flag=True, help="Print {\"table\": [...]} on stdout.")
@@ -70,6 +78,15 @@ def dynamic_range(levels: list[int], n_values: list[int], q_r: float | None, dar
         params = replace(params, cap_std=std, reset_v_std=std, temp_v_std=std, dark_std=std)
     if max(levels) > 4095:
         raise InputError(f"--L {max(levels)}: levels above 4095 are not supported")
+    if variance == "exact":
+        from rmbvideo.sensor.theory import exact_variance_seconds
+
+        seconds = sum(exact_variance_seconds(replace(params, level=level), n_values) for level in levels)
+        if seconds > MAX_EXACT_SECONDS:
+            raise InputError(f"--variance exact: this table would take about {seconds / 60:.0f} minutes on one core "
+                             f"(at most {MAX_EXACT_SECONDS / 60:.0f}; the work grows about as Q_r^2 N at L = 1); use "
+                             "--variance independent, fewer or smaller --readouts, a larger L or a smaller --q-r")
+        logger.info("--variance exact: about %.0f s on one core", seconds)
     defaults = q_r is None and dark_mean is None and noise_var is None and variance == "independent"
 
     table = {}

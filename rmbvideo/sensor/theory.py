@@ -25,7 +25,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import special, stats
+from scipy import signal, special, stats
 
 from rmbvideo.sensor.params import SensorParams
 
@@ -136,7 +136,7 @@ class _PoissonTables:
         self.pmf = np.exp(stats.poisson.logpmf(j, lam2))
         self.cdf = np.exp(stats.poisson.logcdf(j, lam2))
         self.sf = np.exp(stats.poisson.logsf(j, lam2))
-        self.jmax = jmax
+        self.lam, self.jmax = lam, jmax
 
     def take(self, table: str, j: np.ndarray, below: float) -> np.ndarray:
         """Table values at integer indices ``j <= jmax`` (any shape); ``below`` where j < 0."""
@@ -299,62 +299,201 @@ def _between_pixel_var(law: SpikeLaw, parts: list) -> np.ndarray:
     return out
 
 
-def _chain_matrix(lam: np.ndarray, k: int, t1: int, tab: _PoissonTables) -> np.ndarray:
-    """Transition matrix (n, t1, t1) of the carried charge c < T_1: c -> c + X, or reset to 0."""
-    c = np.arange(t1)
-    step = c[None, :] - c[:, None]                          # d - c
-    move = np.where(step >= 0, tab.take("pmf", step - k, 0.0), 0.0)
-    fire = tab.take("sf", t1 - c - k - 1, 1.0)              # P(c + X >= T_1)
-    move[:, :, 0] += fire
-    return move
-
-
-def _covariance_sums(lam: np.ndarray, k: int, q_values: np.ndarray, level: int, n: int,
+def _covariance_sums(lam: np.ndarray, k: int, q_values: np.ndarray, level: int, horizons: tuple[int, ...],
                      means: np.ndarray) -> np.ndarray:
-    """Per threshold Q': sum_{j=1}^{n-1} (n-j) Cov(S_0, S_j) of the stationary chain (supplement Sec. 8).
+    """(horizons, thresholds Q', exposures): sum_{j=1}^{n-1} (n-j) Cov(S_0, S_j) of the stationary chain, each n.
 
-    After any spike the charge is zero, so Cov(S_0, S_j) = mu * (e_0 P^{j-1} r - mu) with r(c) the
-    expected readout from charge c. The weighted sum of P^i r' is built by binary doubling of P^m
-    (only P^m is a matrix; the partial sums are vectors), so n = 20,000 costs ~15 squarings.
+    After any spike the charge is zero, so Cov(S_0, S_j) = mu * (e_0 P^{j-1} r - mu) with r(c) the expected readout
+    from charge c (supplement Sec. 8). Two exact ways to the sum, the cheaper one taken: binary powers of P (T_1^3 a
+    squaring, ~log2 n squarings an n; ``_power_sums``) or one renewal pass serving every n (T_1 a jump, up to the
+    largest n; ``_renewal_sums``). Exposures go in batches that hold ``_CHAIN_BYTES`` of chain matrices.
     """
-    out = np.zeros((q_values.size, lam.size))
-    if n <= 1:
+    out = np.zeros((len(horizons), q_values.size, lam.size))
+    if max(horizons) <= 1:
         return out
+    t1s = np.array([int(level_thresholds(int(q), level)[0]) for q in q_values])
+    t_max = int(t1s.max())
     tab = _PoissonTables(lam, int(q_values.max()) + 2)
-    chain_t1, chain = -1, None  # thresholds ascend, so T_1 does too: one chain held at a time, not one per T_1
-    for i, q in enumerate(q_values):
-        th = level_thresholds(int(q), level)
-        t1 = int(th[0])
-        if t1 != chain_t1:
-            chain = None  # the previous chain freed before the next is built
-            chain_t1, chain = t1, _chain_matrix(lam, k, t1, tab)
-        c = np.arange(t1)
-        reward = tab.take("sf", th[:, None] - c[None, :] - k - 1, 1.0).sum(axis=1)  # (n, t1)
-        centred = reward - means[i][:, None]
-        out[i] = means[i] * _weighted_power_sum(chain, centred, n - 1)[:, 0]
+    renewal, _ = _covariance_method(t_max, horizons)
+    copies = 2 if renewal else max(horizons).bit_length() + 2   # the visits and a Toeplitz, or P^(2^l) for each l
+    chunk = max(1, _CHAIN_BYTES // (8 * copies * t_max ** 2))
+    for lo in range(0, lam.size, chunk):
+        part = slice(lo, min(lo + chunk, lam.size))
+        sums = _renewal_sums if renewal else _power_sums
+        out[:, :, part] = sums(tab, part, k, q_values, t1s, level, horizons, means[:, part])
     return out
 
 
-def _weighted_power_sum(chain: np.ndarray, vec: np.ndarray, m_target: int) -> np.ndarray:
-    """sum_{i=0}^{m-1} (m - i) P^i v for m = m_target >= 1, by doubling (batched over exposures)."""
-    power = chain.copy()            # P^m
-    u_vec = vec.copy()              # U_m v = sum_{i<m} P^i v
-    w_vec = vec.copy()              # W_m v = sum_{t<=m} U_t v
-    m = 1
-    for bit in bin(m_target)[3:]:
-        pu = np.einsum("nij,nj->ni", power, u_vec)
-        pw = np.einsum("nij,nj->ni", power, w_vec)
-        w_vec = w_vec + m * u_vec + pw
-        u_vec = u_vec + pu
-        power = power @ power
-        m *= 2
-        if bit == "1":
-            pv = np.einsum("nij,nj->ni", power, vec)
-            w_vec = w_vec + u_vec + pv
-            u_vec = u_vec + pv
-            power = power @ chain
-            m += 1
-    return w_vec
+# memory for the chain matrices of one batch of exposures (T_1^2 floats an exposure, a few of them)
+_CHAIN_BYTES = 64 << 20
+# one multiply-add of the renewal's filter costs about this many of a matrix product's (one core: the renewal is the
+# faster at L = 1 (T_1 ~ 105; 4.5 vs 5.6 minutes for the default table), the powers at L = 3 (T_1 ~ 35))
+_FILTER_COST = 4.0
+# matrix-product multiply-adds a second of the exact variance on one core (the default L = 1 table: 282 s measured)
+_EXACT_RATE = 4.1e9
+
+
+def _covariance_method(t_max: int, horizons: tuple[int, ...]) -> tuple[bool, float]:
+    """(renewal is the cheaper, its work) for one threshold and exposure, in a matrix product's multiply-adds."""
+    powers = max(horizons).bit_length() * t_max ** 3 + 4 * sum(math.log2(n) for n in horizons) * t_max ** 2
+    renewal = _FILTER_COST * t_max * max(horizons) + t_max ** 2
+    return renewal < powers, min(renewal, powers)
+
+
+def exact_variance_seconds(params: SensorParams, n_values: list[int], search: "RangeSearch | None" = None) -> float:
+    """About how long ``dynamic_range(..., exact=True)`` takes on one core, estimated before any work.
+
+    Every threshold and dark value is a row at each exposure the search visits (its grid and about half as many
+    again in refinement and bisection), at the cost of the cheaper exact method; the rate is this project's
+    development machine's (the default L = 1 table: 282 s; smaller ones run below the rate, on per-call overheads).
+    """
+    search = search or RangeSearch()
+    qlaw, dlaw = threshold_law(params), dark_law(params)
+    exposures = 1.5 * (round(math.log10(search.lam_hi / search.lam_lo) * search.per_decade) + 1)
+    horizons = tuple(n_values)
+    work = sum(_covariance_method(int(level_thresholds(int(q), params.level)[0]), horizons)[1] for q in qlaw.values)
+    return exposures * dlaw.values.size * work / _EXACT_RATE
+
+
+def _power_sums(tab: _PoissonTables, part: slice, k: int, q_values: np.ndarray, t1s: np.ndarray, level: int,
+                horizons: tuple[int, ...], means: np.ndarray) -> np.ndarray:
+    """``_covariance_sums`` for the exposures ``part`` by binary powers of P, shared by every n and every threshold
+    with the same T_1: W_m v = sum_{i<m} (m - i) P^i v is built from segments of length 2^l (U_a + P^a U_b and
+    W_a + b U_a + P^a W_b join two), so only the squarings are matrix products."""
+    lags = [n - 1 for n in horizons]
+    top = max(lags).bit_length()
+    out = np.zeros((len(horizons), q_values.size, part.stop - part.start))
+
+    def apply(matrix: np.ndarray, vec: np.ndarray) -> np.ndarray:
+        return np.einsum("nij,nj->ni", matrix, vec)
+
+    for t1 in np.unique(t1s):
+        c = np.arange(int(t1))
+        chain = np.where(c[None, :] >= c[:, None] + k,
+                         tab.pmf[part][:, np.clip(c[None, :] - c[:, None] - k, 0, tab.jmax)], 0.0)
+        chain[:, :, 0] += _at_least(tab, part, t1 - c - k)   # c -> c + X, or a firing and the reset to 0
+        powers = [chain]                                        # P^(2^l)
+        for _ in range(1, top):
+            powers.append(powers[-1] @ powers[-1])
+        for i in np.flatnonzero(t1s == t1):
+            th = level_thresholds(int(q_values[i]), level)
+            vec = _at_least(tab, part, th[:, None] - c[None, :] - k).sum(axis=1) - means[i][:, None]
+            seg_u, seg_w = [vec], [vec]                         # U and W of length 2^l
+            for lvl in range(1, top):
+                size, p_a = 1 << (lvl - 1), powers[lvl - 1]
+                seg_w.append(seg_w[-1] + size * seg_u[-1] + apply(p_a, seg_w[-1]))
+                seg_u.append(seg_u[-1] + apply(p_a, seg_u[-1]))
+            for h, m in enumerate(lags):
+                if m < 1:
+                    continue
+                u, w, done = np.zeros_like(vec), np.zeros_like(vec), 0
+                for lvl in range(top):
+                    if m >> lvl & 1:
+                        w = seg_w[lvl] + done * seg_u[lvl] + apply(powers[lvl], w)
+                        u = seg_u[lvl] + apply(powers[lvl], u)
+                        done += 1 << lvl
+                out[h, i] = means[i] * w[:, 0]
+    return out
+
+
+def _renewal_sums(tab: _PoissonTables, part: slice, k: int, q_values: np.ndarray, t1s: np.ndarray, level: int,
+                  horizons: tuple[int, ...], means: np.ndarray) -> np.ndarray:
+    """``_covariance_sums`` for the exposures ``part`` by a renewal equation over the jumps of the charge.
+
+    An interval moves the charge with probability p = P(X >= 1) whatever the charge, so P = (1 - p) I + p J, with J
+    the chain of the jumps alone, and P^m is a binomial mixture of the powers of J. A cycle of J (0 back to 0) takes
+    at most T_1 jumps, so e_0 J^j r obeys a renewal equation of order T_1, solved once up to the largest n.
+    """
+    lam = tab.lam[part]
+    moves = -np.expm1(-lam) if k == 0 else np.ones(lam.size)       # p = P(X >= 1)
+    n_lam, t_max = moves.size, int(t1s.max())
+    weights = [_binomial_lag_weights(moves, n - 2) for n in horizons]
+    span = max(w.shape[1] for w in weights)
+    spans = np.max([w.shape[1] - np.argmax(w[:, ::-1] > 0, axis=1) for w in weights], axis=0)  # each exposure's own
+    jumps = min(t_max, span)                           # only the first ``span`` jumps enter any lag sum
+    # the jump law P(X = j | X >= 1), j < T_1max, and visits[:, t, c] = P(charge c after t jumps, no firing yet)
+    # (the largest threshold's serve every smaller one: charges below T_1 are reached only from below T_1)
+    jump = np.arange(t_max)
+    step = np.where((jump >= 1) & (jump >= k), tab.pmf[part][:, np.clip(jump - k, 0, tab.jmax)], 0.0)
+    step /= moves[:, None]
+    toeplitz = np.zeros((n_lam, t_max, t_max))
+    for c in range(t_max):
+        toeplitz[:, c, c:] = step[:, : t_max - c]
+    visits = np.zeros((n_lam, jumps, t_max))
+    visits[:, 0, 0] = 1.0
+    for t in range(1, jumps):
+        visits[:, t] = np.matmul(visits[:, t - 1, None, :], toeplitz)[:, 0]
+    del toeplitz
+    out = np.zeros((len(horizons), q_values.size, n_lam))
+    for i, q in enumerate(q_values):
+        th = level_thresholds(int(q), level)
+        t1 = int(t1s[i])
+        c = np.arange(t1)
+        fire_from = _at_least(tab, part, t1 - c - k) / moves[:, None]                   # P(c + X >= T_1 | X >= 1)
+        reward = _at_least(tab, part, th[:, None] - c[None, :] - k).sum(axis=1) / moves[:, None]  # E(S | c, X >= 1)
+        reach = visits[:, :t1, :t1]
+        fire = np.einsum("ntc,nc->nt", reach, fire_from)              # first firing at jump t + 1
+        gain = np.einsum("ntc,nc->nt", reach, reward)                 # y_j: its readout, if at jump j + 1
+        waiting = np.cumsum(fire[:, ::-1], axis=1)[:, ::-1]           # P(no firing in the first j jumps), when whole
+        if jumps >= t1:   # the whole cycle is here: its own mean readout a jump, so that d decays to 0, not to rounding
+            rate = gain.sum(axis=1) / waiting.sum(axis=1)
+        else:
+            rate = means[i] / moves
+            waiting = 1.0 - np.cumsum(np.concatenate((np.zeros((n_lam, 1)), fire[:, :-1]), axis=1), axis=1)
+        excess = np.zeros((n_lam, max(span, t1)))
+        excess[:, : fire.shape[1]] = gain - rate[:, None] * waiting
+        dev = np.zeros_like(excess)
+        for r in range(n_lam):
+            # d_j = e_j + sum_t f_t d_{j-t}, with e_j = y_j - mu/p P(tau > j): d_j = e_0 J^j r - mu/p
+            dev[r, : spans[r]] = _renewal(fire[r], excess[r, : spans[r]])
+        for h, w in enumerate(weights):
+            out[h, i] = means[i] * moves * np.einsum("nj,nj->n", w, dev[:, : w.shape[1]])
+    return out
+
+
+def _renewal(fire: np.ndarray, excess: np.ndarray) -> np.ndarray:
+    """d_j = e_j + sum_{t=1}^{T} f_t d_{j-t}, j = 0..len(e)-1, a filter run in stretches of doubling length.
+
+    Past the first T jumps e = 0 and d_j is an average of the T values before it (sum f = 1), so once T in a row
+    are below ``tol`` every later one is, and the rest are left zero (their share of any lag sum is below tol * sum K).
+    """
+    order = fire.size
+    denom = np.concatenate(([1.0], -fire))
+    tol = 1e-18 * float(np.abs(excess[:order]).max(initial=0.0))
+    out = np.zeros(excess.size)
+    state = np.zeros(order)
+    pos, stretch = 0, max(4 * order, 256)
+    while pos < excess.size:
+        end = min(excess.size, pos + stretch)
+        out[pos:end], state = signal.lfilter([1.0], denom, excess[pos:end], zi=state)
+        pos, stretch = end, 2 * stretch
+        if pos >= order and float(np.abs(out[pos - order: pos]).max()) <= tol:
+            break
+    return out
+
+
+def _at_least(tab: _PoissonTables, part: slice, need: np.ndarray) -> np.ndarray:
+    """P(Y >= need) at the exposures ``part`` (1 where need <= 0), for any shape of ``need`` after theirs."""
+    out = tab.sf[part][:, np.clip(need - 1, 0, tab.jmax)]
+    return np.where(need <= 0, 1.0, out)
+
+
+def _binomial_lag_weights(moves: np.ndarray, horizon: int) -> np.ndarray:
+    """K_j = sum_{m=j}^{M} (M + 1 - m) P(Bin(m, p) = j), j = 0.., the weight of jump count j in the lag sum up to M.
+
+    With T the trial of the (j+1)-th success, K_j = ((M + 2) P(T <= M + 1) - E[T; T <= M + 1]) / p, two binomial
+    tails; weights below 1e-30 of K_0 are zero, and the columns past every exposure's last weight are dropped.
+    """
+    if horizon < 0:
+        return np.zeros((moves.size, 1))
+    j = np.arange(horizon + 1)[None, :]
+    p = moves[:, None]
+    first = special.bdtrc(j, horizon + 1, p)          # P(Bin(M + 1, p) >= j + 1)
+    second = special.bdtrc(j + 1, horizon + 2, p)     # P(Bin(M + 2, p) >= j + 2)
+    weights = np.maximum(((horizon + 2) * first - (j + 1) / p * second) / p, 0.0)
+    weights = np.where(p >= 1.0, (horizon + 1 - j).astype(float), weights)
+    weights = np.where(weights > 1e-30 * weights[:, :1], weights, 0.0)
+    return weights[:, : int(np.flatnonzero(weights.any(axis=0))[-1]) + 1]
 
 
 def sum_moments(lam: np.ndarray, n: int, params: SensorParams, exact: bool = True
@@ -370,15 +509,19 @@ def sum_moments(lam: np.ndarray, n: int, params: SensorParams, exact: bool = Tru
         raise ValueError("n must be >= 1")
     lam = _check_lam(lam)
     law, parts = _spike_law_parts(lam, params)
-    mean = n * law.mean
     if not exact or n == 1:
-        return mean, n * law.var
+        return n * law.mean, n * law.var
+    return n * law.mean, _exact_variances(law, parts, (n,), params)[0]
+
+
+def _exact_variances(law: SpikeLaw, parts: list, horizons: tuple[int, ...], params: SensorParams) -> np.ndarray:
+    """(horizons, exposures): Var(S_N^L) with the exact interval correlation, for each N in ``horizons``."""
     qlaw = threshold_law(params)
-    cov = np.zeros(lam.size)
+    cov = np.zeros((len(horizons), law.lam.size))
     for k, wts, m_c, _ in parts:
-        cov += wts @ _covariance_sums(lam, k, qlaw.values, params.level, n, m_c)
-    var = n * law.var + 2.0 * cov
-    return mean, np.clip(var, 0.0, None)
+        cov += np.einsum("q,hqn->hn", wts, _covariance_sums(law.lam, k, qlaw.values, params.level, horizons, m_c))
+    var = np.array(horizons, dtype=float)[:, None] * law.var[None, :] + 2.0 * cov
+    return np.clip(var, 0.0, None)
 
 
 def snr(lam: np.ndarray, n: int, params: SensorParams, exact: bool = False) -> np.ndarray:
@@ -387,13 +530,18 @@ def snr(lam: np.ndarray, n: int, params: SensorParams, exact: bool = False) -> n
     Where the variance vanishes (deep saturation, or a perfectly flat step) the SNR is 0: the
     readout no longer distinguishes exposures there.
     """
+    return snr_curves(lam, (n,), params, exact)[0]
+
+
+def snr_curves(lam: np.ndarray, n_values: tuple[int, ...], params: SensorParams, exact: bool = False) -> np.ndarray:
+    """(len(n_values), exposures): ``snr`` for every N at once (the exact variance serves all N from one pass)."""
     lam = _check_lam(lam)
-    law = spike_law(lam, params)
-    if exact and n > 1:
-        _, var = sum_moments(lam, n, params, exact=True)
-    else:
-        var = n * law.var
-    slope = n * lam * law.dmean
+    law, parts = _spike_law_parts(lam, params)
+    ns = np.array(n_values, dtype=float)[:, None]
+    var = ns * law.var[None, :]
+    if exact and max(n_values) > 1:
+        var = np.where(ns > 1, _exact_variances(law, parts, tuple(n_values), params), var)
+    slope = ns * (lam * law.dmean)[None, :]
     ok = (var > 0) & (slope > 0)
     return np.where(ok, slope / np.sqrt(np.where(ok, var, 1.0)), 0.0)
 
@@ -433,23 +581,21 @@ def dynamic_range(params: SensorParams, n_values: list[int], exact: bool = False
 
     The SNR >= 1 set is located on a log grid that is adaptively refined where SNR changes fast or
     has a local extremum near the threshold (so narrow pieces and narrow gaps are not missed); every
-    crossing is then bisected. With independent intervals SNR_N = sqrt(N) * SNR_1, so all N share
-    one curve and are solved together; the exact variance needs one curve per N.
+    crossing is then bisected, every N together. With independent intervals SNR_N = sqrt(N) * SNR_1, so all N share
+    one curve (cut at 1/sqrt(N)); the exact variance has one curve per N, all N computed in one pass an exposure.
     """
     decades = math.log10(search.lam_hi / search.lam_lo)
     grid = np.logspace(math.log10(search.lam_lo), math.log10(search.lam_hi),
                        int(round(decades * search.per_decade)) + 1)
     if not exact:
-        def base(x: np.ndarray) -> np.ndarray:
-            return snr(x, 1, params)
+        def curves(x: np.ndarray) -> np.ndarray:
+            return np.broadcast_to(snr(x, 1, params), (len(n_values), x.size))
         cuts = [1.0 / math.sqrt(n) for n in n_values]
-        pieces = _pieces_above(grid, base, cuts, search)
     else:
-        pieces = []
-        for n in n_values:
-            def curve(x: np.ndarray, n: int = n) -> np.ndarray:
-                return snr(x, n, params, exact=True)
-            pieces += _pieces_above(grid, curve, [1.0], search)
+        def curves(x: np.ndarray) -> np.ndarray:
+            return snr_curves(x, tuple(n_values), params, exact=True)
+        cuts = [1.0] * len(n_values)
+    pieces = _pieces_above(grid, curves, cuts, search)
     out = []
     for n, piece in zip(n_values, pieces):
         if not piece:
@@ -463,27 +609,27 @@ def dynamic_range(params: SensorParams, n_values: list[int], exact: bool = False
 
 def _pieces_above(grid: np.ndarray, func, cuts: list[float], search: RangeSearch
                   ) -> list[list[tuple[float, float]]]:
-    """For each cut c, the exposure intervals where func >= c, ascending."""
-    x, y = np.log(grid), func(grid)
+    """For each curve j of ``func`` (x -> (len(cuts), x.size)), the exposure intervals where it is >= cuts[j]."""
+    x, y = np.log(grid), np.array(func(grid))
     band_lo, band_hi = 0.25 * min(cuts), 4.0 * max(cuts)
     for _ in range(search.refine_rounds):
         ly = np.clip(np.log(np.maximum(y, 1e-300)), -12.0, 12.0)
-        steep = np.abs(np.diff(ly)) > 0.25
-        mid_y = y[1:-1]
-        extremum = ((mid_y >= y[:-2]) & (mid_y >= y[2:])) | ((mid_y <= y[:-2]) & (mid_y <= y[2:]))
+        steep = (np.abs(np.diff(ly, axis=1)) > 0.25).any(axis=0)
+        mid_y = y[:, 1:-1]
+        extremum = ((mid_y >= y[:, :-2]) & (mid_y >= y[:, 2:])) | ((mid_y <= y[:, :-2]) & (mid_y <= y[:, 2:]))
         near = np.zeros(x.size, bool)
-        near[1:-1] = extremum & (mid_y > band_lo) & (mid_y < band_hi)
+        near[1:-1] = (extremum & (mid_y > band_lo) & (mid_y < band_hi)).any(axis=0)
         split = steep | near[:-1] | near[1:]
         if not split.any():
             break
         mids = 0.5 * (x[:-1] + x[1:])[split]
         order = np.argsort(np.concatenate([x, mids]))
-        y = np.concatenate([y, func(np.exp(mids))])[order]
+        y = np.concatenate([y, func(np.exp(mids))], axis=1)[:, order]
         x = np.concatenate([x, mids])[order]
     # bracket every crossing of every cut, then bisect all brackets together
     lo_l, hi_l, cut_l, owner, rising_l = [], [], [], [], []
     for j, c in enumerate(cuts):
-        above = y >= c
+        above = y[j] >= c
         change = np.flatnonzero(above[:-1] != above[1:])
         lo_l.append(x[change])
         hi_l.append(x[change + 1])
@@ -497,7 +643,7 @@ def _pieces_above(grid: np.ndarray, func, cuts: list[float], search: RangeSearch
             if float(np.max(hi - lo)) < search.bisect_tolerance:
                 break
             mid = 0.5 * (lo + hi)
-            up = func(np.exp(mid)) >= cut
+            up = np.asarray(func(np.exp(mid)))[who, np.arange(mid.size)] >= cut
             go_right = up != rising
             lo = np.where(go_right, mid, lo)
             hi = np.where(go_right, hi, mid)
@@ -505,7 +651,7 @@ def _pieces_above(grid: np.ndarray, func, cuts: list[float], search: RangeSearch
     result = []
     for j, c in enumerate(cuts):
         pieces = []
-        start = math.exp(x[0]) if y[0] >= c else None
+        start = math.exp(x[0]) if y[j, 0] >= c else None
         sel = np.flatnonzero(who == j)
         for i in sel[np.argsort(cross[sel])]:
             if rising[i]:

@@ -2,6 +2,7 @@
 
     python models/experiments/dynamic-range-speed/measure.py compare [REV]   # default REV 49c8b5e (before the change)
     python models/experiments/dynamic-range-speed/measure.py scaling        # the current code at larger Q_r
+    python models/experiments/dynamic-range-speed/measure.py exact [REV]    # --variance exact against REV 0e9b8fc
 
 ``compare`` loads ``rmbvideo/sensor/theory.py`` as it was at REV (``git show``) beside the current one, checks the
 spike laws' relative differences (L = 1, 3, 7, 15 at Q_r = 105 and 300), then times the paper's table (L = 1, 3, 7, its
@@ -48,9 +49,9 @@ def revision(rev: str):
     return module
 
 
-def timed(module, jobs) -> tuple[float, list[float]]:
+def timed(module, jobs, exact: bool = False) -> tuple[float, list[float]]:
     start = time.perf_counter()
-    values = [r.dr_db for p, ns in jobs for r in module.dynamic_range(p, ns)]
+    values = [r.dr_db for p, ns in jobs for r in module.dynamic_range(p, ns, exact=exact)]
     return time.perf_counter() - start, values
 
 
@@ -87,6 +88,20 @@ def scaling() -> None:
             print(f"Q_r = {q_r}, L = {level}: {seconds:.1f} s a level")
 
 
+def exact(rev: str = "0e9b8fc") -> None:
+    """The exact-variance rows of the paper's table: L = 7 and 3 against ``rev`` (matrix powers per N), L = 1 alone
+    (at ``rev`` it did not finish in 15 minutes)."""
+    old = revision(rev)
+    for level in (7, 3):
+        jobs = [(params(level, 105), PAPER_N)]
+        (t_old, v_old), (t_new, v_new) = timed(old, jobs, exact=True), timed(current, jobs, exact=True)
+        worst = max(abs(a - b) for a, b in zip(v_old, v_new))
+        print(f"exact, L = {level}: {rev} {t_old:.1f} s, current {t_new:.1f} s ({t_old / t_new:.1f}x), "
+              f"rows differ by at most {worst:.1e} dB")
+    seconds, values = timed(current, [(params(1, 105), PAPER_N)], exact=True)
+    print(f"exact, L = 1: current {seconds:.0f} s, {' '.join(f'{v:.2f}' for v in values)} dB")
+
+
 if __name__ == "__main__":
     command, *args = sys.argv[1:] or ["compare"]
-    {"compare": compare, "scaling": scaling}[command](*args)
+    {"compare": compare, "scaling": scaling, "exact": exact}[command](*args)
