@@ -321,7 +321,9 @@ def test_the_two_exact_ways_agree_on_a_noisy_sensor(single_blas_thread):
     """The renewal and the binary powers, on every threshold and dark value of a noisy L = 1 sensor, dark to
     saturated, at four sums at once: to 1e-9 of N Var(S), or to the rounding of a lag sum of n^2 / 2 terms of size up to
     1 (which both share, and which is all there is of Var(S_N) where the pixel fires in nearly every interval)."""
-    from rmbvideo.sensor.theory import _conditional, _PoissonTables, _power_sums, _renewal_sums, dark_law
+    from rmbvideo.sensor.lag_sums import _power_sums, _renewal_sums
+    from rmbvideo.sensor.poisson_tables import PoissonTables
+    from rmbvideo.sensor.theory import _conditional, dark_law
 
     params = replace(SensorParams(level=1), voltage=40.0 / SensorParams().capacitance)
     lam = np.logspace(-4, 3, 8)
@@ -330,7 +332,7 @@ def test_the_two_exact_ways_agree_on_a_noisy_sensor(single_blas_thread):
     law = spike_law(lam, params)
     horizons = (2, 10, 1000, 20000)
     for k in dark_law(params).values:
-        tab = _PoissonTables(lam, int(qlaw.values.max()) + 2)
+        tab = PoissonTables(lam, int(qlaw.values.max()) + 2)
         means = _conditional(lam, qlaw.values, int(k), 1)[1]        # each threshold's own mean readout
         a = _renewal_sums(tab, slice(0, lam.size), int(k), qlaw.values, t1s, 1, horizons, means)
         b = _power_sums(tab, slice(0, lam.size), int(k), qlaw.values, t1s, 1, horizons, means)

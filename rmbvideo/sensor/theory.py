@@ -25,10 +25,14 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import signal, special, stats
+from scipy import special
 
+from rmbvideo.sensor.lag_sums import covariance_method, covariance_sums
 from rmbvideo.sensor.params import SensorParams
+from rmbvideo.sensor.poisson_tables import PoissonTables, level_thresholds
 
+# matrix-product multiply-adds a second of the exact variance on one core (the default L = 1 table: 282 s measured)
+_EXACT_RATE = 4.1e9
 # probability mass below which a threshold/dark value is dropped (the rest is renormalised)
 _TAIL_MASS = 1e-12
 # nodes of the quadrature over the capacitance deviation C^S (supplement Eqn. 26)
@@ -121,32 +125,6 @@ def _fold_and_trim(values: np.ndarray, probs: np.ndarray, floor: int) -> Discret
     return DiscreteLaw(values.astype(np.int64), probs / probs.sum())
 
 
-def level_thresholds(q_th: int, level: int) -> np.ndarray:
-    """Charges T_H = ceil(H*Q'/L), H = 1..L, at which level H is reached (Eqn. 2, integer charge)."""
-    h = np.arange(1, level + 1, dtype=np.int64)
-    return np.maximum(-((-h * q_th) // level), 1)
-
-
-class _PoissonTables:
-    """Poisson(lam) pmf, cdf P(Y<=j) and sf P(Y>j) for j = 0..jmax, from log-space scipy calls."""
-
-    def __init__(self, lam: np.ndarray, jmax: int) -> None:
-        j = np.arange(jmax + 1)[None, :]
-        lam2 = lam[:, None]
-        self.pmf = np.exp(stats.poisson.logpmf(j, lam2))
-        self.cdf = np.exp(stats.poisson.logcdf(j, lam2))
-        self.sf = np.exp(stats.poisson.logsf(j, lam2))
-        self.lam, self.jmax = lam, jmax
-
-    def take(self, table: str, j: np.ndarray, below: float) -> np.ndarray:
-        """Table values at integer indices ``j <= jmax`` (any shape); ``below`` where j < 0."""
-        arr = getattr(self, table)
-        jj = np.clip(j, 0, self.jmax)
-        out = arr[:, jj]
-        out = np.where(j < 0, below, out)
-        return out
-
-
 def _green(q: np.ndarray, dq: np.ndarray, one_minus_q0: np.ndarray, size: int
            ) -> tuple[np.ndarray, np.ndarray]:
     """Expected visits g_c of carried charge c (c < size) per cycle started at 0, and d g_c/d lam.
@@ -178,7 +156,7 @@ def _conditional(lam: np.ndarray, q_values: np.ndarray, k: int, level: int
     """
     t1_max = int(max(level_thresholds(int(q), level)[0] for q in q_values))
     q_max = int(q_values.max())
-    tab = _PoissonTables(lam, q_max + 2)
+    tab = PoissonTables(lam, q_max + 2)
     n = lam.size
     # increments X = k + Y: q_j = P(X=j), dq_j = d/dlam P(X=j) = pmf_Y(j-k-1) - pmf_Y(j-k)
     j = np.arange(t1_max + 1)
@@ -299,47 +277,6 @@ def _between_pixel_var(law: SpikeLaw, parts: list) -> np.ndarray:
     return out
 
 
-def _covariance_sums(lam: np.ndarray, k: int, q_values: np.ndarray, level: int, horizons: tuple[int, ...],
-                     means: np.ndarray) -> np.ndarray:
-    """(horizons, thresholds Q', exposures): sum_{j=1}^{n-1} (n-j) Cov(S_0, S_j) of the stationary chain, each n.
-
-    After any spike the charge is zero, so Cov(S_0, S_j) = mu * (e_0 P^{j-1} r - mu) with r(c) the expected readout
-    from charge c (supplement Sec. 8). Two exact ways to the sum, the cheaper one taken: binary powers of P (T_1^3 a
-    squaring, ~log2 n squarings an n; ``_power_sums``) or one renewal pass serving every n (T_1 a jump, up to the
-    largest n; ``_renewal_sums``). Exposures go in batches that hold ``_CHAIN_BYTES`` of chain matrices.
-    """
-    out = np.zeros((len(horizons), q_values.size, lam.size))
-    if max(horizons) <= 1:
-        return out
-    t1s = np.array([int(level_thresholds(int(q), level)[0]) for q in q_values])
-    t_max = int(t1s.max())
-    tab = _PoissonTables(lam, int(q_values.max()) + 2)
-    renewal, _ = _covariance_method(t_max, horizons)
-    copies = 2 if renewal else max(horizons).bit_length() + 2   # the visits and a Toeplitz, or P^(2^l) for each l
-    chunk = max(1, _CHAIN_BYTES // (8 * copies * t_max ** 2))
-    for lo in range(0, lam.size, chunk):
-        part = slice(lo, min(lo + chunk, lam.size))
-        sums = _renewal_sums if renewal else _power_sums
-        out[:, :, part] = sums(tab, part, k, q_values, t1s, level, horizons, means[:, part])
-    return out
-
-
-# memory for the chain matrices of one batch of exposures (T_1^2 floats an exposure, a few of them)
-_CHAIN_BYTES = 64 << 20
-# one multiply-add of the renewal's filter costs about this many of a matrix product's (one core: the renewal is the
-# faster at L = 1 (T_1 ~ 105; 4.5 vs 5.6 minutes for the default table), the powers at L = 3 (T_1 ~ 35))
-_FILTER_COST = 4.0
-# matrix-product multiply-adds a second of the exact variance on one core (the default L = 1 table: 282 s measured)
-_EXACT_RATE = 4.1e9
-
-
-def _covariance_method(t_max: int, horizons: tuple[int, ...]) -> tuple[bool, float]:
-    """(renewal is the cheaper, its work) for one threshold and exposure, in a matrix product's multiply-adds."""
-    powers = max(horizons).bit_length() * t_max ** 3 + 4 * sum(math.log2(n) for n in horizons) * t_max ** 2
-    renewal = _FILTER_COST * t_max * max(horizons) + t_max ** 2
-    return renewal < powers, min(renewal, powers)
-
-
 def exact_variance_seconds(params: SensorParams, n_values: list[int], search: "RangeSearch | None" = None) -> float:
     """About how long ``dynamic_range(..., exact=True)`` takes on one core, estimated before any work.
 
@@ -351,149 +288,8 @@ def exact_variance_seconds(params: SensorParams, n_values: list[int], search: "R
     qlaw, dlaw = threshold_law(params), dark_law(params)
     exposures = 1.5 * (round(math.log10(search.lam_hi / search.lam_lo) * search.per_decade) + 1)
     horizons = tuple(n_values)
-    work = sum(_covariance_method(int(level_thresholds(int(q), params.level)[0]), horizons)[1] for q in qlaw.values)
+    work = sum(covariance_method(int(level_thresholds(int(q), params.level)[0]), horizons)[1] for q in qlaw.values)
     return exposures * dlaw.values.size * work / _EXACT_RATE
-
-
-def _power_sums(tab: _PoissonTables, part: slice, k: int, q_values: np.ndarray, t1s: np.ndarray, level: int,
-                horizons: tuple[int, ...], means: np.ndarray) -> np.ndarray:
-    """``_covariance_sums`` for the exposures ``part`` by binary powers of P, shared by every n and every threshold
-    with the same T_1: W_m v = sum_{i<m} (m - i) P^i v is built from segments of length 2^l (U_a + P^a U_b and
-    W_a + b U_a + P^a W_b join two), so only the squarings are matrix products."""
-    lags = [n - 1 for n in horizons]
-    top = max(lags).bit_length()
-    out = np.zeros((len(horizons), q_values.size, part.stop - part.start))
-
-    def apply(matrix: np.ndarray, vec: np.ndarray) -> np.ndarray:
-        return np.einsum("nij,nj->ni", matrix, vec)
-
-    for t1 in np.unique(t1s):
-        c = np.arange(int(t1))
-        chain = np.where(c[None, :] >= c[:, None] + k,
-                         tab.pmf[part][:, np.clip(c[None, :] - c[:, None] - k, 0, tab.jmax)], 0.0)
-        chain[:, :, 0] += _at_least(tab, part, t1 - c - k)   # c -> c + X, or a firing and the reset to 0
-        powers = [chain]                                        # P^(2^l)
-        for _ in range(1, top):
-            powers.append(powers[-1] @ powers[-1])
-        for i in np.flatnonzero(t1s == t1):
-            th = level_thresholds(int(q_values[i]), level)
-            vec = _at_least(tab, part, th[:, None] - c[None, :] - k).sum(axis=1) - means[i][:, None]
-            seg_u, seg_w = [vec], [vec]                         # U and W of length 2^l
-            for lvl in range(1, top):
-                size, p_a = 1 << (lvl - 1), powers[lvl - 1]
-                seg_w.append(seg_w[-1] + size * seg_u[-1] + apply(p_a, seg_w[-1]))
-                seg_u.append(seg_u[-1] + apply(p_a, seg_u[-1]))
-            for h, m in enumerate(lags):
-                if m < 1:
-                    continue
-                u, w, done = np.zeros_like(vec), np.zeros_like(vec), 0
-                for lvl in range(top):
-                    if m >> lvl & 1:
-                        w = seg_w[lvl] + done * seg_u[lvl] + apply(powers[lvl], w)
-                        u = seg_u[lvl] + apply(powers[lvl], u)
-                        done += 1 << lvl
-                out[h, i] = means[i] * w[:, 0]
-    return out
-
-
-def _renewal_sums(tab: _PoissonTables, part: slice, k: int, q_values: np.ndarray, t1s: np.ndarray, level: int,
-                  horizons: tuple[int, ...], means: np.ndarray) -> np.ndarray:
-    """``_covariance_sums`` for the exposures ``part`` by a renewal equation over the jumps of the charge.
-
-    An interval moves the charge with probability p = P(X >= 1) whatever the charge, so P = (1 - p) I + p J, with J
-    the chain of the jumps alone, and P^m is a binomial mixture of the powers of J. A cycle of J (0 back to 0) takes
-    at most T_1 jumps, so e_0 J^j r obeys a renewal equation of order T_1, solved once up to the largest n.
-    """
-    lam = tab.lam[part]
-    moves = -np.expm1(-lam) if k == 0 else np.ones(lam.size)       # p = P(X >= 1)
-    n_lam, t_max = moves.size, int(t1s.max())
-    weights = [_binomial_lag_weights(moves, n - 2) for n in horizons]
-    span = max(w.shape[1] for w in weights)
-    spans = np.max([w.shape[1] - np.argmax(w[:, ::-1] > 0, axis=1) for w in weights], axis=0)  # each exposure's own
-    jumps = min(t_max, span)                           # only the first ``span`` jumps enter any lag sum
-    # the jump law P(X = j | X >= 1), j < T_1max, and visits[:, t, c] = P(charge c after t jumps, no firing yet)
-    # (the largest threshold's serve every smaller one: charges below T_1 are reached only from below T_1)
-    jump = np.arange(t_max)
-    step = np.where((jump >= 1) & (jump >= k), tab.pmf[part][:, np.clip(jump - k, 0, tab.jmax)], 0.0)
-    step /= moves[:, None]
-    toeplitz = np.zeros((n_lam, t_max, t_max))
-    for c in range(t_max):
-        toeplitz[:, c, c:] = step[:, : t_max - c]
-    visits = np.zeros((n_lam, jumps, t_max))
-    visits[:, 0, 0] = 1.0
-    for t in range(1, jumps):
-        visits[:, t] = np.matmul(visits[:, t - 1, None, :], toeplitz)[:, 0]
-    del toeplitz
-    out = np.zeros((len(horizons), q_values.size, n_lam))
-    for i, q in enumerate(q_values):
-        th = level_thresholds(int(q), level)
-        t1 = int(t1s[i])
-        c = np.arange(t1)
-        fire_from = _at_least(tab, part, t1 - c - k) / moves[:, None]                   # P(c + X >= T_1 | X >= 1)
-        reward = _at_least(tab, part, th[:, None] - c[None, :] - k).sum(axis=1) / moves[:, None]  # E(S | c, X >= 1)
-        reach = visits[:, :t1, :t1]
-        fire = np.einsum("ntc,nc->nt", reach, fire_from)              # first firing at jump t + 1
-        gain = np.einsum("ntc,nc->nt", reach, reward)                 # y_j: its readout, if at jump j + 1
-        waiting = np.cumsum(fire[:, ::-1], axis=1)[:, ::-1]           # P(no firing in the first j jumps), when whole
-        if jumps >= t1:   # the whole cycle is here: its own mean readout a jump, so that d decays to 0, not to rounding
-            rate = gain.sum(axis=1) / waiting.sum(axis=1)
-        else:
-            rate = means[i] / moves
-            waiting = 1.0 - np.cumsum(np.concatenate((np.zeros((n_lam, 1)), fire[:, :-1]), axis=1), axis=1)
-        excess = np.zeros((n_lam, max(span, t1)))
-        excess[:, : fire.shape[1]] = gain - rate[:, None] * waiting
-        dev = np.zeros_like(excess)
-        for r in range(n_lam):
-            # d_j = e_j + sum_t f_t d_{j-t}, with e_j = y_j - mu/p P(tau > j): d_j = e_0 J^j r - mu/p
-            dev[r, : spans[r]] = _renewal(fire[r], excess[r, : spans[r]])
-        for h, w in enumerate(weights):
-            out[h, i] = means[i] * moves * np.einsum("nj,nj->n", w, dev[:, : w.shape[1]])
-    return out
-
-
-def _renewal(fire: np.ndarray, excess: np.ndarray) -> np.ndarray:
-    """d_j = e_j + sum_{t=1}^{T} f_t d_{j-t}, j = 0..len(e)-1, a filter run in stretches of doubling length.
-
-    Past the first T jumps e = 0 and d_j is an average of the T values before it (sum f = 1), so once T in a row
-    are below ``tol`` every later one is, and the rest are left zero (their share of any lag sum is below tol * sum K).
-    """
-    order = fire.size
-    denom = np.concatenate(([1.0], -fire))
-    tol = 1e-18 * float(np.abs(excess[:order]).max(initial=0.0))
-    out = np.zeros(excess.size)
-    state = np.zeros(order)
-    pos, stretch = 0, max(4 * order, 256)
-    while pos < excess.size:
-        end = min(excess.size, pos + stretch)
-        out[pos:end], state = signal.lfilter([1.0], denom, excess[pos:end], zi=state)
-        pos, stretch = end, 2 * stretch
-        if pos >= order and float(np.abs(out[pos - order: pos]).max()) <= tol:
-            break
-    return out
-
-
-def _at_least(tab: _PoissonTables, part: slice, need: np.ndarray) -> np.ndarray:
-    """P(Y >= need) at the exposures ``part`` (1 where need <= 0), for any shape of ``need`` after theirs."""
-    out = tab.sf[part][:, np.clip(need - 1, 0, tab.jmax)]
-    return np.where(need <= 0, 1.0, out)
-
-
-def _binomial_lag_weights(moves: np.ndarray, horizon: int) -> np.ndarray:
-    """K_j = sum_{m=j}^{M} (M + 1 - m) P(Bin(m, p) = j), j = 0.., the weight of jump count j in the lag sum up to M.
-
-    With T the trial of the (j+1)-th success, K_j = ((M + 2) P(T <= M + 1) - E[T; T <= M + 1]) / p, two binomial
-    tails; weights below 1e-30 of K_0 are zero, and the columns past every exposure's last weight are dropped.
-    """
-    if horizon < 0:
-        return np.zeros((moves.size, 1))
-    j = np.arange(horizon + 1)[None, :]
-    p = moves[:, None]
-    first = special.bdtrc(j, horizon + 1, p)          # P(Bin(M + 1, p) >= j + 1)
-    second = special.bdtrc(j + 1, horizon + 2, p)     # P(Bin(M + 2, p) >= j + 2)
-    weights = np.maximum(((horizon + 2) * first - (j + 1) / p * second) / p, 0.0)
-    weights = np.where(p >= 1.0, (horizon + 1 - j).astype(float), weights)
-    weights = np.where(weights > 1e-30 * weights[:, :1], weights, 0.0)
-    return weights[:, : int(np.flatnonzero(weights.any(axis=0))[-1]) + 1]
 
 
 def sum_moments(lam: np.ndarray, n: int, params: SensorParams, exact: bool = True
@@ -519,7 +315,7 @@ def _exact_variances(law: SpikeLaw, parts: list, horizons: tuple[int, ...], para
     qlaw = threshold_law(params)
     cov = np.zeros((len(horizons), law.lam.size))
     for k, wts, m_c, _ in parts:
-        cov += np.einsum("q,hqn->hn", wts, _covariance_sums(law.lam, k, qlaw.values, params.level, horizons, m_c))
+        cov += np.einsum("q,hqn->hn", wts, covariance_sums(law.lam, k, qlaw.values, params.level, horizons, m_c))
     var = np.array(horizons, dtype=float)[:, None] * law.var[None, :] + 2.0 * cov
     return np.clip(var, 0.0, None)
 
