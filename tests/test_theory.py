@@ -332,7 +332,7 @@ def test_the_two_exact_ways_agree_on_a_noisy_sensor(single_blas_thread):
     law = spike_law(lam, params)
     horizons = (2, 10, 1000, 20000)
     for k in dark_law(params).values:
-        tab = PoissonTables(lam, int(qlaw.values.max()) + 2)
+        tab = PoissonTables(lam, int(qlaw.values.max()) + 2, pad=int(k) + 2)
         means = _conditional(lam, qlaw.values, int(k), 1)[1]        # each threshold's own mean readout
         a = _renewal_sums(tab, slice(0, lam.size), int(k), qlaw.values, t1s, 1, horizons, means)
         b = _power_sums(tab, slice(0, lam.size), int(k), qlaw.values, t1s, 1, horizons, means)

@@ -29,7 +29,7 @@ def covariance_sums(lam: np.ndarray, k: int, q_values: np.ndarray, level: int, h
         return out
     t1s = np.array([int(level_thresholds(int(q), level)[0]) for q in q_values])
     t_max = int(t1s.max())
-    tab = PoissonTables(lam, int(q_values.max()) + 2)
+    tab = PoissonTables(lam, int(q_values.max()) + 2, pad=k + 2)
     renewal, _ = covariance_method(t_max, horizons)
     copies = 2 if renewal else max(horizons).bit_length() + 2   # the visits and a Toeplitz, or P^(2^l) for each l
     chunk = max(1, _CHAIN_BYTES // (8 * copies * t_max ** 2))
@@ -68,8 +68,7 @@ def _power_sums(tab: PoissonTables, part: slice, k: int, q_values: np.ndarray, t
 
     for t1 in np.unique(t1s):
         c = np.arange(int(t1))
-        chain = np.where(c[None, :] >= c[:, None] + k,
-                         tab.pmf[part][:, np.clip(c[None, :] - c[:, None] - k, 0, tab.jmax)], 0.0)
+        chain = tab.take("pmf", np.maximum(c[None, :] - c[:, None] - k, -1), part)   # c -> c + X (pmf 0 below 0)
         chain[:, :, 0] += at_least(tab, part, t1 - c - k)   # c -> c + X, or a firing and the reset to 0
         powers = [chain]                                        # P^(2^l)
         for _ in range(1, top):
@@ -113,7 +112,7 @@ def _renewal_sums(tab: PoissonTables, part: slice, k: int, q_values: np.ndarray,
     # the jump law P(X = j | X >= 1), j < T_1max, and visits[:, t, c] = P(charge c after t jumps, no firing yet)
     # (the largest threshold's serve every smaller one: charges below T_1 are reached only from below T_1)
     jump = np.arange(t_max)
-    step = np.where((jump >= 1) & (jump >= k), tab.pmf[part][:, np.clip(jump - k, 0, tab.jmax)], 0.0)
+    step = np.where(jump >= 1, tab.take("pmf", np.maximum(jump - k, -1), part), 0.0)
     step /= moves[:, None]
     toeplitz = np.zeros((n_lam, t_max, t_max))
     for c in range(t_max):

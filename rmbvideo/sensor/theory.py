@@ -25,7 +25,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import special
+from scipy import signal, special
 
 from rmbvideo.sensor.lag_sums import covariance_method, covariance_sums
 from rmbvideo.sensor.params import SensorParams
@@ -130,21 +130,18 @@ def _green(q: np.ndarray, dq: np.ndarray, one_minus_q0: np.ndarray, size: int
     """Expected visits g_c of carried charge c (c < size) per cycle started at 0, and d g_c/d lam.
 
     Forward substitution of g (I - U) = e_0 for the upper-triangular Toeplitz transient matrix U
-    (U[c, d] = q[d - c]); all terms of g are non-negative, so it is free of cancellation.
+    (U[c, d] = q[d - c]), a recursive filter an exposure: all terms of g are non-negative, so it is free of
+    cancellation; d g solves the same system with g dU on the right.
     """
     n = q.shape[0]
     g = np.zeros((n, size))
     dg = np.zeros((n, size))
-    for c in range(size):
-        acc = np.full(n, 1.0 if c == 0 else 0.0)
-        dacc = np.zeros(n)
-        if c > 0:
-            qs = q[:, c:0:-1]          # q[c-d] for d = 0..c-1
-            dqs = dq[:, c:0:-1]
-            acc += np.einsum("nd,nd->n", g[:, :c], qs)
-            dacc += np.einsum("nd,nd->n", dg[:, :c], qs) + np.einsum("nd,nd->n", g[:, :c], dqs)
-        g[:, c] = acc / one_minus_q0
-        dg[:, c] = (dacc + g[:, c] * dq[:, 0]) / one_minus_q0
+    impulse = np.zeros(size)
+    impulse[0] = 1.0
+    for r in range(n):
+        denom = np.concatenate(([one_minus_q0[r]], -q[r, 1:size]))
+        g[r] = signal.lfilter([1.0], denom, impulse)
+        dg[r] = signal.lfilter([1.0], denom, np.convolve(g[r], dq[r, :size])[:size])
     return g, dg
 
 
@@ -156,12 +153,12 @@ def _conditional(lam: np.ndarray, q_values: np.ndarray, k: int, level: int
     """
     t1_max = int(max(level_thresholds(int(q), level)[0] for q in q_values))
     q_max = int(q_values.max())
-    tab = PoissonTables(lam, q_max + 2)
+    tab = PoissonTables(lam, q_max + 2, pad=k + 2)
     n = lam.size
     # increments X = k + Y: q_j = P(X=j), dq_j = d/dlam P(X=j) = pmf_Y(j-k-1) - pmf_Y(j-k)
     j = np.arange(t1_max + 1)
-    qx = tab.take("pmf", j - k, 0.0)
-    dqx = tab.take("pmf", j - k - 1, 0.0) - qx
+    qx = tab.take("pmf", j - k)
+    dqx = tab.take("pmf", j - k - 1) - qx
     if k == 0:
         one_minus_q0 = -np.expm1(-lam)
     else:
@@ -188,14 +185,14 @@ def _conditional(lam: np.ndarray, q_values: np.ndarray, k: int, level: int
         counts = np.ones((n, level))
         dcounts = np.zeros((n, level))
         if level > 1:
-            reach = tab.take("sf", need[1:] - 1, 1.0)      # (n, L - 1, t1)
-            dreach = tab.take("pmf", need[1:] - 1, 0.0)
+            reach = tab.take("sf", need[1:] - 1)           # (n, L - 1, t1)
+            dreach = tab.take("pmf", need[1:] - 1)
             counts[:, 1:] = np.einsum("nc,nhc->nh", gc, reach)
             dcounts[:, 1:] = np.einsum("nc,nhc->nh", dgc, reach) + np.einsum("nc,nhc->nh", gc, dreach)
         p_ge = counts / cycle[:, None]                 # P(S >= h), h = 1..L
         dmean[i] = (dcounts.sum(axis=1) - counts.sum(axis=1) * dcycle / cycle) / cycle
         # non-negative per-level probabilities
-        below = tab.take("cdf", need[0] - 1, 0.0)      # P(X < T_1 - c): no firing
+        below = tab.run("cdf", t1 - k - 1, t1)         # P(X < T_1 - c): no firing
         pmf[i, :, 0] = np.einsum("nc,nc->n", gc, below) / cycle
         pmf[i, :, level] = p_ge[:, -1]
         for h in range(1, level):
@@ -204,10 +201,10 @@ def _conditional(lam: np.ndarray, q_values: np.ndarray, k: int, level: int
             # P(need_h-1 <= X - k < need_h) from the nearer tail: cdf(hi) - cdf(lo) where cdf(hi) <= 1/2, else
             # sf(lo) - sf(hi), so neither difference loses the small ones (the sum of the pmf over the range,
             # width T_{h+1} - T_h terms a pixel, costs that factor more)
-            lo, hi = need[h - 1] - 1, need[h] - 1
-            cdf_hi = tab.take("cdf", hi, 0.0)
-            terms = np.where(cdf_hi <= 0.5, cdf_hi - tab.take("cdf", lo, 0.0),
-                             tab.take("sf", lo, 1.0) - tab.take("sf", hi, 1.0))
+            lo, hi = int(th[h - 1]) - k - 1, int(th[h]) - k - 1      # need_h - 1 at c = 0, then one less a charge
+            cdf_hi = tab.run("cdf", hi, t1)
+            terms = np.where(cdf_hi <= 0.5, cdf_hi - tab.run("cdf", lo, t1),
+                             tab.run("sf", lo, t1) - tab.run("sf", hi, t1))
             pmf[i, :, h] = np.einsum("nc,nc->n", gc, np.maximum(terms, 0.0)) / cycle
         mean[i] = p_ge.sum(axis=1)
         deficit[i] = pmf[i] @ (level - hs)
