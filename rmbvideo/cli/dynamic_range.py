@@ -18,8 +18,8 @@ from rmbvideo.errors import InputError
 from rmbvideo.sensor.params import SensorParams
 
 #: The largest nominal threshold (electrons) the exact law is computed for: its tables and the loops over the
-#: threshold's values both grow with Q_r (on one core: the default table 3.3-3.6 s at 105; a level 20-45 s at 800,
-#: 3-5 minutes at 2,000; 1e9 was killed for memory; ``models/experiments/dynamic-range-speed/measure.py scaling``).
+#: threshold's values both grow with Q_r (on one core: the default table 1.5 s at 105; a level 12-18 s at 800,
+#: 75-132 s at 2,000; 1e9 was killed for memory; ``models/experiments/dynamic-range-speed/measure.py scaling``).
 MAX_Q_R = 10_000.0
 #: The longest exact-variance table computed (estimated before any work by ``exact_variance_seconds``: the default
 #: L = 1 row 4.7 minutes on one core; L = 1 at Q_r = 400, about 68, is refused in one line).
@@ -46,8 +46,8 @@ def _int_list(ctx: click.Context, param: click.Parameter, value: str) -> list[in
               callback=_int_list, help="Numbers of summed readouts N, comma separated.")
 @click.option("--q-r", type=click.FloatRange(min=1.0, max=MAX_Q_R), default=None,
               help="Nominal threshold Q_r = C*V in electrons (C kept, V = Q_r/C) [default: 105]. The exact law's work "
-                   f"grows about as Q_r^2 (the default table takes seconds at 105; a level 20-45 s at 800, 3-5 "
-                   f"minutes at 2,000), so at most {MAX_Q_R:g}.")
+                   f"grows about as Q_r^2 (the default table takes seconds at 105; a level 12-18 s at 800, 75-132 "
+                   f"s at 2,000), so at most {MAX_Q_R:g}.")
 @click.option("--dark-mean", type=click.FloatRange(min=0.0), default=None,
               help="Mean dark electrons per readout mu_d [default: 0.05].")
 @click.option("--noise-var", type=click.FloatRange(min=0.0), default=None,
