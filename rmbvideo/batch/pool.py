@@ -36,6 +36,11 @@ log = logging.getLogger(__name__)
 DASK_POLL_S, DASK_NO_WORKER_S = 2.0, 60.0
 #: After a stop, the captures in flight have this long to remove their partial output before their workers are killed.
 WORKER_CLEANUP_S = 30.0
+#: How often the batch looks up from waiting on its workers: a signal the kernel hands to one of its other threads
+#: (the pool's) runs its handler only once the main thread is back in Python, so an untimed wait heard a Ctrl-C only
+#: when a capture finished, and never while the workers were stuck.
+WAKE_S = 0.2
+
 
 def default_workers() -> int:
     """One worker process per core available to this process."""
@@ -207,7 +212,7 @@ def _run_in_processes(jobs: Sequence[CaptureJob], workers: int,
                             break
                         i = pending.popleft()
                         running[pool.submit(run_in_worker, jobs[i])] = i
-                    done, _ = wait(running, return_when=FIRST_COMPLETED)
+                    done, _ = wait(running, timeout=WAKE_S, return_when=FIRST_COMPLETED)
                     for future in done:
                         i = running.pop(future)
                         try:
