@@ -4,6 +4,7 @@ need it skip cleanly where it is absent (as on a user's machine)."""
 from __future__ import annotations
 
 import os
+import signal
 from pathlib import Path
 
 import pytest
@@ -26,6 +27,14 @@ def shared_data() -> Path:
 def startup_env() -> dict[str, str]:
     """A copy of the environment as it was when the test session started."""
     return dict(STARTUP_ENV)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Ctrl-C as on a terminal: a shell starts a background job (``pytest ... &``) with SIGINT ignored, which Python
+    keeps and children inherit, and the tests that stop a run with Ctrl-C then waited for a stop that never came (the
+    frozen-worker batch test hung the suite; a training run timed out)."""
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
