@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from rmbvideo.sensor.params import SensorParams
-from rmbvideo.sensor.theory import snr, spike_law
+from rmbvideo.sensor.theory import snr, snr_curves, spike_law
 
 
 def _figure_module():
@@ -58,8 +58,7 @@ def snr_figure(params: SensorParams, levels: tuple[int, ...] = (1, 3, 7),
         curve = snr(lam, n_fixed, replace(params, level=level), exact=exact)
         top = max(top, float(curve.max()))
         ax_l.plot(lam, curve, label=f"L = {level}")
-    for n in n_values:
-        curve = snr(lam, n, replace(params, level=level_fixed), exact=exact)
+    for n, curve in zip(n_values, snr_curves(lam, tuple(n_values), replace(params, level=level_fixed), exact=exact)):
         top = max(top, float(curve.max()))
         ax_n.plot(lam, curve, label=f"N = {n}")
     ax_l.set_title(f"(a) N = {n_fixed}")
