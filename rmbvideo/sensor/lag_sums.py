@@ -43,7 +43,7 @@ def covariance_sums(lam: np.ndarray, k: int, q_values: np.ndarray, level: int, h
 # memory for the chain matrices of one batch of exposures (T_1^2 floats an exposure, a few of them)
 _CHAIN_BYTES = 64 << 20
 # one multiply-add of the renewal's filter costs about this many of a matrix product's (one core: the renewal is the
-# faster at L = 1 (T_1 ~ 105; 4.5 vs 5.6 minutes for the default table), the powers at L = 3 (T_1 ~ 35))
+# faster at L = 1 (T_1 ~ 105; 4.7 vs 5.6 minutes for the default table), the powers at L = 3 (T_1 ~ 35))
 _FILTER_COST = 4.0
 
 
@@ -57,8 +57,8 @@ def covariance_method(t_max: int, horizons: tuple[int, ...]) -> tuple[bool, floa
 def _power_sums(tab: PoissonTables, part: slice, k: int, q_values: np.ndarray, t1s: np.ndarray, level: int,
                 horizons: tuple[int, ...], means: np.ndarray) -> np.ndarray:
     """``covariance_sums`` for the exposures ``part`` by binary powers of P, shared by every n and every threshold
-    with the same T_1: W_m v = sum_{i<m} (m - i) P^i v is built from segments of length 2^l (U_a + P^a U_b and
-    W_a + b U_a + P^a W_b join two), so only the squarings are matrix products."""
+    with the same T_1: W_m v = sum_{i<m} (m - i) P^i v is built from segments of length 2^l, with U_a = sum_{i<a} P^i v
+    (a segment a put before a sum b: W_{a+b} = W_a + b U_a + P^a W_b), so only the squarings are matrix products."""
     lags = [n - 1 for n in horizons]
     top = max(lags).bit_length()
     out = np.zeros((len(horizons), q_values.size, part.stop - part.start))
@@ -84,11 +84,10 @@ def _power_sums(tab: PoissonTables, part: slice, k: int, q_values: np.ndarray, t
             for h, m in enumerate(lags):
                 if m < 1:
                     continue
-                u, w, done = np.zeros_like(vec), np.zeros_like(vec), 0
+                w, done = np.zeros_like(vec), 0
                 for lvl in range(top):
                     if m >> lvl & 1:
                         w = seg_w[lvl] + done * seg_u[lvl] + apply(powers[lvl], w)
-                        u = seg_u[lvl] + apply(powers[lvl], u)
                         done += 1 << lvl
                 out[h, i] = means[i] * w[:, 0]
     return out

@@ -274,7 +274,7 @@ def _between_pixel_var(law: SpikeLaw, parts: list) -> np.ndarray:
     return out
 
 
-def exact_variance_seconds(params: SensorParams, n_values: list[int], search: "RangeSearch | None" = None) -> float:
+def exact_variance_seconds(params: SensorParams, n_values: list[int], search: RangeSearch | None = None) -> float:
     """About how long ``dynamic_range(..., exact=True)`` takes on one core, estimated before any work.
 
     Every threshold and dark value is a row at each exposure the search visits (its grid and about half as many
