@@ -14,7 +14,7 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "rmbvideo"
 #: lower layers first; a package may import only packages at its own position or before it.
-LAYERS = ["errors", "chunks", "image_pool", "mulaw", "threads", "allocator", "sensor", "io", "scenes", "net", "recon", "simulate", "evaluate", "train",
+LAYERS = ["errors", "shipped", "chunks", "image_pool", "mulaw", "threads", "allocator", "sensor", "io", "scenes", "net", "recon", "simulate", "evaluate", "train",
           "bench", "batch", "cli"]
 
 
@@ -70,6 +70,25 @@ def test_help_and_info_import_neither_torch_scipy_nor_opencv(tmp_path):
     for args in (["--help"], ["info", str(capture), "--width", "16", "--height", "16"]):
         heavy = _modules_loaded(*args) & {"torch", "scipy", "cv2"}
         assert not heavy, (args, heavy)
+
+
+def test_a_raw_classical_run_and_a_refused_run_never_load_torch(tmp_path):
+    """TFP and TFI on the raw planes need no network, and a run refused for its input fails before any network is
+    loaded: importing torch alone takes a second or more, which such a run would spend waiting."""
+    from rmbvideo.io.dat import DatGeometry, write_dat
+    import numpy as np
+
+    capture = tmp_path / "c.dat"
+    write_dat(capture, (np.random.default_rng(0).random((80, 16, 16)) < 0.3).astype(np.uint8), DatGeometry(16, 16))
+    geometry = ["--width", "16", "--height", "16", "--quiet"]
+    for method in ("tfp", "tfi"):
+        out = tmp_path / method
+        assert "torch" not in _modules_loaded("reconstruct", str(capture), "-o", str(out), "--method", method,
+                                              "--format", "png", *geometry)
+        assert len(list(out.glob("frame_*.png"))) == 4
+    (tmp_path / "c.capture.json").write_text('{"width": 0}')
+    assert "torch" not in _modules_loaded("reconstruct", str(capture), "-o", str(tmp_path / "refused"))
+    assert not (tmp_path / "refused").exists()
 
 
 def test_one_thread_policy(monkeypatch):

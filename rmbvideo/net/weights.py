@@ -29,6 +29,7 @@ from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.detail import DetailConfig, DetailNet
 from rmbvideo.net.model import RmbNet
 from rmbvideo.net.raw_gate import RawGate, RawGateConfig
+from rmbvideo.shipped import MODELS_DIR
 
 log = logging.getLogger(__name__)
 
@@ -43,8 +44,6 @@ _KINDS: dict[str, tuple[str, Any, Any]] = {
     RAW_GATE_CARD_FORMAT: ("a raw-gate model card", RawGateConfig, RawGate),
 }
 MAX_HEADER_BYTES = 100 * 1024 * 1024
-# Shipped weights: ``rmbvideo/models`` links to the repository's top-level ``models/`` folder.
-MODELS_DIR = Path(__file__).resolve().parents[1] / "models"
 DEFAULT_MODELS = {"binned": "rmbnet-binned", "native": "rmbnet-native"}
 #: The shipped detail stage of ``--resolution full`` (``rmbvideo.net.detail``).
 DEFAULT_DETAIL = "detail-binned"

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from rmbvideo import __version__
-from rmbvideo.net.weights import MODELS_DIR
+from rmbvideo.shipped import MODELS_DIR
 
 
 def run_fingerprint(input_path: Path, options: dict[str, Any], reader: Any) -> dict[str, Any]:

@@ -20,17 +20,18 @@ import os
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
-import torch
 from safetensors import SafetensorError, safe_open
-from safetensors.torch import save
 
 from rmbvideo.chunks import Frame
 from rmbvideo.errors import OptionError, OutputError
 from rmbvideo.io.atomic import atomic_write_bytes, atomic_write_text, output_error
 from rmbvideo.io.sinks import FrameSink, frame_file_name
 from rmbvideo.recon.fingerprint import fingerprint_digest
+
+if TYPE_CHECKING:  # torch itself is imported where a state is saved: a classical method's run never loads it
+    import torch
 
 #: Formats a run can be resumed in: one file a frame. A video stream cannot be continued where it was cut.
 RESUMABLE_FORMATS = ("exr", "png")
@@ -250,6 +251,8 @@ class ResumedSink:
         if snapshot is None or snapshot[0] <= self._saved:
             return
         after, tensors = snapshot
+        from safetensors.torch import save
+
         try:
             atomic_write_bytes(self._state_path, save(tensors, metadata={"after": str(after)}))
         except OSError as exc:
