@@ -137,6 +137,28 @@ def test_quiet_prints_nothing_and_verbose_works_after_the_subcommand(capture, tm
     assert typo.returncode == 2 and "Did you mean 'reconstruct'?" in typo.stderr
 
 
+def test_verbose_shows_rmbvideos_debug_messages_not_every_librarys():
+    """``-v`` is for rmbvideo's own debug lines: matplotlib's font search wrote hundreds into ``bench -v``."""
+    import logging
+
+    from rmbvideo.cli import configure_logging
+
+    root, ours = logging.getLogger(), logging.getLogger("rmbvideo")
+    saved = root.level, list(root.handlers), ours.level
+    try:
+        configure_logging(verbose=True)
+        assert logging.getLogger("rmbvideo.recon.run").isEnabledFor(logging.DEBUG)
+        assert not logging.getLogger("matplotlib.font_manager").isEnabledFor(logging.DEBUG)
+        assert logging.getLogger("distributed.scheduler").isEnabledFor(logging.INFO)
+        configure_logging()
+        assert not logging.getLogger("rmbvideo.recon.run").isEnabledFor(logging.DEBUG)
+        assert logging.getLogger("rmbvideo.recon.run").isEnabledFor(logging.INFO)
+    finally:
+        root.setLevel(saved[0])
+        root.handlers[:] = saved[1]
+        ours.setLevel(saved[2])
+
+
 def test_old_option_spellings_work_but_are_not_advertised():
     from click.testing import CliRunner
 

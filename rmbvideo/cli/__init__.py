@@ -189,9 +189,11 @@ class _TqdmHandler(logging.StreamHandler):
 
 
 def configure_logging(verbose: bool = False, quiet: bool = False) -> None:
-    """Log to stderr through tqdm: debug with ``verbose``, warnings only with ``quiet`` (and
-    OpenCV's own messages off), else info. Later calls (a subcommand's -v/-q) override earlier ones."""
-    level = logging.DEBUG if verbose else logging.WARNING if quiet else logging.INFO
+    """Log to stderr through tqdm: rmbvideo's debug messages with ``verbose`` (other libraries' stay at info:
+    matplotlib's font search alone wrote hundreds of debug lines into ``bench -v``), warnings only with ``quiet``
+    (and OpenCV's own messages off), else info. Later calls (a subcommand's -v/-q) override earlier ones."""
+    level = logging.INFO if verbose else logging.WARNING if quiet else logging.INFO
+    logging.getLogger("rmbvideo").setLevel(logging.DEBUG if verbose else logging.NOTSET)
     root = logging.getLogger()
     for handler in list(root.handlers):
         if isinstance(handler, _TqdmHandler):
