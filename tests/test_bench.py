@@ -135,7 +135,8 @@ def test_run_config_records_are_complete_and_finite(tmp_path):
 
 def test_a_rows_peak_memory_is_its_own_not_the_benchmark_processes(tmp_path):
     """Each row's peak is measured in a fresh process running it: memory this process holds (here 800 MB, as earlier
-    rows' high-water mark would be) is not in it, and an RMB-Net row reads its model, which a baseline's does not."""
+    rows' high-water mark would be) is not in it, and an RMB-Net row reads its model and torch, which a baseline's does
+    not load (nor does its ``reconstruct`` run): its peak is under half the network row's."""
     models = tmp_path / "models"
     (models / "ablations").mkdir(parents=True)
     save_model(models / "ablations" / "tiny-w1", RmbNet(RmbNetConfig(w=1, width=0.25)), ModelCard(name="tiny"))
@@ -145,7 +146,8 @@ def test_a_rows_peak_memory_is_its_own_not_the_benchmark_processes(tmp_path):
     net = run_config(rmbnet_config(w=1, width=0.25), sequences, tmp_path, models, runs=1)
     assert held.sum() == held.size
     for record in (tfw, net):
-        assert 30 < record.peak_rss_mib < 700 and 0 < record.peak_anon_mib <= record.peak_rss_mib
+        assert 20 < record.peak_rss_mib < 700 and 0 < record.peak_anon_mib <= record.peak_rss_mib
+    assert tfw.peak_rss_mib < 0.5 * net.peak_rss_mib, (tfw.peak_rss_mib, net.peak_rss_mib)
 
 
 def test_timing_runs_repeat_each_scene_and_count_its_frames_once(tmp_path):

@@ -24,10 +24,10 @@ from typing import Any
 
 import numpy as np
 
+from rmbvideo.bench.alone import CHUNK_PLANES, KeepFrames
 from rmbvideo.bench.configs import BenchConfig
 from rmbvideo.bench.memory import PeakMemory, child_peak_memory
 from rmbvideo.bench.models import ModelChoice, build_network, find_model
-from rmbvideo.chunks import Frame
 from rmbvideo.evaluate.heldout import Sequence
 from rmbvideo.evaluate.harness import downsample_2x, score_frames
 from rmbvideo.io.dat import DatGeometry, DatReader, DatWriter
@@ -40,7 +40,6 @@ from rmbvideo.threads import default_threads
 
 log = logging.getLogger(__name__)
 
-CHUNK_PLANES = 1024
 #: end-to-end runs per sequence; the fastest is timed (the frames of every run are the same)
 TIMING_RUNS = 2
 _MIB = 1024.0 * 1024.0
@@ -88,21 +87,6 @@ class BenchRecord:
         return asdict(self)
 
 
-class _KeepFrames:
-    """A sink that keeps the frames whose times are in ``wanted`` (seconds, matched to 1 us)."""
-
-    def __init__(self, wanted: dict[int, float]) -> None:
-        self._wanted = {round(t * 1e6): i for i, t in wanted.items()}
-        self.kept: dict[int, np.ndarray] = {}
-        self.count = 0
-
-    def write(self, frame: Frame) -> None:
-        self.count += 1
-        index = self._wanted.get(round(frame.time_s * 1e6))
-        if index is not None:
-            self.kept[index] = frame.image
-
-
 def write_sequence_dat(sequence: Sequence, folder: Path) -> tuple[Path, DatGeometry]:
     """The sequence's raw planes as a .dat capture in ``folder`` (camera orientation, flipped rows)."""
     height, width = sequence.raw_shape
@@ -115,7 +99,9 @@ def write_sequence_dat(sequence: Sequence, folder: Path) -> tuple[Path, DatGeome
     return path, geometry
 
 
-def _make(config: BenchConfig, network, threads: int | None):
+def make_row_method(config: BenchConfig, network, threads: int | None):
+    """The row's reconstructor: a classical method with its options, or RMB-Net's engine (at full resolution with
+    the raw stream's detail stage and gate, as ``reconstruct`` runs it)."""
     if not config.is_rmbnet:
         return make_reconstructor(config.method, **config.options)
     from rmbvideo.recon.rmbnet import RmbNetReconstructor
@@ -131,29 +117,11 @@ def _make(config: BenchConfig, network, threads: int | None):
                           precision=config.precision or "auto", raw_gate=raw_gate_stage("auto"))
 
 
-def _readout(config: BenchConfig, recon, models_dir: Path) -> RmbReadout | None:
+def row_readout(config: BenchConfig, recon, models_dir: Path) -> RmbReadout | None:
     """The readout design a row's binned input is read through: an RMB-Net row's own model's, else the default's."""
     design = trained_readout(getattr(recon, "binned", recon)) if config.is_rmbnet \
         else model_readout(models_dir / "rmbnet-binned.safetensors")
     return RmbReadout(mode=ReadoutMode(design)) if recon.input_kind == "rmb" else None
-
-
-def run_alone(spec: str) -> None:
-    """Run one row once on one capture, as ``run_config`` times it: the body of ``peak_memory_alone``'s process.
-    ``spec``: JSON of the row's ``BenchConfig`` fields, the capture (path, width, height, rate), models folder and
-    threads."""
-    from rmbvideo.allocator import keep_freed_memory
-
-    keep_freed_memory()  # the allocator policy of every command
-    job = json.loads(spec)
-    config = BenchConfig(**job["config"])
-    network = None
-    if config.is_rmbnet:
-        network = build_network(config.w, config.width, find_model(config.w, config.width, Path(job["models"])))
-    reader = DatReader(Path(job["dat"]), DatGeometry(width=job["width"], height=job["height"]), rate_hz=job["rate_hz"])
-    recon = _make(config, network, job["threads"])
-    reconstruct_stream(reader, recon, _KeepFrames({}), chunk_planes=CHUNK_PLANES,
-                       readout=_readout(config, recon, Path(job["models"])))
 
 
 def peak_memory_alone(config: BenchConfig, sequence: Sequence, workdir: Path, models_dir: Path,
@@ -161,8 +129,9 @@ def peak_memory_alone(config: BenchConfig, sequence: Sequence, workdir: Path, mo
     """Peak memory of a fresh process running ``config`` once on ``sequence``."""
     path, geometry = write_sequence_dat(sequence, workdir)
     spec = {"config": asdict(config), "dat": str(path), "width": geometry.width, "height": geometry.height,
-            "rate_hz": 2 * sequence.rate_hz, "models": str(models_dir), "threads": threads}
-    return child_peak_memory("from rmbvideo.bench.runner import run_alone; run_alone(sys.argv[1])",
+            "rate_hz": 2 * sequence.rate_hz, "models": str(models_dir), "threads": threads,
+            "readout": None if config.is_rmbnet else model_readout(models_dir / "rmbnet-binned.safetensors")}
+    return child_peak_memory("from rmbvideo.bench.alone import run_alone; run_alone(sys.argv[1])",
                              [json.dumps(spec)], what=f"bench row {config.name}")
 
 
@@ -198,10 +167,10 @@ def run_config(config: BenchConfig, sequences: list[Sequence], workdir: Path, mo
         scored = {i: sequence.frame_time(i) for i in sequence.scored_frames}
         summary = None
         for _ in range(runs):
-            sink = _KeepFrames(scored)
-            recon = _make(config, network, threads)
+            sink = KeepFrames(scored)
+            recon = make_row_method(config, network, threads)
             run = reconstruct_stream(reader, recon, sink, chunk_planes=CHUNK_PLANES,
-                                     readout=_readout(config, recon, models_dir))
+                                     readout=row_readout(config, recon, models_dir))
             _sync(config.device)
             summary = run if summary is None or run.seconds < summary.seconds else summary
         del reader

@@ -112,7 +112,7 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
                 f"{' and at full resolution the raw rates, gate and detail stage in another, a chunk behind it' if finish else ''} "
                 f"({'two or more threads' if beside and threads else 'a second idle core' if beside else 'no second thread or idle core'}). "
                 f"Each scene runs {TIMING_RUNS} times per row, the fastest timed; a row's peak RSS is that of a fresh "
-                "process running it once on the largest scene (Python, torch and the model included). "
+                "process running it once on the largest scene (Python included, and torch and the model where the row's method needs them: a classical row, as its `reconstruct` run, never loads torch). "
                 f"Freed memory {'kept for reuse (glibc thresholds raised, rmbvideo.allocator)' if keep_freed_memory() else 'as the C allocator is set (no glibc, or its thresholds set in the environment)'}; "
                 f"decode+bin by the {'compiled' if COMPILED else 'numpy'} kernel. "
                 "'*' = Pareto front of (time per frame, PSNR) among rows with "
