@@ -197,6 +197,36 @@ def test_kill_9_mid_capture_then_resume(tmp_path: Path) -> None:
     assert not list(out.glob(".big.*")) and not list(out.glob("..big.*"))
 
 
+def test_kill_9_of_a_batch_with_worker_processes_leaves_no_warning(tmp_path: Path) -> None:
+    """kill -9 of ``batch --jobs 2``: multiprocessing's resource tracker removes the pool's semaphores and says
+    nothing of them (it warned of "leaked semaphore objects to clean up", two lines naming one of its own files)."""
+    rng = np.random.default_rng(0)
+    (tmp_path / "in").mkdir()
+    for name in ("a", "b"):
+        write_dat(tmp_path / "in" / f"{name}.dat", (rng.random((6000, 16, 16)) < 0.3).astype(np.uint8),
+                  DatGeometry(16, 16))
+    out = tmp_path / "out"
+    command = [sys.executable, "-m", "rmbvideo", "batch", str(tmp_path / "in"), "-o", str(out), "--width", "16",
+               "--height", "16", "--method", "tfp", "--format", "exr", "--step", "2", "--jobs", "2", "-q"]
+    proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and proc.poll() is None:
+            if any(len(list(p.glob("*.exr"))) > 20 for p in out.glob("..*.partial-*")):  # workers at work
+                break
+            time.sleep(0.05)
+        else:
+            pytest.skip("the run ended before it could be interrupted")
+        os.kill(proc.pid, signal.SIGKILL)
+        stderr = proc.communicate(timeout=60)[1]  # the tracker holds the pipe until it has cleaned up
+    finally:
+        proc.kill()
+        proc.wait()
+    if proc.returncode != -signal.SIGKILL:
+        pytest.skip("the run ended before the kill reached it")
+    assert "leaked" not in stderr and "resource_tracker" not in stderr, stderr
+
+
 def test_a_killed_resume_batch_keeps_its_frames_and_the_next_one_continues_them(tmp_path: Path) -> None:
     """batch --resume, killed mid-capture: the next batch --resume takes up the frames the first kept (it used to
     start each run in a new hidden folder, so they were never taken up, and never removed) and ends with the

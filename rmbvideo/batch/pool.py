@@ -34,6 +34,8 @@ from rmbvideo.threads import available_cores
 log = logging.getLogger(__name__)
 #: A Dask batch polls its tasks this often, and fails what is left after this long with no live worker.
 DASK_POLL_S, DASK_NO_WORKER_S = 2.0, 60.0
+#: The warning filter of the resource tracker a process batch starts (``start_quiet_resource_tracker``).
+TRACKER_WARNING_FILTER = "ignore:resource_tracker:UserWarning"
 #: After a stop, the captures in flight have this long to remove their partial output before their workers are killed.
 WORKER_CLEANUP_S = 30.0
 #: How often the batch looks up from waiting on its workers: a signal the kernel hands to one of its other threads
@@ -179,6 +181,24 @@ def _fill_unfinished(jobs: Sequence[CaptureJob], results: list[CaptureResult | N
             results[i] = finished_result(job) or _failed(job, reason)
 
 
+def start_quiet_resource_tracker() -> None:
+    """Start multiprocessing's resource tracker (the pool's queues' semaphores are registered with it) with its
+    warning of leaked semaphores off. When a batch is killed (kill -9) the tracker removes them, as it should, then
+    warned of "7 leaked semaphore objects" in two lines naming one of its own files. It reads its warning filters
+    from the environment it starts with, so they are set for that start only; a tracker already running is kept."""
+    from multiprocessing import resource_tracker
+
+    before = os.environ.get("PYTHONWARNINGS")
+    os.environ["PYTHONWARNINGS"] = ",".join(filter(None, (before, TRACKER_WARNING_FILTER)))
+    try:
+        resource_tracker.ensure_running()
+    finally:
+        if before is None:
+            del os.environ["PYTHONWARNINGS"]
+        else:
+            os.environ["PYTHONWARNINGS"] = before
+
+
 def _run_in_processes(jobs: Sequence[CaptureJob], workers: int,
                       record: Callable[[int, CaptureResult], None]) -> None:
     """Run jobs on ``workers`` spawned processes, each limited to its share of the cores.
@@ -187,6 +207,7 @@ def _run_in_processes(jobs: Sequence[CaptureJob], workers: int,
     jobs it took down are retried once, alone, so a capture that kills its worker fails by itself.
     """
     threads = max(1, default_workers() // workers)
+    start_quiet_resource_tracker()
     pending = deque(range(len(jobs)))
     crashes: Counter[int] = Counter()
 
