@@ -138,6 +138,6 @@ def memory_scaling(method: str, planes: int, factor: int = 5, width: int = 400, 
                                                "--method", method, "--width", str(width), "--height", str(height),
                                                "-q", *extra]))
             path.unlink()
-    return {"method": method, "planes": planes, "factor": factor,
+    return {"method": method, "options": list(extra), "planes": planes, "factor": factor,
             "peak_anon_mib": [p.anonymous / 2**20 for p in peaks], "peak_rss_mib": [p.rss / 2**20 for p in peaks],
             "growth": peaks[1].anonymous / peaks[0].anonymous - 1.0}

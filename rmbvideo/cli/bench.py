@@ -133,9 +133,12 @@ def bench(ctx: click.Context, quick: bool, outdir: Path, as_json: bool, device: 
         document += [f"tfp --format null on {realtime['capture_s']:.1f} s of 400x250 capture "
                      f"({realtime['planes']} planes): {realtime['reconstruct_s']:.2f} s "
                      f"(real-time factor {realtime['realtime_factor']:.2f}; reading alone {realtime['read_s']:.2f} s).", ""]
-        memory = [memory_scaling("tfp", 2048 if quick else 8192), memory_scaling("tfw", 2048 if quick else 8192)]
+        # TFW at its binned size: its own memory (at full size the detail stage, whose memory is the RMB-Net rows',
+        # made most of the time: 69 of --quick's 130 s)
+        planes = 2048 if quick else 8192
+        memory = [memory_scaling("tfp", planes), memory_scaling("tfw", planes, extra=("--resolution", "binned"))]
         extras["memory_scaling"] = memory
-        document += [f"Peak anonymous RSS, {m['method']}: {m['peak_anon_mib'][0]:.0f} MiB for {m['planes']} "
+        document += [f"Peak anonymous RSS, {' '.join([m['method'], *m['options']])}: {m['peak_anon_mib'][0]:.0f} MiB for {m['planes']} "
                      f"planes, {m['peak_anon_mib'][1]:.0f} MiB for {m['factor']}x as many ({100 * m['growth']:+.1f} %; "
                      f"total RSS with mapped file pages {m['peak_rss_mib'][0]:.0f} -> {m['peak_rss_mib'][1]:.0f} MiB)."
                      for m in memory]
