@@ -250,13 +250,18 @@ class FullResolution:
                  precision: str = "auto", rates_beside: bool | None = None,
                  rates_on_device: bool | None = None, raw_gate: Any = None,
                  finish_beside: bool | None = None, output: str = "full",
-                 candidate_detail: float = CANDIDATE_DETAIL) -> None:
+                 candidate_detail: float = CANDIDATE_DETAIL, keep_every: int = 1) -> None:
         if binned.input_kind != "rmb":
             raise ValueError(f"full resolution wraps a method on the binned stream, not {type(binned).__name__}")
         if output not in OUTPUTS:
             raise ValueError(f"output must be one of {OUTPUTS}, not {output!r}")
         if not 0.0 <= candidate_detail <= 1.0:
             raise ValueError(f"candidate_detail must lie in 0..1, not {candidate_detail}")
+        if keep_every < 1:
+            raise ValueError(f"keep_every must be >= 1, not {keep_every}")
+        # frames whose index is not a multiple of it are dropped by the caller (``EveryKthFrame``: RMB-Net at a multiple
+        # of its step), so neither gated nor shaped here: they are made for the recurrent state, not to be seen
+        self.keep_every = keep_every
         self.binned = binned
         self.readout = readout
         self.settings = settings
@@ -452,10 +457,18 @@ class FullResolution:
         # per frame: the TFP windows, then TFI at each reach, shortest first
         rates = [_planes([store.pop(index).image[..., : 2 * c.image.shape[0], : 2 * c.image.shape[1]]
                           for store in self._fine]) for index, c in zip(ready, coarse)]
+        # the binned frame before each, before the gate (whose change the gate reads; None at a clip's start)
+        previous = [self._previous, *(c.image for c in coarse[:-1])]
+        if coarse:
+            self._previous = coarse[-1].image
+        kept = [k for k, index in enumerate(ready) if index % self.keep_every == 0]
+        if len(kept) < len(ready):
+            ready, coarse, rates, previous = ([items[k] for k in kept] for items in (ready, coarse, rates, previous))
         mixes: list[tuple[np.ndarray, np.ndarray]] = []  # per gated frame: the candidates' shares and own pixels
         if self.raw_gate is not None:
             began = time.perf_counter()
-            gated, mixes = self._gated([c.image for c in coarse], [[r[k] for k in self._gate_planes] for r in rates])
+            gated, mixes = self._gated([c.image for c in coarse], previous,
+                                       [[r[k] for k in self._gate_planes] for r in rates])
             coarse = [Frame(index=c.index, time_s=c.time_s, image=image) for c, image in zip(coarse, gated)]
             self.stage_seconds["raw gate"] = self.stage_seconds.get("raw gate", 0.0) + time.perf_counter() - began
         if self.output == "binned":
@@ -473,11 +486,12 @@ class FullResolution:
         # Frames one side made and the other never will (edges of the clip) are dropped at flush.
         return [Frame(index=index, time_s=c.time_s, image=image) for index, c, image in zip(ready, coarse, images)]
 
-    def _gated(self, coarse: list[np.ndarray], tfis: list[list[Any]]
+    def _gated(self, coarse: list[np.ndarray], previous: list[np.ndarray | None], tfis: list[list[Any]]
                ) -> tuple[list[np.ndarray], list[tuple[np.ndarray, np.ndarray]]]:
         """Each binned frame mixed with its raw TFI candidates (read as RMB-Net reads light, 2x2-averaged) by the
-        gate, in order, and per frame the gate's shares of the candidates (K, h, w) and their light per raw pixel
-        (K, 2h, 2w); the previous binned frame is the one before the gate (the frame itself at a clip's start)."""
+        gate, and per frame the gate's shares of the candidates (K, h, w) and their light per raw pixel (K, 2h, 2w);
+        ``previous``: each frame's binned frame before it, before the gate (None at a clip's start: the frame
+        itself)."""
         import torch
 
         from rmbvideo.net.pooling import mean_2x2
@@ -486,15 +500,15 @@ class FullResolution:
         convention, tabulated = self._reading
         out, mixes = [], []
         with compute_threads(self.threads), torch.inference_mode():
-            for image, candidates in zip(coarse, tfis):
+            for image, before, candidates in zip(coarse, previous, tfis):
                 binned = torch.from_numpy(np.ascontiguousarray(image, np.float32))[None, None]
-                previous = binned if self._previous is None else torch.from_numpy(self._previous)[None, None]
+                change = binned if before is None else torch.from_numpy(np.ascontiguousarray(before, np.float32))[
+                    None, None]
                 full = torch.cat([tfi_light(torch.as_tensor(tfi).float().cpu()[None, None], convention, tabulated)
                                   for tfi in candidates], dim=1)
-                mixed, shares = self.raw_gate.mix(binned, mean_2x2(full), previous, convention)
+                mixed, shares = self.raw_gate.mix(binned, mean_2x2(full), change, convention)
                 out.append(mixed[0, 0].numpy())
                 mixes.append((shares[0].numpy(), full[0].numpy()))
-                self._previous = np.ascontiguousarray(image, np.float32)
         return out, mixes
 
     def _learned(self, coarse: list[np.ndarray], rates: list[list[Any]]) -> list[np.ndarray]:

@@ -124,7 +124,7 @@ def prepare_run(input_path: Path, *, method: str = DEFAULT_METHOD, window: int |
         reads_light = getattr(recon, "light_reading", None) is not None
         gate = raw_gate_stage(raw_gate, options.get("model")) if reads_light else None
         wrap = dict(step=step // every, raw_gate=gate, threads=options.get("threads"),
-                    precision=options.get("precision", "auto"))
+                    precision=options.get("precision", "auto"), keep_every=every)
         if resolution == "full":
             recon, rmb_readout = FullResolution(recon, rmb_readout, detail=detail_stage(detail), **wrap), None
         elif gate is not None:
