@@ -53,14 +53,15 @@ class Decoder(nn.Module):
         self,
         fused: torch.Tensor,
         reference: list[torch.Tensor],
-        inputs: torch.Tensor,
+        inputs: torch.Tensor | None,
         state: DecoderState | None,
         run: bool = False,
         graphed: bool = False,
-    ) -> tuple[torch.Tensor, DecoderState]:
+    ) -> tuple[torch.Tensor | None, DecoderState]:
         """One step, or with ``run`` K consecutive steps of batch size 1 stacked along the batch (K,...): then every
         layer but the ConvLSTMs' recurrences runs on all K at once (``ConvLSTMCell.run``, ``graphed`` as there); the
-        state is the last step's."""
+        state is the last step's. ``inputs`` None: the state alone, z None (the layers after the last ConvLSTM feed
+        only the output)."""
         s3, s2, s1 = state if state is not None else (None, None, None)
         def recurrent(cell: ConvLSTMCell) -> Callable[[torch.Tensor, LstmState | None], tuple[torch.Tensor, LstmState]]:
             return (lambda x, s: cell.run(x, s, graphed)) if run else cell
@@ -71,6 +72,8 @@ class Decoder(nn.Module):
         x, s2 = lstm2(self.fuse2(layout.cat([x, reference[1]], dim=1)), s2)
         x = self.up2(upsample2x(x))
         x, s1 = lstm1(self.fuse1(layout.cat([x, reference[0]], dim=1)), s1)
+        if inputs is None:
+            return None, (s3, s2, s1)
         x = self.up1(upsample2x(x))
         # both parts channels-last (as x is), so the cat writes the layout the head's conv reads
         z = self.head(layout.cat([x, layout.contiguous(inputs.to(x.dtype), torch.channels_last)], dim=1))

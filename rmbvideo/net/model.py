@@ -459,6 +459,19 @@ class RmbNet(nn.Module):
         z, state = self.decoder(*prepared.decoder_inputs, state)
         return self._finish(z, prepared, convention), state
 
+    def advance(
+        self, window: Sequence[EncodedFrame], state: DecoderState | None, cache: PairCache | None = None,
+        valid: Sequence[bool] | None = None,
+    ) -> DecoderState:
+        """The state after ``step`` on ``window``, without the frame: the attention and the decoder's ConvLSTMs, not
+        the layers after them nor the head's inputs (the pooled means, the aligned mean), which feed only the output.
+        For frames made for the state alone (RMB-Net at a multiple of its step keeps one in k)."""
+        valid = [True] * len(window) if valid is None else list(valid)
+        if not valid[self.config.w]:
+            raise ValueError("the reference frame of a window must be valid")
+        fused, reference = self._fused(window, {} if cache is None else cache, valid)
+        return self.decoder(fused, reference, None, state)[1]
+
     def step_backward(
         self, window: Sequence[EncodedFrame], state: DecoderState | None, valid: Sequence[bool] | None = None,
         convention: torch.Tensor | float = 0.0, aligned: torch.Tensor | None = None,
@@ -514,11 +527,7 @@ class RmbNet(nn.Module):
         """Everything of a step before the decoder: the attention, the temporal fusion and the head's inputs."""
         w = self.config.w
         ref = window[w]
-        mask = None if all(valid) else valid
-        reference = [canonical_batch(self._bit_fused(s, [ref], window, cache, mask)[0]) for s in range(2)]
-        f_ms_coarse = self._bit_fused(2, window, window, cache, mask)
-        reference.append(canonical_batch(f_ms_coarse[w]))
-        fused = self.time_fusion(f_ms_coarse, mask).contiguous(memory_format=torch.channels_last)
+        fused, reference = self._fused(window, cache, valid)
         # the pooled means and the edge planes read the window's own frames, not those a slid edge window brought in
         # (from further than w frames away, either way: ``step_backward`` reverses a window)
         own = [v and abs(frame.index - ref.index) <= w for v, frame in zip(valid, window)] \
@@ -527,6 +536,17 @@ class RmbNet(nn.Module):
         aligned_rate, evidence = self.normalise_aligned(aligned, ref.size)
         inputs = self._head_inputs(window, own, convention, pooled, aligned_rate, evidence)
         return _Prepared(ref, (fused, reference, inputs), pooled, aligned_rate)
+
+    def _fused(self, window: Sequence[EncodedFrame], cache: PairCache, valid: list[bool]
+               ) -> tuple[torch.Tensor, list[torch.Tensor]]:
+        """The decoder's inputs from the attention: the window's temporal fusion at 1/8 and the reference frame's
+        bit-fused features at each scale."""
+        w = self.config.w
+        mask = None if all(valid) else valid
+        reference = [canonical_batch(self._bit_fused(s, [window[w]], window, cache, mask)[0]) for s in range(2)]
+        f_ms_coarse = self._bit_fused(2, window, window, cache, mask)
+        reference.append(canonical_batch(f_ms_coarse[w]))
+        return self.time_fusion(f_ms_coarse, mask).contiguous(memory_format=torch.channels_last), reference
 
     def _finish(self, z: torch.Tensor, prepared: "_Prepared", convention: torch.Tensor | float) -> torch.Tensor:
         """The head's output z -> t = T(G) (the blend of the candidates when the config has it), unpadded."""

@@ -454,16 +454,18 @@ class FullResolution:
     def _combine(self) -> list[Frame]:
         ready = sorted(set(self._coarse).intersection(*self._fine))
         coarse = [self._coarse.pop(index) for index in ready]
-        # per frame: the TFP windows, then TFI at each reach, shortest first
-        rates = [_planes([store.pop(index).image[..., : 2 * c.image.shape[0], : 2 * c.image.shape[1]]
-                          for store in self._fine]) for index, c in zip(ready, coarse)]
+        fine = [[store.pop(index).image for store in self._fine] for index in ready]
         # the binned frame before each, before the gate (whose change the gate reads; None at a clip's start)
         previous = [self._previous, *(c.image for c in coarse[:-1])]
         if coarse:
             self._previous = coarse[-1].image
+        # the frames kept (a binned method that knows it makes the others for its state alone, without an image)
         kept = [k for k, index in enumerate(ready) if index % self.keep_every == 0]
         if len(kept) < len(ready):
-            ready, coarse, rates, previous = ([items[k] for k in kept] for items in (ready, coarse, rates, previous))
+            ready, coarse, fine, previous = ([items[k] for k in kept] for items in (ready, coarse, fine, previous))
+        # per frame: the TFP windows, then TFI at each reach, shortest first
+        rates = [_planes([image[..., : 2 * c.image.shape[0], : 2 * c.image.shape[1]] for image in images])
+                 for images, c in zip(fine, coarse)]
         mixes: list[tuple[np.ndarray, np.ndarray]] = []  # per gated frame: the candidates' shares and own pixels
         if self.raw_gate is not None:
             began = time.perf_counter()

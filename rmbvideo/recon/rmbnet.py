@@ -262,6 +262,10 @@ class RmbNetReconstructor:
         self._received = 0
         self._next_out = 0
         self._state = None
+        #: frames whose index is a multiple of it are seen (``EveryKthFrame``: a multiple of the model's step), and so is
+        #: the frame before each (the raw gate reads its change); the others are made for the recurrent state alone
+        #: (``RmbNet.advance``: no head, no aligned mean) and come out without an image
+        self.emit_every = 1
         self._snapshots: deque[tuple[int, dict[str, torch.Tensor]]] | None = None
         self._restore: tuple[int, DecoderState] | None = None
         self._size: tuple[int, int] | None = None
@@ -414,10 +418,14 @@ class RmbNetReconstructor:
             for run in runs:
                 self._restore_before(run[0])
                 for j in range(run[0], min(run[-1] + ahead + 1, ready[-1] + 1)):  # ready is consecutive
-                    if j not in means:
+                    if j not in means and self._seen(j):
                         means[j] = self._kept_means.pop(j, None) or self._aligned(j, count)
-                out += (self._emit_run(run, count, [means.pop(i) for i in run]) if len(run) > 1
-                        else [self._emit(run[0], count, means.pop(run[0]))])
+                if len(run) > 1:
+                    out += self._emit_run(run, count, [means.pop(i) for i in run])
+                elif self._seen(run[0]):
+                    out.append(self._emit(run[0], count, means.pop(run[0])))
+                else:
+                    out.append(self._advance(run[0], count))
                 self._next_out = run[-1] + 1
                 self._evict(self._next_out)
         return out
@@ -568,6 +576,24 @@ class RmbNetReconstructor:
         if mean is None:
             return None
         return self._aligned_inputs([mean.result()])
+
+    def _seen(self, i: int) -> bool:
+        """Whether frame ``i`` is made whole (``emit_every``): a frame kept, or the one before it."""
+        index = int(self._raw[i].index)
+        return index % self.emit_every in (0, self.emit_every - 1)
+
+    def _advance(self, i: int, count: int | None) -> Frame:
+        """Frame ``i`` for the recurrent state alone (``RmbNet.advance``): its frame comes out without an image."""
+        cache = self._pair_cache if self.align == "none" else None
+        self._kept_means.pop(i, None)  # a priming step's aligned mean, kept for a frame that needs none
+        state = self._net.advance(self._window(i, count), self._state, cache, valid=self._valid(i, count))
+        if not all(all_finite(t) for cell in state for t in cell):
+            self.nonfinite_frames += 1
+            log.warning("RMB-Net's recurrent state became NaN/Inf at frame %d; reset", i)
+            state = None
+        source = self._raw[i]
+        self._made(int(source.index), state)
+        return Frame(index=int(source.index), time_s=float(source.time_s), image=None)
 
     def _emit(self, i: int, count: int | None, mean: AlignedMean | Ready | None) -> Frame:
         """Frame ``i`` from its window and its queued aligned mean (the network's input made by ``_aligned_input``)."""

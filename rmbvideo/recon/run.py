@@ -116,6 +116,8 @@ def prepare_run(input_path: Path, *, method: str = DEFAULT_METHOD, window: int |
                          f"gives {width}x{height} (check --width/--height/--header-cols)")
     recon = spec.build(**options)
     every = spec.frame_every(step, raw_per_readout=1 if native else 2)  # RMB-Net at a multiple of its step
+    if every > 1:  # the frames no one sees are made for the recurrent state alone
+        recon.emit_every = every
     # A native capture was read out by its sensor already; binned data gets the chosen design.
     readout = readout or trained_readout(recon)
     rmb_readout = RmbReadout(mode=ReadoutMode(readout)) if recon.input_kind == "rmb" and not native else None
