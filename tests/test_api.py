@@ -68,14 +68,16 @@ def test_prime_reaches_the_engine_from_the_api_and_the_cli(tmp_path):
 def test_a_multiple_of_rmbnets_step_keeps_every_kth_of_its_frames(tmp_path):
     """RMB-Net makes a frame every 20 raw planes (its recurrent state steps through them all): at --step 40 the
     output is every second of those frames (at --step 60 every third), the same images at the same times, numbered on
-    from 0, at either output size, inline or with the full-resolution stages in a thread of their own: the frames it
+    from 0, at either output size, inline, with the full-resolution stages in a thread of their own or with frames
+    made in batched passes (a GPU's way, where a pass makes every frame whole): the frames it
     drops are neither gated nor shaped, and those no kept frame reads as its previous one are made for the recurrent
     state alone. A resumed run could not tell where the state stood, so --resume is refused there."""
     from rmbvideo.recon.run import run_reconstruction
 
     capture = tmp_path / "c.dat"
     rmbvideo.simulate_capture(rmbvideo.load_scene("demo"), capture, duration_s=0.008)
-    for options in (dict(threads=1), dict(threads=2), dict(threads=1, resolution="binned")):
+    for options in (dict(threads=1), dict(threads=2), dict(threads=1, resolution="binned"),
+                    dict(threads=1, frame_batch=3)):  # batched passes, as on a GPU
         options = dict(precision="fp32", **options)
         every = list(rmbvideo.reconstruct(capture, **options))
         assert len(every) == 8

@@ -414,15 +414,17 @@ class RmbNetReconstructor:
             ahead = (len(ready) if self._aligned_box is not None and self._aligned_box.pooled
                      else ALIGNED_AHEAD if self.aligned_beside else 0)
             means: dict[int, AlignedMean | None] = {}
+            # the frames made whole: every frame of a batched pass, else those seen (``emit_every``)
+            whole = {i for run in runs for i in run if len(run) > 1 or self._seen(i)}
             out: list[Frame] = []
             for run in runs:
                 self._restore_before(run[0])
                 for j in range(run[0], min(run[-1] + ahead + 1, ready[-1] + 1)):  # ready is consecutive
-                    if j not in means and self._seen(j):
+                    if j not in means and j in whole:
                         means[j] = self._kept_means.pop(j, None) or self._aligned(j, count)
                 if len(run) > 1:
                     out += self._emit_run(run, count, [means.pop(i) for i in run])
-                elif self._seen(run[0]):
+                elif run[0] in whole:
                     out.append(self._emit(run[0], count, means.pop(run[0])))
                 else:
                     out.append(self._advance(run[0], count))
