@@ -1,6 +1,6 @@
 """A benchmark row run once in a process of its own, for its peak memory (``runner.peak_memory_alone``). It loads
 what the row's method needs and no more, as ``reconstruct`` does: a classical row's process holds no torch (about
-170 MB that a user's TFP run never maps), an RMB-Net row's the network and its model."""
+200 MB that a user's TFP run never maps), an RMB-Net row's the network and its model."""
 
 from __future__ import annotations
 
@@ -37,7 +37,7 @@ class KeepFrames:
 def run_alone(spec: str) -> None:
     """Run one row once on one capture, as ``runner.run_config`` times it. ``spec``: JSON of the row's
     ``BenchConfig`` fields, the capture (path, width, height, rate), models folder, threads and, for a classical
-    row, the readout design its binned input is read through (``runner.row_readout``)."""
+    row, the readout design its binned input is read through (``runner.classical_readout_design``)."""
     from rmbvideo.allocator import keep_freed_memory
 
     keep_freed_memory()  # the allocator policy of every command

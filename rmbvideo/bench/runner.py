@@ -117,10 +117,15 @@ def make_row_method(config: BenchConfig, network, threads: int | None):
                           precision=config.precision or "auto", raw_gate=raw_gate_stage("auto"))
 
 
+def classical_readout_design(models_dir: Path) -> str:
+    """The readout design a classical row's binned input is read through: the default model's, as in ``evaluate``."""
+    return model_readout(models_dir / "rmbnet-binned.safetensors")
+
+
 def row_readout(config: BenchConfig, recon, models_dir: Path) -> RmbReadout | None:
     """The readout design a row's binned input is read through: an RMB-Net row's own model's, else the default's."""
     design = trained_readout(getattr(recon, "binned", recon)) if config.is_rmbnet \
-        else model_readout(models_dir / "rmbnet-binned.safetensors")
+        else classical_readout_design(models_dir)
     return RmbReadout(mode=ReadoutMode(design)) if recon.input_kind == "rmb" else None
 
 
@@ -130,7 +135,7 @@ def peak_memory_alone(config: BenchConfig, sequence: Sequence, workdir: Path, mo
     path, geometry = write_sequence_dat(sequence, workdir)
     spec = {"config": asdict(config), "dat": str(path), "width": geometry.width, "height": geometry.height,
             "rate_hz": 2 * sequence.rate_hz, "models": str(models_dir), "threads": threads,
-            "readout": None if config.is_rmbnet else model_readout(models_dir / "rmbnet-binned.safetensors")}
+            "readout": None if config.is_rmbnet else classical_readout_design(models_dir)}
     return child_peak_memory("from rmbvideo.bench.alone import run_alone; run_alone(sys.argv[1])",
                              [json.dumps(spec)], what=f"bench row {config.name}")
 
