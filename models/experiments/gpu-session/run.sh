@@ -11,7 +11,9 @@
 # timeout_s 590. The device image has everything rmbvideo needs but OpenEXR, which the benches do not use; a training
 # run does (its scenes read the bundled HDR light sources), so for RECIPE bring the wheel first and carry [".whl"]
 # (the working tree travels too: both must stay under the device's 64 MiB; the tree was 59.0 MiB after the third stop of
-# 2026-11-29 moved some ablation weights into the history, 63.3 before it, and the wheel 1.8 MiB on 2026-11-27):
+# 2026-11-29 moved some ablation weights into the history, 63.3 before it; 62.4 by 2026-12-07, 58.9 once stage 17's
+# checkpoints moved into the history (at 45c3b78); the wheel 1.8 MiB on 2026-11-27). Check: git ls-files -z | xargs -0 stat
+# -c %s | awk '{s+=$1} END {print s/1048576}'. The bench alone (no RECIPE) needs no wheel; a RECIPE's:
 #   echo /.whl/ >> .git/info/exclude
 #   python3 -m pip download --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
 #       --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 -d .whl OpenEXR==3.5.3

@@ -5,12 +5,13 @@
         # rmbvideo train video-pan-temporal-head-gpu --device cuda -o DIR
 
 - ``avg``: stage 16 and its GPU continuation (``video-pan-gpu``: every weight on stage 16's data, 708 steps of batch 8
-  in 6.5 minutes on an H100; ``gpu-run`` here, its checkpoint with the Adam state beside it) averaged half and half
-  (``avg`` here). The run gained on moving pans and real video but read the dark end 12 % too dark; the average
-  7 %.
+  in 6.5 minutes on an H100; ``gpu-run`` here, its checkpoint with the Adam state in the history at 45c3b78)
+  averaged half and half (``avg`` here). The run gained on moving pans and real video but read the dark end 12 %
+  too dark; the average 7 %.
 - ``final``: the head of that average (both convolutions) trained on a GPU with the temporal term and 30 % flat
-  fields (``video-pan-temporal-head-gpu``, 653 steps of batch 8 in 4.5 minutes on an H100; its checkpoint and
-  ``loss.csv`` in ``head/``), written as the default (``models/rmbnet-binned.*``) with its lineage in the card.
+  fields (``video-pan-temporal-head-gpu``, 653 steps of batch 8 in 4.5 minutes on an H100; ``loss.csv`` in
+  ``head/``, its checkpoint there in the history at 45c3b78), written as the default (``models/rmbnet-binned.*``)
+  with its lineage in the card.
   Chosen on the development sets against the CPU calibration of the same average (``video-pan-gpu-head-cpu``) and
   the run's own average with stage 16.
 """
