@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -680,6 +681,36 @@ def test_held_targets_keep_the_truth_at_the_edges_and_the_teachers_output_inside
     with torch.no_grad():
         fresh, _ = teacher.forward_sequence(batch.i_s, batch.i_m, prime=0)
     assert not torch.allclose(inner[:, w:-w], fresh[:, w:-w])  # started at frame w, not at frame 0
+
+
+def test_edge_only_scores_the_edge_frames_alone(tmp_path):
+    """``optim.edge_only``: the loss and its gradients are the first and last w frames' alone (a whole-window frame's
+    truth changed moves neither), while an edge frame's truth moves both; without it the whole-window frame counts."""
+    sample = SampleCache(tmp_path, SampleSpec(mode="binned", crop=16, frames=6, n=4, warmup_frames=1)).get(1)
+    batch = Batch.from_samples([sample], torch.device("cpu"))
+    model, w = _tiny_model(), 1
+
+    def run(gt: torch.Tensor, edge_only: bool) -> tuple[float, torch.Tensor]:
+        model.zero_grad()
+        parts = train_batch(model, replace(batch, gt=gt), tbptt=2, loss_config=LossConfig(temporal=1.0), edges=True,
+                            prime=1, edge_only=edge_only)
+        return parts["loss"], torch.cat([p.grad.flatten() for p in model.parameters() if p.grad is not None])
+
+    inner, edge = batch.gt.clone(), batch.gt.clone()
+    inner[:, w + 1] = inner[:, w + 1] * 0.3 + 0.5
+    edge[:, 0] = edge[:, 0] * 0.3 + 0.5
+    loss, grad = run(batch.gt, True)
+    inner_loss, inner_grad = run(inner, True)
+    assert inner_loss == pytest.approx(loss, rel=1e-6)
+    torch.testing.assert_close(inner_grad, grad)
+    edge_loss, edge_grad = run(edge, True)
+    assert edge_loss != pytest.approx(loss, rel=1e-3) and not torch.allclose(edge_grad, grad)
+    assert run(inner, False)[0] != pytest.approx(run(batch.gt, False)[0], rel=1e-3)
+    recipe = tmp_path / "tiny.toml"
+    for bad in ("edge_only = true", "edges = 0.5\nedge_only = true"):  # not every step's edge frames
+        recipe.write_text(TINY_RECIPE.format(steps=2).replace("threads = 1", f"threads = 1\n{bad}"))
+        with pytest.raises(InputError, match="edge_only"):
+            load_recipe(recipe)
 
 
 def test_held_whole_windows_train_against_the_init_model_also_after_resume(tmp_path):

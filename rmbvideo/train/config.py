@@ -88,6 +88,9 @@ class OptimConfig:
     # outputs whose window lies whole inside the sample are trained against the ``init`` model's outputs instead of
     # the truth, so a run on the edge frames holds the rest of a clip where that model had it (needs init and edges)
     hold_whole_windows: bool = False
+    # only the edge outputs (the first and last w, windows cut by the sample's ends) are in the loss; the others are
+    # still run for the recurrent state: a model of its own for a clip's edge frames (needs edges = 1)
+    edge_only: bool = False
     trainable: tuple[str, ...] = ()
     # the network's forward passes under bf16 autocast ("bf16"; "auto": where the CPU computes bf16 natively, the
     # engine's policy, ``rmbvideo.recon.precision``), the losses always in fp32 (in bf16 SSIM's sums lose the
@@ -243,6 +246,9 @@ def _check_ranges(config: TrainConfig, path: Path) -> None:
     if o.hold_whole_windows and (not (config.init and o.edges > 0) or o.aged_passes):
         problems.append("optim.hold_whole_windows needs init (the model it holds to) and edges > 0, and no aged_passes "
                         "(the held outputs start from a fresh or primed state)")
+    if o.edge_only and (o.edges < 1.0 or o.hold_whole_windows or o.aged_passes):
+        problems.append("optim.edge_only needs edges = 1 (every step's edge frames), and no hold_whole_windows or "
+                        "aged_passes")
     if o.lr <= 0 or o.lr_final <= 0 or o.steps < 1 or o.batch < 1 or o.tbptt < 1:
         problems.append("optim.lr, lr_final, steps, batch and tbptt must be positive")
     if not 0.0 <= o.edges <= 1.0:

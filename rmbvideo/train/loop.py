@@ -170,16 +170,18 @@ def held_targets(teacher: RmbNet, batch: Batch, edges: bool, prime: int) -> torc
 
 
 def segment_losses(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossConfig,
-                   edges: bool = False, aged_passes: int = 0, prime: int = 0, bf16: bool = False
-                   ) -> Iterator[SegmentLoss]:
+                   edges: bool = False, aged_passes: int = 0, prime: int = 0, bf16: bool = False,
+                   edge_only: bool = False) -> Iterator[SegmentLoss]:
     """Yield the TBPTT segments of one batch in order; the caller back-propagates each before
     asking for the next, so only one segment's graph exists at a time. The sample's first frame
     starts the recurrent state (``start_state``): fresh, primed as the engine primes a clip's first frame, or aged.
-    ``bf16``: the network runs under bf16 autocast, the losses in fp32; the backward pass (the caller's) outside it."""
+    ``bf16``: the network runs under bf16 autocast, the losses in fp32; the backward pass (the caller's) outside it.
+    ``edge_only``: only the outputs whose window the sample's ends cut are in the loss (``scored_outputs``)."""
     w, slide = model.config.w, model.config.edge_slide
     count = batch.i_s.shape[1]
     supervised = output_range(count, w, edges)
-    outputs = len(supervised)
+    scored = scored_outputs(count, w, edges, edge_only)
+    outputs = len(scored)
     device = batch.i_s.device.type
     with torch.autocast(device, torch.bfloat16, enabled=bf16):
         state: DecoderState | None = start_state(model, batch, supervised, edges, aged_passes, prime)
@@ -201,6 +203,9 @@ def segment_losses(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossCon
                                       convention=batch.convention,
                                       aligned=None if batch.i_a is None else batch.i_a[:, i])
             t = t.float()
+            if i not in scored:
+                previous = t[:, 0]
+                continue
             loss, step_parts = reconstruction_loss(t[:, 0], batch.gt[:, i], loss_config, batch.convention)
             if loss_config.temporal > 0 and previous is not None:
                 change = temporal_loss(t[:, 0], previous, batch.gt[:, i], batch.gt[:, i - 1], loss_config)
@@ -211,9 +216,18 @@ def segment_losses(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossCon
             parts["loss"] += float(loss.detach())
             for key, value in step_parts.items():
                 parts[key] += value
-        yield SegmentLoss(segment_loss / outputs, parts, state_in)
+        yield SegmentLoss(segment_loss / max(outputs, 1), parts, state_in)
         state = detach_state(state)
         previous = previous.detach()
+
+
+def scored_outputs(count: int, w: int, edges: bool, edge_only: bool) -> set[int]:
+    """The outputs of a sample of ``count`` frames that the loss scores: every supervised one (``output_range``), or
+    with ``edge_only`` those whose window the sample's ends cut (none in a step without its edge frames)."""
+    supervised = output_range(count, w, edges)
+    if not edge_only:
+        return set(supervised)
+    return {i for i in supervised if not all(window_valid(i, w, count))} if edges else set()
 
 
 def freeze_except(model: nn.Module, prefixes: tuple[str, ...]) -> list[nn.Parameter]:
@@ -241,23 +255,25 @@ def train_mode(model: nn.Module) -> None:
 
 def train_batch(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossConfig,
                 edges: bool = False, aged_passes: int = 0, prime: int = 0,
-                teacher: RmbNet | None = None, bf16: bool = False) -> dict[str, float]:
+                teacher: RmbNet | None = None, bf16: bool = False, edge_only: bool = False) -> dict[str, float]:
     """Forward and backward one batch with TBPTT (gradients accumulate in ``.grad``; the caller
     steps the optimizer). Returns the mean loss and its parts over the supervised outputs. With a ``teacher``
     the outputs whose window is whole are trained against its outputs (``held_targets``). ``bf16``: the forward
-    passes (the teacher's too) under bf16 autocast (``segment_losses``)."""
+    passes (the teacher's too) under bf16 autocast (``segment_losses``); ``edge_only``: only the edge outputs in the
+    loss."""
     if teacher is not None:
         with torch.autocast(batch.i_s.device.type, torch.bfloat16, enabled=bf16):
             held = held_targets(teacher, batch, edges, prime)
         batch = replace(batch, gt=held.float())
     train_mode(model)
-    outputs = len(output_range(batch.i_s.shape[1], model.config.w, edges))
+    outputs = len(scored_outputs(batch.i_s.shape[1], model.config.w, edges, edge_only))
     totals = dict.fromkeys(LOSS_PARTS, 0.0)
-    for segment in segment_losses(model, batch, tbptt, loss_config, edges, aged_passes, prime, bf16):
-        segment.loss.backward()
+    for segment in segment_losses(model, batch, tbptt, loss_config, edges, aged_passes, prime, bf16, edge_only):
+        if segment.loss.requires_grad:  # a segment scoring nothing (``edge_only``, mid-sample) has no graph
+            segment.loss.backward()
         for key, value in segment.parts.items():
             totals[key] += value
-    return {key: value / outputs for key, value in totals.items()}
+    return {key: value / max(outputs, 1) for key, value in totals.items()}
 
 
 def batch_seeds(seed: int, step: int, batch: int, count: int) -> list[int]:
@@ -406,7 +422,7 @@ class Trainer:
                     self.optimizer.zero_grad(set_to_none=True)
                     edges = bool(np.random.default_rng([cfg.seed, step, 2]).random() < cfg.optim.edges)
                     losses = train_batch(self.model, batch, cfg.optim.tbptt, cfg.loss, edges, cfg.optim.aged_passes,
-                                         cfg.optim.prime, self.teacher, self.bf16)
+                                         cfg.optim.prime, self.teacher, self.bf16, cfg.optim.edge_only)
                     if not all(math.isfinite(v) for v in losses.values()):
                         raise FloatingPointError(f"step {step}: non-finite loss {losses} "
                                                  f"(seeds {self.step_seeds(step)})")
@@ -468,7 +484,9 @@ class Trainer:
                          + (f"; a sample supervised from its first frame primed backwards over {cfg.optim.prime} "
                             "frames, as the engine primes a clip" if cfg.optim.prime else "")
                          + ("; outputs whose window is whole trained against the init model's outputs (held), "
-                            "the edge frames against the truth" if cfg.optim.hold_whole_windows else ""),
+                            "the edge frames against the truth" if cfg.optim.hold_whole_windows else "")
+                         + ("; only the edge outputs in the loss (a model for a clip's edge frames)"
+                            if cfg.optim.edge_only else ""),
                 "loss": (f"{cfg.loss.l2:g} x " if cfg.loss.l2 != 1 else "") + f"mu-law (mu={cfg.loss.mu:g}) L2 + {cfg.loss.ssim:g} x (1 - SSIM) + {cfg.loss.edge:g} x "
                         f"gradient L1" + (f" + {cfg.loss.linear:g} x linear L1 relative to the sample's mean"
                                           if cfg.loss.linear > 0 else "")
