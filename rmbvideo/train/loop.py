@@ -194,11 +194,13 @@ def segment_losses(model: RmbNet, batch: Batch, tbptt: int, loss_config: LossCon
             frames = _encode_all(model, batch, lo, hi)
         cache: dict = {}
         state_in = state
+        # a segment that scores nothing (``edge_only``, mid-sample) runs for the state alone, without a graph
+        grad = torch.is_grad_enabled() and any(i in scored for i in range(first, last + 1))
         segment_loss = torch.zeros((), device=batch.i_s.device)
         parts = dict.fromkeys(LOSS_PARTS, 0.0)
         for i in range(first, last + 1):
             window = [frames[j - lo] for j in window_indices(i, w, count, slide)]
-            with torch.autocast(device, torch.bfloat16, enabled=bf16):
+            with torch.autocast(device, torch.bfloat16, enabled=bf16), torch.set_grad_enabled(grad):
                 t, state = model.step(window, state, cache, valid=window_valid(i, w, count, slide),
                                       convention=batch.convention,
                                       aligned=None if batch.i_a is None else batch.i_a[:, i])
