@@ -16,6 +16,7 @@ from rmbvideo.recon.methods import DEFAULT_METHOD, METHODS
 from rmbvideo.recon.run import CHUNK_BYTES, DEFAULT_RESOLUTION, RESOLUTIONS, run_reconstruction
 from rmbvideo.sensor.conventions import CONVENTIONS, RESPONSES
 from rmbvideo.sensor.readout import ReadoutMode
+from rmbvideo.shipped import EDGE_MODEL_KINDS
 
 log = logging.getLogger(__name__)
 
@@ -70,6 +71,10 @@ def rmbnet_options(func):
                      help="Frames after the first whose evidence RMB-Net's first frame reads through its recurrent "
                           "state, by running the network backwards over them once (0: the first frames start from "
                           "an empty state) [default: the model's w]."),
+        click.option("--edges", type=click.Choice(EDGE_MODEL_KINDS), default="auto", show_default=True,
+                     help="Who makes RMB-Net's first and last w frames of a clip, whose windows its edges cut: auto: "
+                          "the model's edge model where one is beside it (NAME-edges.safetensors: the default "
+                          "model has one), trained on those frames alone; off: the model itself."),
         click.option("--cuda-graphs/--no-cuda-graphs", default=True, show_default=True,
                      help="On a GPU, replay RMB-Net's ConvLSTM steps through a batched pass as CUDA graphs (the same "
                           "frames, fewer kernel launches)."),
@@ -147,13 +152,13 @@ def reconstruct(input_path: Path, outdir: Path, method: str, window, step, fmt: 
                 header_cols, rate_hz,
                 start_s: float, duration_s, chunk_planes: int, model, align: str, device: str,
                 upsampling: str, precision: str, threads, convention: str, response: str, frame_batch, prime,
-                cuda_graphs: bool, overwrite: bool, resume: bool,
+                edges: str, cuda_graphs: bool, overwrite: bool, resume: bool,
                 nits_per_unit,
                 quiet: bool) -> None:
     """Reconstruct a .dat capture INPUT into frames in OUTDIR."""
     extra = dict(model=model, align=align, device=device, upsampling=upsampling, precision=precision,
                  threads=threads, convention=convention, response=response, frame_batch=frame_batch, prime=prime,
-                 cuda_graphs=cuda_graphs)
+                 edges=edges, cuda_graphs=cuda_graphs)
     _warn_unread(click.get_current_context(), method, extra)
     summary = run_reconstruction(
         input_path, outdir, method=method, window=window, step=step, fmt=fmt, fps=fps,

@@ -99,7 +99,7 @@ METHODS: dict[str, Method] = {m.name: m for m in (
            "the raw stream's detail added (--resolution binned: half)", "half-width w", 3, (0, 3),
            fixed_readouts=10,
            extra_options=("model", "align", "device", "upsampling", "precision", "threads", "input_mode",
-                          "convention", "readout", "frame_batch", "prime", "cuda_graphs", "response")),
+                          "convention", "readout", "frame_batch", "prime", "cuda_graphs", "response", "edges")),
     Method("tfp", "rmbvideo.recon.classical:Tfp", "spikes",
            "mean of --window raw planes, full resolution", "raw planes", 41, (1, 20000)),
     Method("tfi", "rmbvideo.recon.classical:Tfi", "spikes",

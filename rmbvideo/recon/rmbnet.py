@@ -53,6 +53,7 @@ from rmbvideo.net.model import (
 from rmbvideo.recon.aligned_box import AlignedBoxConfig, aligned_window, network_input
 from rmbvideo.recon.aligned_batched import BatchedAlignedMean, BatchedAlignedWorker, Means, network_input_on_device
 from rmbvideo.recon.aligned_worker import AlignedMean, AlignedWorker, Ready
+from rmbvideo.recon.clip_edges import ClipEdges
 from rmbvideo.recon.precision import PRECISIONS, uses_bf16
 from rmbvideo.recon.prelim import MultiUpsampler, PreliminaryFrames, select_centre
 from rmbvideo.recon.recurrent_state import state_from_tensors, state_tensors
@@ -188,7 +189,9 @@ class RmbNetReconstructor:
     ``preliminary_beside``: the preliminary frames of a pushed chunk are made in a thread of their own while the network
     works on the chunk before (the same frames, a chunk later); None: on a GPU (``preliminary_beside_by_default``).
     ``response``: how a camera's rates are read back as light (``RESPONSES``; "emission-model" only for streams
-    rmbvideo simulated in the physical convention). ``n`` is the readouts per preliminary frame when RmbChunks are pushed (default: the model's N)
+    rmbvideo simulated in the physical convention). ``edge_model``: an RMB-Net (same w and N) that makes the clip's
+    first and last w frames, each edge as a clip of its own of 2w frames (``rmbvideo.recon.clip_edges``); the other
+    frames are ``model``'s, unchanged. ``n`` is the readouts per preliminary frame when RmbChunks are pushed (default: the model's N)
     and ``upsampler`` the band upsampler they go through (default: flow-free interpolation; see
     ``rmbvideo.recon.flow.FlowUpsampler``).
     """
@@ -210,6 +213,7 @@ class RmbNetReconstructor:
         cuda_graphs: bool = True,
         response: str = "closed-form",
         preliminary_beside: bool | None = None,
+        edge_model: RmbNet | None = None,
     ) -> None:
         if threads is not None and threads < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
@@ -225,6 +229,9 @@ class RmbNetReconstructor:
             raise ValueError(f"frame_batch must be >= 1, got {frame_batch}")
         if prime is not None and prime < 0:
             raise ValueError(f"prime must be >= 0, got {prime}")
+        if edge_model is not None and (edge_model.config.w, edge_model.config.n) != (model.config.w, model.config.n):
+            raise ValueError(f"the edge model's w = {edge_model.config.w}, N = {edge_model.config.n} differ from the "
+                             f"model's w = {model.config.w}, N = {model.config.n}")
         self._convention = float(CONVENTIONS.index(convention))
         self.device = resolve_device(device)
         self.model = model.to(self.device).eval()
@@ -270,6 +277,8 @@ class RmbNetReconstructor:
         self._restore: tuple[int, DecoderState] | None = None
         self._size: tuple[int, int] | None = None
         self.nonfinite_frames = 0
+        self._edge_model = None if edge_model is None else edge_model.to(self.device).eval()
+        self._edges = None if edge_model is None else ClipEdges(self._edge_run, self._w)
         #: seconds spent making preliminary frames, in the network (with its caches and state) and, for a
         #: model that reads it, on the aligned window mean (optical flow and warps; not in "network")
         self.stage_seconds = {"preliminary frames": 0.0, "network": 0.0}
@@ -278,13 +287,27 @@ class RmbNetReconstructor:
 
     @classmethod
     def from_file(
-        cls, path: str | Path, device: str = "auto", input_mode: str | None = None, **options
+        cls, path: str | Path, device: str = "auto", input_mode: str | None = None, edges: str = "auto", **options
     ) -> "RmbNetReconstructor":
-        """Load a safetensors model (see ``rmbvideo.net.weights``) and wrap it."""
+        """Load a safetensors model (see ``rmbvideo.net.weights``) and wrap it; with ``edges`` "auto", its edge model
+        beside it (``edge_model_path``) makes the clip's edge frames where there is one."""
+        from rmbvideo.errors import ModelError
         from rmbvideo.net.weights import load_model
+        from rmbvideo.shipped import EDGE_MODEL_KINDS, edge_model_path
 
+        if edges not in EDGE_MODEL_KINDS:
+            raise ValueError(f"edges must be one of {EDGE_MODEL_KINDS}, got {edges!r}")
         model, _card = load_model(path, expect_input_mode=input_mode, device=resolve_device(device))
-        return cls(model, device=device, **options)
+        edge_path = edge_model_path(path) if edges == "auto" else None
+        edge_model = None
+        if edge_path is not None:
+            edge_model, _card = load_model(edge_path, expect_input_mode=model.config.input_mode,
+                                           device=resolve_device(device))
+            if (edge_model.config.w, edge_model.config.n) != (model.config.w, model.config.n):
+                raise ModelError(f"{edge_path}: the edge model's w = {edge_model.config.w}, N = "
+                                 f"{edge_model.config.n} differ from {Path(path).name}'s w = {model.config.w}, "
+                                 f"N = {model.config.n}")
+        return cls(model, device=device, edge_model=edge_model, **options)
 
     def push(self, item: RmbChunk | PrelimLike | Iterable[PrelimLike]) -> list[Frame]:
         """Consume an RMB chunk or preliminary frames; return the frames that became complete."""
@@ -317,6 +340,17 @@ class RmbNetReconstructor:
         built over the frames before it: a resumed run's warm-up refills the windows, and this sets back the state's
         long memory, which a warm-up rebuilds only to about 1 % of the light on a few pixels."""
         self._restore = (after, state_from_tensors(tensors, self.device))
+
+    def _edge_run(self, frames: list[PrelimLike]) -> list[Frame]:
+        """The edge model's frames of ``frames`` run as a clip of their own (``ClipEdges``), with this run's settings."""
+        run = RmbNetReconstructor(
+            self._edge_model, device=self.device, align=self.align, precision="bf16" if self._autocast else "fp32",
+            n=self.n, threads=self._threads, convention=CONVENTIONS[int(self._convention)], frame_batch=1,
+            prime=self._prime, cuda_graphs=False,
+            response="emission-model" if self._net.tabulated_response else "closed-form", preliminary_beside=False)
+        made = run.push(frames) + run.flush()
+        self.nonfinite_frames += run.nonfinite_frames
+        return made
 
     def _preliminary_frames(self, task: Callable[[PreliminaryFrames], list[PrelimLike]] | None,
                             final: bool) -> list[PrelimLike]:
@@ -397,6 +431,8 @@ class RmbNetReconstructor:
         torch_threads, cv_threads = self._threads_for()
         with compute_threads(torch_threads, cv_threads), torch.inference_mode(), self._precision():
             self._accept(frames)
+            if self._edges is not None:
+                self._edges.see(frames)
             count = self._received if final else None
             if not self._primed and (final or self._ready(self._prime)):
                 self._prime_state(count)
@@ -430,7 +466,7 @@ class RmbNetReconstructor:
                     out.append(self._advance(run[0], count))
                 self._next_out = run[-1] + 1
                 self._evict(self._next_out)
-        return out
+            return out if self._edges is None else self._edges.edge_frames(out, final)
 
     def _restore_before(self, i: int) -> None:
         """Set the state ``resume_from`` gave before frame ``i`` when ``i`` is the frame after its own."""
@@ -666,6 +702,7 @@ def make_rmbnet(
     cuda_graphs: bool = True,
     response: str = "closed-form",
     preliminary_beside: bool | None = None,
+    edges: str = "auto",
 ) -> RmbNetReconstructor:
     """Pipeline factory for method "rmbnet": ``model`` is a .safetensors path; ``upsampling`` is
     "interp" (flow-free band interpolation) or a flow method ("dis", "farneback", "tvl1").
@@ -676,7 +713,8 @@ def make_rmbnet(
     convention input ignore it. ``readout``: without ``model``, the shipped model trained on that
     readout design (the default model's when None). ``frame_batch``: output frames per batched pass, ``prime``
     the frames the first state is primed over, ``cuda_graphs``, ``response`` and ``preliminary_beside``
-    (``RmbNetReconstructor``)."""
+    (``RmbNetReconstructor``); ``edges``: "auto" has the model's edge model (``edge_model_path``) make a clip's first
+    and last w frames where there is one, "off" the model itself."""
     from rmbvideo.errors import ModelError
     from rmbvideo.net.weights import default_model_path, shipped_model_with_window
     from rmbvideo.recon.flow import FlowUpsampler
@@ -688,7 +726,7 @@ def make_rmbnet(
     recon = RmbNetReconstructor.from_file(
         model, device=device, input_mode=input_mode, align=align, precision=precision, upsampler=upsampler,
         threads=threads, convention=convention, frame_batch=frame_batch, prime=prime, cuda_graphs=cuda_graphs,
-        response=response, preliminary_beside=preliminary_beside,
+        response=response, preliminary_beside=preliminary_beside, edges=edges,
     )
     if w is not None and recon.network.config.w != w:
         raise ModelError(f"{model}: the model's window half-width is w = {recon.network.config.w}, not {w}")

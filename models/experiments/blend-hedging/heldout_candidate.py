@@ -3,11 +3,13 @@ candidate, never to choose. Run from the repository root (each a few minutes on 
 
     python models/experiments/blend-hedging/heldout_candidate.py rows CANDIDATE.safetensors [zero|subtract]
     python models/experiments/blend-hedging/heldout_candidate.py edges CANDIDATE.safetensors
+    python models/experiments/blend-hedging/heldout_candidate.py edges edge-model
 
 ``rows``: the RMB-Net row of both models on the held-out synthetic and video sequences, as ``rmbvideo evaluate``
 scores them (``evaluate_rows``; ``subtract``: the cameras' pixels reset by subtraction, ``evaluate --reset
 subtract``); the baselines' rows do not depend on the model. ``edges``: the clip-edge check (``edge_report``, as
-``evaluate`` writes it into checks.md).
+``evaluate`` writes it into checks.md), of both models as they make their edge frames themselves (``--edges off``);
+with ``edge-model``, of the shipped model with ``--edges off`` and with its edge model (``rmbvideo.recon.clip_edges``).
 """
 
 import sys
@@ -30,13 +32,16 @@ def rows(candidate: str, reset: str = "zero") -> None:
 
 
 def edges(candidate: str) -> None:
+    shipped = default_model_path()
+    runs = ([("the model", shipped, "off"), ("its edge model", shipped, "auto")] if candidate == "edge-model"
+            else [(str(shipped), shipped, "off"), (candidate, Path(candidate), "off")])
     print("| sequence | model | first: dB below median | last | first: offset ms | last | middle "
           "| edge cost as first frame (dB) | as last |")
     print("|---|---|---:|---:|---:|---:|---:|---:|---:|")
     for seq in load_video_heldout(False):
-        for model in (default_model_path(), Path(candidate)):
-            r = edge_report(seq, "rmbnet", {"model": model, "threads": 1})
-            print(f"| {seq.name} | {model} | {r.first_drop_db:.2f} | {r.last_drop_db:.2f} | {r.first_offset_ms:+.2f} "
+        for label, model, edge_setting in runs:
+            r = edge_report(seq, "rmbnet", {"model": model, "threads": 1, "edges": edge_setting})
+            print(f"| {seq.name} | {label} | {r.first_drop_db:.2f} | {r.last_drop_db:.2f} | {r.first_offset_ms:+.2f} "
                   f"| {r.last_offset_ms:+.2f} | {r.middle_offset_ms:+.2f} | {r.first_edge_cost_db:.2f} "
                   f"| {r.last_edge_cost_db:.2f} |", flush=True)
 
