@@ -3,6 +3,12 @@ many clips of each video kind, drawn from seeds neither the held-out set (index 
 (index 7) uses, so a miss on one held-out clip can be read against the spread of the kind.
 
     python models/experiments/edge-timing/spread.py [KIND ...] [--clips N]   # default: fast-dark dark, 8 clips
+    python models/experiments/edge-timing/spread.py KIND ... --model M.safetensors --out NAME.json
+
+``--model``: another weight file than the shipped default (with its edge model where one is beside it, as the engine
+uses it: ``rmbvideo.recon.clip_edges``), its figures in ``--out`` beside this script instead of ``spread.json``.
+``--compare A.json B.json``: B's figures against A's, clip by clip (the mean change and how many clips gain), and
+each one's targets met.
 
 Prints per clip, and per kind the mean and standard error, of: the last and first frame's time offset against
 the middle frame's (ms; the target is within 0.2 ms) and the edge costs (dB). Writes ``spread.json`` beside itself.
@@ -34,22 +40,30 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("kinds", nargs="*", default=["fast-dark", "dark"])
     parser.add_argument("--clips", type=int, default=8)
+    parser.add_argument("--model", default=None)
+    parser.add_argument("--out", default=OUT.name)
+    parser.add_argument("--compare", nargs=2, default=None)
     args = parser.parse_args()
+    if args.compare:
+        compare(*(json.loads(OUT.with_name(name).read_text()) for name in args.compare))
+        return
     torch.set_num_threads(1)
-    results = json.loads(OUT.read_text()) if OUT.is_file() else {}
+    out = OUT.with_name(args.out)
+    options = {"threads": 1, "input_mode": "binned", **({"model": args.model} if args.model else {})}
+    results = json.loads(out.read_text()) if out.is_file() else {}
     for kind in args.kinds:
         rows = results.setdefault(kind, {})
         for seq in load_video_heldout(False, per_kind=args.clips, first=FIRST_INDEX, kinds={kind}):
             if seq.name in rows:
                 continue
-            r = edge_report(seq, "rmbnet", {"threads": 1, "input_mode": "binned"})
+            r = edge_report(seq, "rmbnet", options)
             rows[seq.name] = {"last_offset_ms": r.last_offset_ms - r.middle_offset_ms,
                               "first_offset_ms": r.first_offset_ms - r.middle_offset_ms,
                               "middle_offset_ms": r.middle_offset_ms,
                               "first_drop_db": r.first_drop_db, "last_drop_db": r.last_drop_db,
                               "first_edge_cost_db": r.first_edge_cost_db, "last_edge_cost_db": r.last_edge_cost_db}
             print(seq.name, {key: round(v, 3) for key, v in rows[seq.name].items()}, flush=True)
-            OUT.write_text(json.dumps(results, indent=1) + "\n")
+            out.write_text(json.dumps(results, indent=1) + "\n")
         for key in ("last_offset_ms", "first_offset_ms", "first_edge_cost_db", "last_edge_cost_db",
                     "first_drop_db", "last_drop_db"):
             print(f"{kind} {key}: {summary([row[key] for row in rows.values()])}")
@@ -67,6 +81,21 @@ def overall(results: dict) -> None:
         within = sum(measure(v) <= limit + 1e-9 for v in values)
         worst = max(values, key=measure)
         print(f"all kinds, edge frames {label}: {within} of {len(values)} (worst {worst:+.2f})")
+
+
+def compare(base: dict, other: dict) -> None:
+    """``other``'s figures against ``base``'s on the clips both scored: per figure the mean change, and on how many clips
+    the edge frame is nearer its target (a smaller drop, cost or absolute offset); then each one's targets met."""
+    keys = [(kind, name) for kind in base for name in base[kind] if name in other.get(kind, {})]
+    for key in ("first_drop_db", "last_drop_db", "first_edge_cost_db", "last_edge_cost_db", "first_offset_ms",
+                "last_offset_ms"):
+        measure = abs if key.endswith("_ms") else float
+        changes = [measure(other[k][n][key]) - measure(base[k][n][key]) for k, n in keys]
+        print(f"{key}: mean change {sum(changes) / len(changes):+.3f}, nearer on {sum(c < 0 for c in changes)}, "
+              f"farther on {sum(c > 0 for c in changes)} of {len(changes)}")
+    for label, results in (("base", base), ("other", other)):
+        print(label)
+        overall({kind: {n: results[kind][n] for k, n in keys if k == kind} for kind in results})
 
 
 if __name__ == "__main__":
