@@ -1,6 +1,6 @@
-"""A clip's edge frames by an edge model of their own (``rmbvideo.recon.clip_edges``): the first and last w frames are
-the edge model's run over the clip's first and last 2w frames as clips of their own, every other frame the default
-model's bit for bit, whatever the chunks; the edge model beside a weight file is found and checked."""
+"""A clip's edge frames with an edge model of their own (``rmbvideo.recon.clip_edges``): the first and last w frames mix
+in the edge model's run over the clip's first and last 2w frames as clips of their own, every other frame is the
+default model's bit for bit, whatever the chunks; the edge model beside a weight file is found and checked."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from rmbvideo.errors import ModelError
 from rmbvideo.net.config import RmbNetConfig
 from rmbvideo.net.model import RmbNet
 from rmbvideo.net.weights import ModelCard, save_model
+from rmbvideo.recon.clip_edges import EDGE_MIX
 from rmbvideo.recon.prelim import PreliminaryFrames
 from rmbvideo.recon.rmbnet import RmbNetReconstructor
 from rmbvideo.shipped import edge_model_path
@@ -30,6 +31,12 @@ def run(model: RmbNet, items: list, **kw) -> list:
     return [f for item in items for f in engine.push(item)] + engine.flush()
 
 
+def mixed(model_frames: list, edge_frames: list) -> list[np.ndarray]:
+    """The edge frames the engine makes: the model's with the edge model's mixed in."""
+    return [((1 - EDGE_MIX) * a.image + EDGE_MIX * b.image).astype(np.float32)
+            for a, b in zip(model_frames, edge_frames)]
+
+
 def prelim_frames(readouts: int) -> list:
     prelim = PreliminaryFrames(n=10)
     data = rmb_stream(readouts)
@@ -43,33 +50,33 @@ def test_edge_frames_are_the_edge_models_clips_and_the_rest_the_models_whatever_
     count = len(frames)
     assert count == 9 > 2 * W
     alone = run(model, [frames], prime=prime)
-    first = run(edge, [frames[: 2 * W]], prime=prime)[:W]
-    last = run(edge, [frames[-2 * W:]], prime=prime)[-W:]
-    expected = first + alone[W:count - W] + last
+    first = mixed(alone[:W], run(edge, [frames[: 2 * W]], prime=prime)[:W])
+    last = mixed(alone[-W:], run(edge, [frames[-2 * W:]], prime=prime)[-W:])
+    expected = first + [f.image for f in alone[W:count - W]] + last
     data = rmb_stream(95)
     for chunks in (split(data, 1), split(data, 7), [data]):  # encodings batched otherwise: float rounding apart
         made = run(model, chunks, prime=prime, edge_model=edge)
         assert [f.index for f in made] == [p.index for p in frames]
         assert [f.time_s for f in made] == [p.time_s for p in frames]
         for got, want in zip(made, expected):
-            np.testing.assert_allclose(got.image, want.image, rtol=1e-5, atol=1e-7)
+            np.testing.assert_allclose(got.image, want, rtol=1e-5, atol=1e-7)
     made = run(model, [frames], prime=prime, edge_model=edge)
     for got, want in zip(made, expected):  # the frames pushed as the references were made: bit for bit
-        np.testing.assert_array_equal(got.image, want.image)
+        np.testing.assert_array_equal(got.image, want)
     for k in (0, count - 1):  # the edge model's frames are not the model's
         assert not np.array_equal(made[k].image, alone[k].image)
 
 
 @pytest.mark.parametrize("readouts", [10, 35, 40])
-def test_a_clip_of_2w_frames_or_fewer_is_the_edge_models_run(readouts):
+def test_every_frame_of_a_clip_of_2w_frames_or_fewer_mixes_in_the_edge_models_run(readouts):
     model, edge = net(0), net(1)
     frames = prelim_frames(readouts)
     assert len(frames) <= 2 * W
-    made = run(model, [rmb_stream(readouts)], edge_model=edge)
-    reference = run(edge, [frames])
-    assert [f.index for f in made] == [f.index for f in reference]
-    for got, want in zip(made, reference):
-        np.testing.assert_array_equal(got.image, want.image)
+    made = run(model, [frames], edge_model=edge)
+    alone, reference = run(model, [frames]), run(edge, [frames])
+    assert [f.index for f in made] == [f.index for f in reference] == [f.index for f in alone]
+    for got, want in zip(made, mixed(alone, reference)):
+        np.testing.assert_array_equal(got.image, want)
 
 
 def test_edge_model_must_share_the_models_window_and_readouts():
