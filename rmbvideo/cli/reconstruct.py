@@ -72,9 +72,10 @@ def rmbnet_options(func):
                           "state, by running the network backwards over them once (0: the first frames start from "
                           "an empty state) [default: the model's w]."),
         click.option("--edges", type=click.Choice(EDGE_MODEL_KINDS), default="auto", show_default=True,
-                     help="Who makes RMB-Net's first and last w frames of a clip, whose windows its edges cut: auto: "
-                          "the model's edge model where one is beside it (NAME-edges.safetensors: the default "
-                          "model has one), trained on those frames alone; off: the model itself."),
+                     help="RMB-Net's first and last w frames of a clip, whose windows its edges cut: auto: mixed half "
+                          "and half with those of the model's edge model where one is beside it "
+                          "(NAME-edges.safetensors, trained on those frames alone: the default model has one); off: "
+                          "the model's alone."),
         click.option("--cuda-graphs/--no-cuda-graphs", default=True, show_default=True,
                      help="On a GPU, replay RMB-Net's ConvLSTM steps through a batched pass as CUDA graphs (the same "
                           "frames, fewer kernel launches)."),
