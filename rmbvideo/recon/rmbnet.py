@@ -82,6 +82,10 @@ class PrelimLike(Protocol):
     i_c: np.ndarray | None
 
 
+class EdgeModelMismatch(ValueError):
+    """An edge model whose window (w) or readouts per frame (N) are not its model's."""
+
+
 def inference_copy(model: RmbNet, bf16: bool = False) -> RmbNet:
     """An eval-mode copy of ``model`` for fast inference: each BatchNorm folded into the conv before it
     (same function, one pass less over the features), NHWC (channels-last) weights, which oneDNN runs about
@@ -230,8 +234,8 @@ class RmbNetReconstructor:
         if prime is not None and prime < 0:
             raise ValueError(f"prime must be >= 0, got {prime}")
         if edge_model is not None and (edge_model.config.w, edge_model.config.n) != (model.config.w, model.config.n):
-            raise ValueError(f"the edge model's w = {edge_model.config.w}, N = {edge_model.config.n} differ from the "
-                             f"model's w = {model.config.w}, N = {model.config.n}")
+            raise EdgeModelMismatch(f"the edge model's w = {edge_model.config.w}, N = {edge_model.config.n} differ "
+                                    f"from those (w = {model.config.w}, N = {model.config.n})")
         self._convention = float(CONVENTIONS.index(convention))
         self.device = resolve_device(device)
         self.model = model.to(self.device).eval()
@@ -299,15 +303,14 @@ class RmbNetReconstructor:
             raise ValueError(f"edges must be one of {EDGE_MODEL_KINDS}, got {edges!r}")
         model, _card = load_model(path, expect_input_mode=input_mode, device=resolve_device(device))
         edge_path = edge_model_path(path) if edges == "auto" else None
-        edge_model = None
-        if edge_path is not None:
-            edge_model, _card = load_model(edge_path, expect_input_mode=model.config.input_mode,
-                                           device=resolve_device(device))
-            if (edge_model.config.w, edge_model.config.n) != (model.config.w, model.config.n):
-                raise ModelError(f"{edge_path}: the edge model's w = {edge_model.config.w}, N = "
-                                 f"{edge_model.config.n} differ from {Path(path).name}'s w = {model.config.w}, "
-                                 f"N = {model.config.n}")
-        return cls(model, device=device, edge_model=edge_model, **options)
+        if edge_path is None:
+            return cls(model, device=device, **options)
+        edge_model, _card = load_model(edge_path, expect_input_mode=model.config.input_mode,
+                                       device=resolve_device(device))
+        try:
+            return cls(model, device=device, edge_model=edge_model, **options)
+        except EdgeModelMismatch as exc:
+            raise ModelError(f"{edge_path}: {exc} of {Path(path).name}") from None
 
     def push(self, item: RmbChunk | PrelimLike | Iterable[PrelimLike]) -> list[Frame]:
         """Consume an RMB chunk or preliminary frames; return the frames that became complete."""
